@@ -1,0 +1,355 @@
+"""Numerical kernels of the 11-element chain: dynamics, Jacobian, Rosenbrock step.
+
+Written in the subset of NumPy that Numba compiles. With Numba installed the
+kernels are compiled to machine code on first use (the 1 ms plant step then
+costs tens of microseconds instead of hundreds); without it they run as plain
+NumPy with identical mathematics. Set ``FLEXARM_NO_NUMBA=1`` to force the
+NumPy path.
+
+Arguments common to all kernels
+-------------------------------
+theta, omega : (n,) absolute element angles (rad) and rates (rad/s)
+tau : (2,) joint torques (N·m)
+mc : (n, n) constant mass coefficients M_jk (kg·m²)
+kl : (n, n) Laplacian stiffness matrix (N·m/rad)
+j2p, j2d : elements (0-based) that the joint-2 torque acts between
+    (reaction on j2p, action on j2d); the joint-1 torque acts on element 0.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+HAVE_NUMBA = False
+if not os.environ.get("FLEXARM_NO_NUMBA"):
+    try:
+        from numba import njit
+
+        HAVE_NUMBA = True
+    except ImportError:  # the FMUs must run with numpy/scipy only
+        pass
+
+
+def _jit(func):
+    if HAVE_NUMBA:
+        return njit(cache=True, nogil=True)(func)
+    return func
+
+
+# Small dense linear algebra. Compiled, hand-written loops beat a LAPACK call
+# (with its checks, copies and temporaries) several times over at n = 11;
+# the NumPy path keeps LAPACK.
+if HAVE_NUMBA:
+
+    @_jit
+    def _cholesky(a):
+        n = a.shape[0]
+        low = np.zeros((n, n))
+        for j in range(n):
+            d = a[j, j]
+            for k in range(j):
+                d -= low[j, k] * low[j, k]
+            if d <= 0.0:
+                raise ValueError("mass matrix not positive definite")
+            low[j, j] = np.sqrt(d)
+            for i in range(j + 1, n):
+                s = a[i, j]
+                for k in range(j):
+                    s -= low[i, k] * low[j, k]
+                low[i, j] = s / low[j, j]
+        return low
+
+    @_jit
+    def _cholesky_substitute(low, x):
+        n = low.shape[0]
+        for i in range(n):
+            for k in range(i):
+                x[i] -= low[i, k] * x[k]
+            x[i] /= low[i, i]
+        for i in range(n - 1, -1, -1):
+            for k in range(i + 1, n):
+                x[i] -= low[k, i] * x[k]
+            x[i] /= low[i, i]
+
+    @_jit
+    def spd_solve(a, b):
+        """Solve a x = b, a symmetric positive definite (n, n), b (n,)."""
+        x = b.copy()
+        _cholesky_substitute(_cholesky(a), x)
+        return x
+
+    @_jit
+    def spd_solve_columns(a, b):
+        """Solve a X = B, a symmetric positive definite (n, n), B (n, k)."""
+        low = _cholesky(a)
+        out = np.empty_like(b)
+        col = np.empty(b.shape[0])
+        for j in range(b.shape[1]):
+            for i in range(b.shape[0]):
+                col[i] = b[i, j]
+            _cholesky_substitute(low, col)
+            for i in range(b.shape[0]):
+                out[i, j] = col[i]
+        return out
+
+    @_jit
+    def lu_factor(a):
+        """LU factors with partial pivoting of a square matrix: (lu, pivots)."""
+        n = a.shape[0]
+        lu = a.copy()
+        piv = np.arange(n)
+        for k in range(n):
+            p = k
+            big = abs(lu[k, k])
+            for i in range(k + 1, n):
+                if abs(lu[i, k]) > big:
+                    big = abs(lu[i, k])
+                    p = i
+            if big == 0.0:
+                raise ValueError("singular stage matrix")
+            if p != k:
+                for j in range(n):
+                    tmp = lu[k, j]
+                    lu[k, j] = lu[p, j]
+                    lu[p, j] = tmp
+                tmp_i = piv[k]
+                piv[k] = piv[p]
+                piv[p] = tmp_i
+            for i in range(k + 1, n):
+                lu[i, k] /= lu[k, k]
+                f = lu[i, k]
+                for j in range(k + 1, n):
+                    lu[i, j] -= f * lu[k, j]
+        return lu, piv
+
+    @_jit
+    def lu_solve(lu, piv, b):
+        """Solve with the factors of :func:`lu_factor`; b shape (n,)."""
+        n = lu.shape[0]
+        x = np.empty(n)
+        for i in range(n):
+            x[i] = b[piv[i]]
+        for i in range(n):
+            for k in range(i):
+                x[i] -= lu[i, k] * x[k]
+        for i in range(n - 1, -1, -1):
+            for k in range(i + 1, n):
+                x[i] -= lu[i, k] * x[k]
+            x[i] /= lu[i, i]
+        return x
+
+else:
+
+    def spd_solve(a, b):
+        """Solve a x = b for symmetric positive definite a (NumPy path)."""
+        return np.linalg.solve(a, b)
+
+    spd_solve_columns = spd_solve
+
+    def lu_factor(a):
+        """NumPy path: the inverse stands in for the factors (n = 11, reused six times)."""
+        return np.linalg.inv(a), np.arange(a.shape[0])
+
+    def lu_solve(lu, piv, b):
+        return lu @ b
+
+
+@_jit
+def trig_differences(theta):
+    """cos(θ_i − θ_j) and sin(θ_i − θ_j) from 2n trigonometric calls, shape (n, n) each."""
+    c = np.cos(theta)
+    s = np.sin(theta)
+    cosd = np.outer(c, c) + np.outer(s, s)
+    sind = np.outer(s, c) - np.outer(c, s)
+    return cosd, sind
+
+
+# Assembly of M(θ), the right-hand side and the tangent matrices. Numba gets
+# fused loops (one pass, no temporaries: 4x cheaper at n = 11); NumPy gets the
+# same formulas vectorised.
+if HAVE_NUMBA:
+
+    @_jit
+    def assemble(theta, omega, mc, kl):
+        """M(θ) (n, n), S(θ, θ̇) (n,), cos(θ_i−θ_j) and sin(θ_i−θ_j) (n, n)."""
+        n = theta.shape[0]
+        c = np.cos(theta)
+        s = np.sin(theta)
+        mass = np.empty((n, n))
+        cosd = np.empty((n, n))
+        sind = np.empty((n, n))
+        rhs = np.zeros(n)
+        for i in range(n):
+            acc = 0.0
+            for j in range(n):
+                cd = c[i] * c[j] + s[i] * s[j]
+                sd = s[i] * c[j] - c[i] * s[j]
+                cosd[i, j] = cd
+                sind[i, j] = sd
+                mass[i, j] = mc[i, j] * cd
+                acc += kl[i, j] * sd - mc[i, j] * sd * omega[j] * omega[j]
+            rhs[i] = acc
+        return mass, rhs, cosd, sind
+
+    @_jit
+    def tangent_matrices(mc, kl, cosd, sind, omega, acc):
+        """∂(S − Mθ̈)/∂θ and ∂S/∂θ̇ at fixed θ̈, each (n, n)."""
+        n = omega.shape[0]
+        q = np.empty((n, n))
+        v = np.empty((n, n))
+        for i in range(n):
+            row = 0.0
+            for j in range(n):
+                if i == j:
+                    v[i, j] = 0.0
+                    continue
+                e = (mc[i, j] * omega[j] * omega[j] - kl[i, j]) * cosd[i, j] - mc[i, j] * sind[i, j] * acc[j]
+                q[i, j] = e
+                row += e
+                v[i, j] = -2.0 * mc[i, j] * sind[i, j] * omega[j]
+            q[i, i] = -row
+        return q, v
+
+else:
+
+    def assemble(theta, omega, mc, kl):
+        """M(θ) (n, n), S(θ, θ̇) (n,), cos(θ_i−θ_j) and sin(θ_i−θ_j) (n, n)."""
+        cosd, sind = trig_differences(theta)
+        rhs = -(mc * sind) @ (omega * omega) + (kl * sind).sum(axis=1)
+        return mc * cosd, rhs, cosd, sind
+
+    def tangent_matrices(mc, kl, cosd, sind, omega, acc):
+        """∂(S − Mθ̈)/∂θ and ∂S/∂θ̇ at fixed θ̈, each (n, n)."""
+        q = (mc * omega**2 - kl) * cosd - mc * sind * acc
+        np.fill_diagonal(q, 0.0)
+        q[np.diag_indices_from(q)] = -q.sum(axis=1)
+        v = -2.0 * mc * sind * omega
+        return q, v
+
+
+@_jit
+def input_forces(tau, n, j2p, j2d):
+    """Generalised forces B̄τ on the absolute angles, shape (n,)."""
+    u = np.zeros(n)
+    u[0] += tau[0]
+    u[j2d] += tau[1]
+    u[j2p] -= tau[1]
+    return u
+
+
+@_jit
+def acceleration(theta, omega, tau, mc, kl, j2p, j2d):
+    """θ̈ = M(θ)⁻¹ (S(θ, θ̇) + B̄τ) (eq. 5), rad/s², shape (n,).
+
+    S_i = Σ_j M_ij sin(θ_j − θ_i) θ̇_j² + Σ_j K_ij sin(θ_i − θ_j)   (eq. 8).
+    """
+    mass, rhs, _, _ = assemble(theta, omega, mc, kl)
+    return spd_solve(mass, rhs + input_forces(tau, theta.shape[0], j2p, j2d))
+
+
+@_jit
+def state_derivative(z, tau, mc, kl, j2p, j2d):
+    """ż = f(z) + g(z)τ (eq. 7), shape (2n,)."""
+    n = z.shape[0] // 2
+    out = np.empty_like(z)
+    out[:n] = z[n:]
+    out[n:] = acceleration(z[:n], z[n:], tau, mc, kl, j2p, j2d)
+    return out
+
+
+@_jit
+def acceleration_jacobian(theta, omega, tau, mc, kl, j2p, j2d):
+    """∂θ̈/∂θ and ∂θ̈/∂θ̇ at (θ, θ̇, τ), each shape (n, n); also returns θ̈.
+
+    Differentiates M(θ)θ̈ = S(θ, θ̇) + B̄τ implicitly (eq. 14 with the
+    appendix gradients, including the torque term):
+    ∂θ̈/∂z = M⁻¹ (∂S/∂z − ∂M/∂z θ̈).
+    """
+    mass, rhs, cosd, sind = assemble(theta, omega, mc, kl)
+    n = theta.shape[0]
+    acc = spd_solve(mass, rhs + input_forces(tau, n, j2p, j2d))
+    q, v = tangent_matrices(mc, kl, cosd, sind, omega, acc)
+    both = np.empty((n, 2 * n))
+    both[:, :n] = q
+    both[:, n:] = v
+    sol = spd_solve_columns(mass, both)
+    return np.ascontiguousarray(sol[:, :n]), np.ascontiguousarray(sol[:, n:]), acc
+
+
+# RODAS4 (Hairer & Wanner, Solving ODEs II, section IV.7; coefficients of
+# rodas.f): 6 stages, order 4 with an embedded order-3 estimate, L-stable and
+# stiffly accurate, so the bracket modes (tens of kHz) are damped rather than
+# resolved, and the solution is the last stage value.
+RODAS4_GAMMA = 0.25
+RODAS4_A = np.array([
+    [0.0, 0.0, 0.0, 0.0],
+    [1.544, 0.0, 0.0, 0.0],
+    [0.9466785280815826, 0.2557011698983284, 0.0, 0.0],
+    [3.314825187068521, 2.896124015972201, 0.9986419139977817, 0.0],
+    [1.221224509226641, 6.019134481288629, 12.53708332932087, -0.6878860361058950],
+])
+RODAS4_C = np.array([
+    [0.0, 0.0, 0.0, 0.0, 0.0],
+    [-5.6688, 0.0, 0.0, 0.0, 0.0],
+    [-2.430093356833875, -0.2063599157091915, 0.0, 0.0, 0.0],
+    [-0.1073529058151375, -9.594562251023355, -20.47028614809616, 0.0, 0.0],
+    [7.496443313967647, -10.24680431464352, -33.99990352819905, 11.70890893206160, 0.0],
+    [8.083246795921522, -7.981132988064893, -31.52159432874371, 16.31930543123136, -6.058818238834054],
+])
+
+
+@_jit
+def rodas4_step(z, tau, h, mc, kl, j2p, j2d, coef_a, coef_c, gamma):
+    """One RODAS4 step of size h (s) with constant torque; returns (z_new, error_estimate).
+
+    The stage systems (I/(γh) − J) k = r are reduced with the second-order
+    structure J = [[0, I], [A_θ, A_ω]] to one n×n matrix
+    W = g² I − g A_ω − A_θ (g = 1/(γh)), factored once per step.
+    """
+    n = z.shape[0] // 2
+    theta = z[:n]
+    omega = z[n:]
+    a_th, a_om, acc = acceleration_jacobian(theta, omega, tau, mc, kl, j2p, j2d)
+    g = 1.0 / (gamma * h)
+    w = -g * a_om - a_th
+    for i in range(n):
+        w[i, i] += g * g
+    w_lu, w_piv = lu_factor(w)
+    ks = np.zeros((6, 2 * n))
+    f = np.empty(2 * n)
+    f[:n] = omega
+    f[n:] = acc
+    u = z.copy()
+    for stage in range(6):
+        if stage > 0:
+            if stage < 5:
+                u = z.copy()
+                for j in range(stage):
+                    u += coef_a[stage, j] * ks[j]
+            else:
+                u = u + ks[4]
+            f = state_derivative(u, tau, mc, kl, j2p, j2d)
+            for j in range(stage):
+                f += (coef_c[stage, j] / h) * ks[j]
+        r_th = f[:n]
+        r_om = f[n:]
+        k_th = lu_solve(w_lu, w_piv, r_om + g * r_th - a_om @ r_th)
+        ks[stage, :n] = k_th
+        ks[stage, n:] = g * k_th - r_th
+    z_new = u + ks[5]
+    return z_new, ks[5].copy()
+
+
+@_jit
+def advance(z, tau, dt, substeps, mc, kl, j2p, j2d, coef_a, coef_c, gamma):
+    """Advance by dt (s) with constant torque in `substeps` equal RODAS4 steps.
+
+    Returns (z_new, max_abs_error_estimate)."""
+    h = dt / substeps
+    err = 0.0
+    for _ in range(substeps):
+        z, e = rodas4_step(z, tau, h, mc, kl, j2p, j2d, coef_a, coef_c, gamma)
+        err = max(err, np.max(np.abs(e)))
+    return z, err
