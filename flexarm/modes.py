@@ -11,7 +11,7 @@ from .model import N, ArmModel, rigid_configuration
 from .parameters import JOINT2_PAIR
 
 # Springs (0-based element pairs) that belong to each link's flexible part.
-_LINK1_SPRINGS = {(1, 2), (2, 3), (3, 4), (4, 5)}
+_LINK1_SPRINGS = {(1, 2), (2, 3), (3, 4)}
 _LINK2_SPRINGS = {(7, 8), (8, 9), (9, 10)}
 
 

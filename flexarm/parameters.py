@@ -332,22 +332,24 @@ def build_from_design(design: dict, unknowns: dict[str, float]) -> tuple[ArmPara
     for i, el in enumerate(elements):
         records.append({"kind": "element", "index": i + 1, "name": ELEMENT_NAMES[i], **el})
 
-    # Springs. Each spring lumps the compliance of the beam length it stands
-    # for (Hencky bar chain): a/2 at a clamped end, a between segments; a
-    # bracket's own flexure (EI_b, length l_b) sits at its proximal hinge.
+    # Springs. The strain gauge of each link segment reads the spring at the
+    # segment's proximal hinge (eqs. 23-31), so each link has three springs,
+    # Hencky bar chain: 2EI/a at the clamped root (half a segment of beam),
+    # EI/a between segments. Each bracket's flexure (EI_b over its length) is
+    # the spring at its hinge to the neighbouring link, so θ_2 ≈ θ_1,
+    # θ_6 ≈ θ_5 and θ_8 ≈ θ_7 to micro-radians, as eqs. 22, 26, 28 assume.
     EIb = p["bracket_EI_Nm2"]
     a1 = p["link1_flexible_length_m"] / nseg
     a2 = p["link2_flexible_length_m"] / nseg
     EI1, EI2 = p["link1_EI_Nm2"], p["link2_EI_Nm2"]
     springs = [
         ((1, 2), EIb / lb, "EI_bracket / l_bracket (bracket-1 flexure)"),
-        ((2, 3), 2 * EI1 / a1, "2 EI1 / a1 (link-1 root, half segment clamped in bracket 1)"),
+        ((2, 3), 2 * EI1 / a1, "2 EI1 / a1 (link-1 root: half a segment clamped in bracket 1)"),
         ((3, 4), EI1 / a1, "EI1 / a1"),
         ((4, 5), EI1 / a1, "EI1 / a1"),
-        ((5, 6), 1.0 / (a1 / (2 * EI1) + lb / EIb),
-         "1 / (a1/(2 EI1) + l_bracket/EI_bracket) (link-1 tip clamped in bracket 2, in series with its flexure)"),
+        ((5, 6), EIb / lb, "EI_bracket / l_bracket (bracket-2 flexure at the link-1 tip)"),
         ((7, 8), EIb / lb, "EI_bracket / l_bracket (bracket-3 flexure)"),
-        ((8, 9), 2 * EI2 / a2, "2 EI2 / a2 (link-2 root, half segment clamped in bracket 3)"),
+        ((8, 9), 2 * EI2 / a2, "2 EI2 / a2 (link-2 root: half a segment clamped in bracket 3)"),
         ((9, 10), EI2 / a2, "EI2 / a2"),
         ((10, 11), EI2 / a2, "EI2 / a2"),
     ]
