@@ -5,7 +5,14 @@ kinematics), :mod:`modes` (modal analysis), :mod:`integrator` (1 ms plant
 step), :mod:`calibration` (fit the unknown parameters).
 """
 
-from .model import ArmModel, joint_angles, joint_velocities, reconstruct_angles, rigid_configuration, strain_gauge_angles
+from .model import (
+    ArmModel,
+    joint_angles,
+    joint_velocities,
+    reconstruct_angles,
+    rigid_configuration,
+    strain_gauge_angles,
+)
 from .parameters import ArmParameters, ParameterError, load_parameters
 
 __all__ = [

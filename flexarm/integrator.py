@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _kernels as kern
-from .model import N, N_STATE, ArmModel
+from .model import N_STATE, ArmModel, N
 
 #: Default RODAS4 substeps per 1 ms communication step (see README: accuracy).
 DEFAULT_SUBSTEPS = 2

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from .model import N, ArmModel, rigid_configuration
+from .model import ArmModel, N, rigid_configuration
 from .parameters import JOINT2_PAIR
 
 # Springs (0-based element pairs) that belong to each link's flexible part.

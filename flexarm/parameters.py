@@ -388,11 +388,13 @@ def write_parameter_file(path: str | os.PathLike, params: ArmParameters, records
     """Write a complete parameter file atomically (temporary file, then rename)."""
     lines = [f"# {line}" if line else "#" for line in header.splitlines()]
     lines += ["", "[motors]",
-              f"peak_torque_Nm = {{ value = [{_fmt(params.peak_torque[0])}, {_fmt(params.peak_torque[1])}], source = \"paper\" }}",
+              f"peak_torque_Nm = {{ value = [{_fmt(params.peak_torque[0])}, {_fmt(params.peak_torque[1])}], "
+              "source = \"paper\" }",
               f"torque_limit_fraction = {{ value = {_fmt(params.torque_limit_fraction)}, source = \"paper\" }}",
               "", "[line]",
               "# Straight tip line of the slew: chosen (not in the paper), see the design file.",
-              f"start_m = {{ value = [{_fmt(params.line_start[0])}, {_fmt(params.line_start[1])}], source = \"chosen\" }}",
+              f"start_m = {{ value = [{_fmt(params.line_start[0])}, {_fmt(params.line_start[1])}], "
+              "source = \"chosen\" }",
               f"end_m = {{ value = [{_fmt(params.line_end[0])}, {_fmt(params.line_end[1])}], source = \"chosen\" }}",
               "", "[payload]",
               "# Extra tip mass (the paper's 0.275 kg model error). Scenarios override it.",
