@@ -2,7 +2,8 @@
 
 Modules: :mod:`parameters` (parameter files), :mod:`model` (dynamics and
 kinematics), :mod:`modes` (modal analysis), :mod:`integrator` (1 ms plant
-step), :mod:`calibration` (fit the unknown parameters).
+step), :mod:`calibration` (fit the unknown parameters), :mod:`sensors`
+(encoders, tachometers, strain gauges, accelerometers, filters, noise).
 """
 
 from .model import (

@@ -1,0 +1,590 @@
+"""Sensor models of the Sandia arm (paper section 6) as a plain stepping library.
+
+The bank reads the plant's true signals once per sample (1 ms) and returns
+what the controller's VMEbus computer would see:
+
+=========  ===========================  ============================================
+channel    true signal                  measurement chain
+=========  ===========================  ============================================
+encoders   q1 = θ1, q2 = θ7 − θ6        + noise → counter quantisation
+tachos     q̇1, q̇2                      + noise → 12-bit A/D
+gauges     ε_1,1 … ε_2,3 (eqs. 23-31)   low-pass → + noise → 12-bit A/D
+accels     tip acceleration ⟂ link      low-pass → + noise → 12-bit A/D
+=========  ===========================  ============================================
+
+Every stage is switchable (:class:`SensorSettings`); with filters, noise and
+quantisation off the bank returns the true signals exactly.
+
+Choices (the paper is silent; defaults in ``flexarm/data/sensors_default.toml``):
+
+* **Filters.** The hardware has analogue 100 Hz (gauges) and 10 Hz
+  (accelerometers) low-pass filters of unstated type. We use Butterworth
+  filters (default order 2) discretised by the bilinear transform with
+  frequency pre-warping at the sample rate (:func:`scipy.signal.butter` with
+  ``fs``), so the gain is exactly −3.01 dB at the cut-off and 1 at DC. The
+  state is set to steady state on the first sample after :meth:`SensorBank.reset`,
+  so a constant input gives no start-up transient. Off by default: the
+  paper's simulations had none.
+* **Noise** is added after the filter, i.e. it is the error of the sampled
+  value, as in the paper's simulations (zero-mean uniform: encoders ±0.1°,
+  tachometers ±1.0 °/s, strain-gauge angles ±0.05°; accelerometers ±0 by
+  default). Each sample draws exactly :data:`N_SIGNALS` uniforms from the
+  bank's own ``numpy.random.Generator(PCG64(seed))`` in
+  :data:`MEASURED_SIGNALS` order, whatever the amplitudes, so every channel's
+  stream is reproducible bit for bit and depends only on the seed and the
+  sample index.
+* **Encoder counters** ("twelve bit encoder counters"): 4096 counts/rev
+  (LSB 0.0879°) is our choice. The counter is read as an unwrapped,
+  multi-turn angle rounded to the nearest count.
+* **A/D** ("twelve bit A/D channels"): bipolar, round to nearest, codes
+  −2^(b−1) … 2^(b−1)−1 with LSB = 2·FS/2^b, saturating. The full scales
+  (tachometer ±720 °/s, gauges ±0.5 and ±5 m⁻¹ curvature on links 1 and 2,
+  accelerometers ±10 g) are our choices. The gauges are digitised as
+  curvature, so their angle LSB is the curvature LSB times the segment length.
+
+Strain gauges: the paper converts gauge counts to curvature (rad/m) and
+multiplies by the element length (one third of the flexible link) to get the
+angle in rad: angle = curvature × segment length (:func:`curvature_to_angle`,
+:func:`angle_to_curvature`). The bank's outputs are angles; the curvature is
+available through :meth:`SensorBank.curvatures`.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import os
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+from scipy import signal
+
+from .model import ArmModel, joint_angles, joint_velocities, strain_gauge_angles
+from .parameters import DATA_DIR, N_ELEMENTS, STRAIN_GAUGE_ELEMENTS, ArmParameters
+
+DEFAULT_SENSOR_FILE = DATA_DIR / "sensors_default.toml"
+
+
+class SignalInfo(NamedTuple):
+    """Name, unit and meaning of one signal of the sensor vectors."""
+
+    name: str
+    unit: str
+    description: str
+
+
+_GAUGE_LABELS = ("1,1", "1,2", "1,3", "2,1", "2,2", "2,3")
+_GAUGE_ANGLES = ("θ3−θ2", "θ4−θ3", "θ5−θ4", "θ9−θ8", "θ10−θ9", "θ11−θ10")
+
+#: The plant's true signals, the bank's input vector, in order.
+TRUE_SIGNALS: tuple[SignalInfo, ...] = (
+    SignalInfo("q1", "rad", "joint-1 motor angle θ1"),
+    SignalInfo("q2", "rad", "joint-2 motor angle θ7 − θ6"),
+    SignalInfo("qd1", "rad/s", "joint-1 motor rate"),
+    SignalInfo("qd2", "rad/s", "joint-2 motor rate"),
+    *(SignalInfo(f"eps{i + 1}", "rad", f"strain gauge ε_{lab}: segment angle {ang}")
+      for i, (lab, ang) in enumerate(zip(_GAUGE_LABELS, _GAUGE_ANGLES))),
+    SignalInfo("acc1_n", "m/s2", "link-1 tip acceleration normal to the link"),
+    SignalInfo("acc2_n", "m/s2", "link-2 tip acceleration normal to the link"),
+)
+#: The bank's measured output vector, in order (same channels as TRUE_SIGNALS).
+MEASURED_SIGNALS: tuple[SignalInfo, ...] = (
+    SignalInfo("q1_m", "rad", "encoder 1"),
+    SignalInfo("q2_m", "rad", "encoder 2"),
+    SignalInfo("qd1_m", "rad/s", "tachometer 1"),
+    SignalInfo("qd2_m", "rad/s", "tachometer 2"),
+    *(SignalInfo(f"eps{i + 1}_m", "rad", f"strain gauge ε_{lab} as a segment angle")
+      for i, lab in enumerate(_GAUGE_LABELS)),
+    SignalInfo("acc1_m", "m/s2", "accelerometer at the link-1 tip (normal component)"),
+    SignalInfo("acc2_m", "m/s2", "accelerometer at the link-2 tip (normal component)"),
+)
+TRUE_SIGNAL_NAMES: tuple[str, ...] = tuple(s.name for s in TRUE_SIGNALS)
+MEASURED_SIGNAL_NAMES: tuple[str, ...] = tuple(s.name for s in MEASURED_SIGNALS)
+N_SIGNALS = len(TRUE_SIGNALS)
+
+#: Channel groups, as slices of both vectors.
+ENCODERS = slice(0, 2)
+TACHOMETERS = slice(2, 4)
+STRAIN_GAUGES = slice(4, 10)
+ACCELEROMETERS = slice(10, 12)
+
+
+class SensorSettingsError(ValueError):
+    """A sensor setting is missing, of the wrong type or outside its allowed range."""
+
+
+# -- settings -------------------------------------------------------------------
+@dataclass(frozen=True)
+class SensorSettings:
+    """Settings of a :class:`SensorBank`; TOML ``[section] key`` maps to field ``section_key``.
+
+    Attributes
+    ----------
+    noise_enabled : bool
+        Add the uniform noise below (the paper's "with noise" case).
+    noise_seed : int
+        Seed of the bank's PCG64 generator, in [0, 2**63 − 1].
+    encoder_noise_deg : float
+        Encoder noise half-width a (uniform on [−a, a)), deg, ≥ 0. Paper: 0.1.
+    encoder_quantization : bool
+        Round the encoder angles to whole counts.
+    encoder_counts_per_rev : int
+        Counts per motor revolution, in [2, 2**24]. Chosen: 4096.
+    tachometer_noise_deg_per_s : float
+        Tachometer noise half-width, deg/s, ≥ 0. Paper: 1.0.
+    tachometer_full_scale_deg_per_s : float
+        A/D full scale ±FS of the tachometer channels, deg/s, > 0.
+    strain_gauge_noise_deg : float
+        Noise half-width on each gauge's segment angle, deg, ≥ 0. Paper: 0.05.
+    strain_gauge_filter : bool
+        Apply the gauges' low-pass filter.
+    strain_gauge_cutoff_hz : float
+        Its −3 dB frequency, Hz, in (0, Nyquist). Paper: 100.
+    strain_gauge_filter_order : int
+        Butterworth order, in [1, 8].
+    strain_gauge_full_scale_curvature_per_m : tuple of float, shape (2,)
+        A/D full scale of the link-1 and link-2 gauges as curvature, 1/m, > 0.
+    accelerometer_noise_m_per_s2 : float
+        Accelerometer noise half-width, m/s², ≥ 0.
+    accelerometer_filter : bool
+        Apply the accelerometers' low-pass filter.
+    accelerometer_cutoff_hz : float
+        Its −3 dB frequency, Hz, in (0, Nyquist). Paper: 10.
+    accelerometer_filter_order : int
+        Butterworth order, in [1, 8].
+    accelerometer_full_scale_m_per_s2 : float
+        A/D full scale of the accelerometer channels, m/s², > 0.
+    adc_quantization : bool
+        Quantise the analogue channels (tachometers, gauges, accelerometers).
+    adc_bits : int
+        A/D resolution, in [2, 24]. Paper: 12.
+    """
+
+    noise_enabled: bool = True
+    noise_seed: int = 1
+    encoder_noise_deg: float = 0.1
+    encoder_quantization: bool = False
+    encoder_counts_per_rev: int = 4096
+    tachometer_noise_deg_per_s: float = 1.0
+    tachometer_full_scale_deg_per_s: float = 720.0
+    strain_gauge_noise_deg: float = 0.05
+    strain_gauge_filter: bool = False
+    strain_gauge_cutoff_hz: float = 100.0
+    strain_gauge_filter_order: int = 2
+    strain_gauge_full_scale_curvature_per_m: tuple[float, float] = (0.5, 5.0)
+    accelerometer_noise_m_per_s2: float = 0.0
+    accelerometer_filter: bool = False
+    accelerometer_cutoff_hz: float = 10.0
+    accelerometer_filter_order: int = 2
+    accelerometer_full_scale_m_per_s2: float = 98.0665
+    adc_quantization: bool = False
+    adc_bits: int = 12
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.type == "bool":
+                if not isinstance(value, (bool, np.bool_)):
+                    raise SensorSettingsError(f"{f.name}: must be true or false, got {value!r}")
+                object.__setattr__(self, f.name, bool(value))
+            elif f.type == "int":
+                lo, hi = _INT_RANGES[f.name]
+                if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+                    raise SensorSettingsError(f"{f.name}: must be an integer in [{lo}, {hi}], got {value!r}")
+                if not lo <= value <= hi:
+                    raise SensorSettingsError(f"{f.name}: {value} is outside the allowed range [{lo}, {hi}]")
+                object.__setattr__(self, f.name, int(value))
+            elif f.type == "float":
+                object.__setattr__(self, f.name, _check_float(f.name, value, strict=not f.name.endswith(
+                    _NOISE_SUFFIXES)))
+            else:  # the per-link curvature full scales
+                if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
+                    raise SensorSettingsError(f"{f.name}: must be two numbers (link 1, link 2) > 0, got {value!r}")
+                object.__setattr__(self, f.name, tuple(_check_float(f"{f.name}[{i}]", v, strict=True)
+                                                       for i, v in enumerate(value)))
+
+    def check_sample_time(self, dt: float) -> None:
+        """Raise :class:`SensorSettingsError` unless both cut-offs lie in (0, 1/(2 dt)) Hz.
+
+        Parameters
+        ----------
+        dt : float
+            Sample time, s, finite and > 0.
+        """
+        if isinstance(dt, bool) or not isinstance(dt, (int, float, np.floating)) or not math.isfinite(dt) \
+                or dt <= 0:
+            raise SensorSettingsError(f"dt: must be a finite sample time > 0 s, got {dt!r}")
+        nyquist = 0.5 / dt
+        for name in ("strain_gauge_cutoff_hz", "accelerometer_cutoff_hz"):
+            fc = getattr(self, name)
+            if not fc < nyquist:
+                raise SensorSettingsError(f"{name}: {fc} Hz is outside the allowed range (0, {nyquist:g}) Hz "
+                                          f"(the Nyquist frequency at dt = {dt:g} s)")
+
+    def replace(self, **changes) -> SensorSettings:
+        """A validated copy with some fields changed."""
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise SensorSettingsError(f"unknown setting(s): {', '.join(sorted(unknown))}")
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict:
+        """Flat ``{field: value}`` dict (the names an FMU wrapper can expose as parameters)."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, doc: Mapping) -> SensorSettings:
+        """Build from a nested TOML-like dict (``{"encoder": {"noise_deg": 0.1}, ...}``).
+
+        Top-level keys are field names; ``[section] key`` becomes ``section_key``.
+        Missing keys keep their defaults; unknown keys are errors.
+        """
+        fields = {f.name for f in dataclasses.fields(cls)}
+        flat = {}
+        for key, value in doc.items():
+            items = value.items() if isinstance(value, Mapping) else [(None, value)]
+            for sub, v in items:
+                name = key if sub is None else f"{key}_{sub}"
+                if name not in fields:
+                    where = key if sub is None else f"[{key}] {sub}"
+                    raise SensorSettingsError(f"{where}: unknown sensor setting")
+                flat[name] = v
+        return cls(**flat)
+
+    @classmethod
+    def from_toml(cls, path: str | os.PathLike | None = None) -> SensorSettings:
+        """Load a settings file (default: ``flexarm/data/sensors_default.toml``)."""
+        path = Path(path) if path is not None else DEFAULT_SENSOR_FILE
+        try:
+            doc = tomllib.loads(path.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise SensorSettingsError(f"{path}: not valid TOML: {exc}") from exc
+        try:
+            return cls.from_dict(doc)
+        except SensorSettingsError as exc:
+            raise SensorSettingsError(f"{path}: {exc}") from exc
+
+
+_INT_RANGES = {
+    "noise_seed": (0, 2**63 - 1),
+    "encoder_counts_per_rev": (2, 2**24),
+    "strain_gauge_filter_order": (1, 8),
+    "accelerometer_filter_order": (1, 8),
+    "adc_bits": (2, 24),
+}
+_NOISE_SUFFIXES = ("_noise_deg", "_noise_deg_per_s", "_noise_m_per_s2")
+
+
+def _check_float(name: str, value, strict: bool) -> float:
+    """Finite number ≥ 0 (noise amplitudes) or > 0 (everything else)."""
+    rng = "(0, inf)" if strict else "[0, inf)"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(value):
+        raise SensorSettingsError(f"{name}: must be a finite number in {rng}, got {value!r}")
+    if value < 0 or (strict and value == 0):
+        raise SensorSettingsError(f"{name}: {value} is outside the allowed range {rng}")
+    return float(value)
+
+
+def load_sensor_settings(path: str | os.PathLike | None = None, **overrides) -> SensorSettings:
+    """Load sensor settings from TOML (default file) and apply flat field overrides."""
+    settings = SensorSettings.from_toml(path)
+    return settings.replace(**overrides) if overrides else settings
+
+
+# -- conversions ------------------------------------------------------------------
+def strain_gauge_segment_lengths(params: ArmParameters) -> np.ndarray:
+    """Length of the segment carrying each strain gauge, m, shape (6,), order ε_1,1 … ε_2,3."""
+    return np.asarray(params.length, dtype=float)[list(STRAIN_GAUGE_ELEMENTS)].copy()
+
+
+def curvature_to_angle(curvature, segment_lengths) -> np.ndarray:
+    """Gauge curvature (1/m) → segment angle (rad): angle = curvature × segment length (paper §6).
+
+    Parameters
+    ----------
+    curvature : array_like, shape (..., 6)
+        Mean curvature over each gauged segment, 1/m.
+    segment_lengths : array_like, shape (6,)
+        Segment lengths, m (:func:`strain_gauge_segment_lengths`).
+    """
+    return np.asarray(curvature, dtype=float) * np.asarray(segment_lengths, dtype=float)
+
+
+def angle_to_curvature(angle, segment_lengths) -> np.ndarray:
+    """Segment angle (rad) → mean curvature (1/m), the inverse of :func:`curvature_to_angle`.
+
+    Parameters
+    ----------
+    angle : array_like, shape (..., 6)
+        Segment angles relative to the proximal neighbour, rad.
+    segment_lengths : array_like, shape (6,)
+        Segment lengths, m.
+    """
+    return np.asarray(angle, dtype=float) / np.asarray(segment_lengths, dtype=float)
+
+
+def quantize(x, lsb, lo_code: float = -np.inf, hi_code: float = np.inf) -> np.ndarray:
+    """Round to the nearest multiple of `lsb`, with the code clipped to [lo_code, hi_code].
+
+    Parameters
+    ----------
+    x : array_like
+        Signal, any unit.
+    lsb : float or array_like broadcasting with `x`
+        Quantisation step, same unit as `x`, > 0.
+    lo_code, hi_code : float
+        Saturation codes (±inf: no saturation).
+
+    Returns
+    -------
+    ndarray
+        ``code × lsb`` (|error| ≤ lsb/2 inside the range).
+    """
+    return np.clip(np.round(np.asarray(x, dtype=float) / lsb), lo_code, hi_code) * lsb
+
+
+def true_signals_from_state(model: ArmModel, z, tau) -> np.ndarray:
+    """The true-signal vector (:data:`TRUE_SIGNALS` order) of a plant state.
+
+    Parameters
+    ----------
+    model : ArmModel
+    z : array_like, shape (22,)
+        State (θ_1..θ_11 rad, θ̇_1..θ̇_11 rad/s).
+    tau : array_like, shape (2,)
+        Motor torques acting at this instant, N·m (the accelerometers read
+        the acceleration they cause).
+
+    Returns
+    -------
+    ndarray, shape (12,)
+    """
+    z = np.asarray(z, dtype=float)
+    if z.shape != (2 * N_ELEMENTS,):
+        raise ValueError(f"z: expected shape ({2 * N_ELEMENTS},), got {z.shape}")
+    theta, omega = z[:N_ELEMENTS], z[N_ELEMENTS:]
+    return np.concatenate([joint_angles(theta), joint_velocities(omega), strain_gauge_angles(theta),
+                           model.accelerometer_signals(theta, omega, tau)])
+
+
+def as_dict(values, names: tuple[str, ...] = MEASURED_SIGNAL_NAMES) -> dict[str, float]:
+    """``{name: value}`` for a signal vector (default: a measured vector)."""
+    values = np.asarray(values, dtype=float)
+    if values.shape != (len(names),):
+        raise ValueError(f"values: expected shape ({len(names)},), got {values.shape}")
+    return dict(zip(names, values.tolist()))
+
+
+# -- filters ----------------------------------------------------------------------
+class _LowPassBank:
+    """One Butterworth low-pass (as second-order sections) applied to several channels.
+
+    Direct form II transposed, as :func:`scipy.signal.sosfilt`, stepped one
+    sample at a time; state shape (n_sections, n_channels, 2).
+    """
+
+    def __init__(self, order: int, cutoff_hz: float, dt: float, n_channels: int):
+        # butter(..., fs=) pre-warps the cut-off before the bilinear transform,
+        # so the digital filter's −3 dB point is exactly cutoff_hz.
+        self.sos = signal.butter(order, cutoff_hz, btype="low", output="sos", fs=1.0 / dt)
+        # Per-section state for a unit step in steady state; scaled by the
+        # first sample to start without a transient.
+        self.zi_unit = signal.sosfilt_zi(self.sos)
+        self.state = np.zeros((self.sos.shape[0], n_channels, 2))
+
+    def prime(self, x: np.ndarray) -> None:
+        self.state = self.zi_unit[:, None, :] * x[None, :, None]
+
+    def step(self, x: np.ndarray) -> np.ndarray:
+        y = x
+        for k, (b0, b1, b2, _, a1, a2) in enumerate(self.sos):
+            s = self.state[k]
+            x_k = y
+            y = b0 * x_k + s[:, 0]
+            s[:, 0] = b1 * x_k - a1 * y + s[:, 1]
+            s[:, 1] = b2 * x_k - a2 * y
+        return y
+
+
+# -- the bank -----------------------------------------------------------------------
+class SensorBank:
+    """Encoders, tachometers, strain gauges and accelerometers of the arm, stepped per sample.
+
+    Parameters
+    ----------
+    settings : SensorSettings, optional
+        Defaults to ``flexarm/data/sensors_default.toml``.
+    params : ArmParameters, optional
+        Arm parameters (for the gauges' segment lengths). Defaults to the
+        committed Sandia arm.
+    dt : float
+        Sample time, s (the paper: 1 ms). The filter cut-offs must lie below
+        the Nyquist frequency 1/(2 dt).
+
+    Notes
+    -----
+    Call :meth:`measure` once per sample with the true-signal vector. The
+    bank is a deterministic function of the settings, the seed and the input
+    sequence; :meth:`get_state` / :meth:`set_state` snapshot and restore it
+    (filter states and generator state), so a restored bank reproduces its
+    outputs bit for bit.
+    """
+
+    def __init__(self, settings: SensorSettings | None = None, params: ArmParameters | None = None,
+                 dt: float = 1e-3):
+        if settings is None:
+            settings = SensorSettings.from_toml()
+        if params is None:
+            from .parameters import load_parameters
+            params = load_parameters()
+        settings.check_sample_time(dt)
+        self.settings = settings
+        self.dt = float(dt)
+        s = settings
+        self.segment_lengths = strain_gauge_segment_lengths(params)
+
+        deg = math.pi / 180.0
+        amp = np.zeros(N_SIGNALS)
+        amp[ENCODERS] = s.encoder_noise_deg * deg
+        amp[TACHOMETERS] = s.tachometer_noise_deg_per_s * deg
+        amp[STRAIN_GAUGES] = s.strain_gauge_noise_deg * deg
+        amp[ACCELEROMETERS] = s.accelerometer_noise_m_per_s2
+        #: Noise half-widths per channel, SI units, shape (12,).
+        self.noise_amplitude = amp
+
+        #: Encoder LSB, rad.
+        self.encoder_lsb = 2.0 * math.pi / s.encoder_counts_per_rev
+        full_scale = np.zeros(N_SIGNALS)
+        full_scale[ENCODERS] = np.inf
+        full_scale[TACHOMETERS] = s.tachometer_full_scale_deg_per_s * deg
+        # Gauges are digitised as curvature; in angle the full scale scales with the segment length.
+        kappa_fs = np.repeat(s.strain_gauge_full_scale_curvature_per_m, 3)
+        full_scale[STRAIN_GAUGES] = curvature_to_angle(kappa_fs, self.segment_lengths)
+        full_scale[ACCELEROMETERS] = s.accelerometer_full_scale_m_per_s2
+        #: A/D full scale ±FS per channel (inf for the encoders), SI units, shape (12,).
+        self.full_scale = full_scale
+        #: A/D LSB per analogue channel, SI units, shape (12,) (encoders: nan).
+        self.adc_lsb = np.where(np.isfinite(full_scale), 2.0 * full_scale / 2**s.adc_bits, np.nan)
+        self._code_range = (-(2 ** (s.adc_bits - 1)), 2 ** (s.adc_bits - 1) - 1)
+
+        self._strain_filter = (_LowPassBank(s.strain_gauge_filter_order, s.strain_gauge_cutoff_hz, dt, 6)
+                               if s.strain_gauge_filter else None)
+        self._acc_filter = (_LowPassBank(s.accelerometer_filter_order, s.accelerometer_cutoff_hz, dt, 2)
+                            if s.accelerometer_filter else None)
+        self.reset()
+
+    # -- stepping ---------------------------------------------------------------
+    def reset(self, seed: int | None = None) -> None:
+        """Restart: new generator from the seed, filters re-primed on the next sample.
+
+        Parameters
+        ----------
+        seed : int, optional
+            Overrides ``settings.noise_seed`` for this run (and later resets
+            without a seed return to the settings' seed).
+        """
+        if seed is None:
+            seed = self.settings.noise_seed
+        else:
+            self.settings.replace(noise_seed=seed)  # validates the seed
+        self._rng = np.random.Generator(np.random.PCG64(int(seed)))
+        self._primed = False
+        self.n_samples = 0
+
+    def measure(self, true_signals) -> np.ndarray:
+        """One sample: the measured vector from the true one.
+
+        Parameters
+        ----------
+        true_signals : array_like, shape (12,), or mapping
+            In :data:`TRUE_SIGNALS` order and units, or ``{name: value}`` with
+            every name of :data:`TRUE_SIGNAL_NAMES`.
+
+        Returns
+        -------
+        ndarray, shape (12,)
+            In :data:`MEASURED_SIGNALS` order and units.
+
+        Notes
+        -----
+        Non-finite inputs are passed through (a diverging simulation is a
+        result, not a sensor error); they do poison the filter state.
+        """
+        x = self._as_vector(true_signals)
+        s = self.settings
+        if not self._primed:
+            for flt, sl in ((self._strain_filter, STRAIN_GAUGES), (self._acc_filter, ACCELEROMETERS)):
+                if flt is not None:
+                    flt.prime(x[sl])
+            self._primed = True
+        y = x.copy()
+        if self._strain_filter is not None:
+            y[STRAIN_GAUGES] = self._strain_filter.step(x[STRAIN_GAUGES])
+        if self._acc_filter is not None:
+            y[ACCELEROMETERS] = self._acc_filter.step(x[ACCELEROMETERS])
+        # Always draw N_SIGNALS uniforms so each channel's noise depends on
+        # the seed and the sample index only, never on the other settings.
+        u = self._rng.random(N_SIGNALS)
+        if s.noise_enabled:
+            y += self.noise_amplitude * (2.0 * u - 1.0)
+        if s.encoder_quantization:
+            y[ENCODERS] = quantize(y[ENCODERS], self.encoder_lsb)
+        if s.adc_quantization:
+            lo, hi = self._code_range
+            y[2:] = quantize(y[2:], self.adc_lsb[2:], lo, hi)
+        self.n_samples += 1
+        return y
+
+    def measure_state(self, model: ArmModel, z, tau) -> np.ndarray:
+        """:meth:`measure` of :func:`true_signals_from_state` ``(model, z, tau)``; shape (12,)."""
+        return self.measure(true_signals_from_state(model, z, tau))
+
+    def curvatures(self, measured) -> np.ndarray:
+        """The gauges' curvatures, 1/m, shape (6,), from a measured vector (shape (12,))."""
+        return angle_to_curvature(np.asarray(measured, dtype=float)[STRAIN_GAUGES], self.segment_lengths)
+
+    # -- state ------------------------------------------------------------------
+    def get_state(self) -> dict:
+        """A deep, picklable snapshot: generator state, filter states, priming flag, sample count."""
+        return {
+            "rng": copy.deepcopy(self._rng.bit_generator.state),
+            "primed": self._primed,
+            "n_samples": self.n_samples,
+            "strain_filter": None if self._strain_filter is None else self._strain_filter.state.copy(),
+            "acc_filter": None if self._acc_filter is None else self._acc_filter.state.copy(),
+        }
+
+    def set_state(self, state: Mapping) -> None:
+        """Restore a snapshot of :meth:`get_state` (of a bank with the same settings)."""
+        for key, flt in (("strain_filter", self._strain_filter), ("acc_filter", self._acc_filter)):
+            saved = state[key]
+            if (saved is None) != (flt is None) or (flt is not None and np.shape(saved) != flt.state.shape):
+                raise ValueError(f"state[{key!r}]: does not match this bank's filter settings")
+        rng = np.random.Generator(np.random.PCG64())
+        rng.bit_generator.state = copy.deepcopy(state["rng"])
+        self._rng = rng
+        if self._strain_filter is not None:
+            self._strain_filter.state = np.array(state["strain_filter"], dtype=float)
+        if self._acc_filter is not None:
+            self._acc_filter.state = np.array(state["acc_filter"], dtype=float)
+        self._primed = bool(state["primed"])
+        self.n_samples = int(state["n_samples"])
+
+    # -- helpers ----------------------------------------------------------------
+    @staticmethod
+    def _as_vector(true_signals) -> np.ndarray:
+        if isinstance(true_signals, Mapping):
+            missing = [n for n in TRUE_SIGNAL_NAMES if n not in true_signals]
+            if missing:
+                raise ValueError(f"true_signals: missing {', '.join(missing)}")
+            return np.array([true_signals[n] for n in TRUE_SIGNAL_NAMES], dtype=float)
+        x = np.array(true_signals, dtype=float)
+        if x.shape != (N_SIGNALS,):
+            raise ValueError(f"true_signals: expected shape ({N_SIGNALS},) in TRUE_SIGNALS order, got {x.shape}")
+        return x
