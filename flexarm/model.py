@@ -193,12 +193,14 @@ class ArmModel:
         return np.array([self.point_acceleration(theta, omega, alpha, LINK1_TIP_ELEMENT),
                          self.point_acceleration(theta, omega, alpha, LINK2_TIP_ELEMENT)])
 
-    def accelerometer_signals(self, theta, omega, tau) -> np.ndarray:
+    def accelerometer_signals(self, theta, omega, tau, tip_accelerations=None) -> np.ndarray:
         """Tip accelerations normal to the link (the accelerometers' axis), m/s², shape (2,).
 
         The normal of link k is (−sin θ_p, cos θ_p) with p its last segment.
+        Pass `tip_accelerations` (from :meth:`link_tip_accelerations`) when
+        already computed, to avoid solving the dynamics twice.
         """
-        acc = self.link_tip_accelerations(theta, omega, tau)
+        acc = self.link_tip_accelerations(theta, omega, tau) if tip_accelerations is None else tip_accelerations
         theta = _f(theta)
         out = np.empty(2)
         for row, p in enumerate((LINK1_TIP_ELEMENT, LINK2_TIP_ELEMENT)):

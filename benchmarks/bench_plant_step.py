@@ -1,0 +1,116 @@
+"""Cost of one 1 ms plant step: the library call and the plant FMU driven by fmpy.
+
+Prints, for the Numba kernels (this process) and the NumPy-only path
+(a subprocess with FLEXARM_NO_NUMBA=1), the median cost per step in µs
+after a warm-up, and the real-time factor (1 ms divided by that cost):
+
+* library: ``flexarm.integrator.advance`` with the default substeps;
+* FMU: ``FMU2Slave.doStep`` plus ``getReal`` of all 40 outputs, the work a
+  master does per communication step.
+
+Usage: ``python benchmarks/bench_plant_step.py`` (a few seconds, plus a
+one-off Numba compile of about 20 s if the cache is cold; builds
+``build/fmus/plant.fmu`` first if it is missing or stale).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DT = 1e-3
+
+
+def _median_us(fn, n_warm: int, n: int) -> float:
+    for _ in range(n_warm):
+        fn()
+    samples = []
+    for _ in range(n):
+        t0 = time.perf_counter_ns()
+        fn()
+        samples.append(time.perf_counter_ns() - t0)
+    return statistics.median(samples) / 1e3
+
+
+def measure(fmu_path: Path, n_lib: int, n_fmu: int) -> dict:
+    """Median µs per step for the library call and for the FMU; dict with both and the backend."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    from flexarm import ArmModel, rigid_configuration
+    from flexarm._kernels import HAVE_NUMBA
+    from flexarm.integrator import DEFAULT_SUBSTEPS, advance
+    from flexarm.model import N
+
+    model = ArmModel()
+    tau = np.array([1.0, 0.3])
+    state = {"z": np.concatenate([rigid_configuration(0.0, np.pi / 2), np.zeros(N)])}
+
+    def lib_step():
+        state["z"], _ = advance(model, state["z"], tau, DT, DEFAULT_SUBSTEPS)
+
+    lib_us = _median_us(lib_step, max(50, n_lib // 10), n_lib)
+
+    md = read_model_description(str(fmu_path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    out_vrs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu_path)),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    fmu.setReal([vr["tau1"], vr["tau2"]], tau.tolist())
+    clock = {"t": 0.0}
+
+    def fmu_step():
+        fmu.doStep(clock["t"], DT)
+        fmu.getReal(out_vrs)
+        clock["t"] += DT
+
+    fmu_us = _median_us(fmu_step, max(50, n_fmu // 10), n_fmu)
+    fmu.terminate()
+    fmu.freeInstance()
+    return {"backend": "Numba" if HAVE_NUMBA else "NumPy", "library_us": lib_us, "fmu_us": fmu_us,
+            "n_outputs": len(out_vrs)}
+
+
+def _print(result: dict) -> None:
+    for label, key in (("library advance()", "library_us"),
+                       (f"FMU doStep + getReal({result['n_outputs']} outputs)", "fmu_us")):
+        us = result[key]
+        print(f"  {result['backend']:5s}  {label:36s} {us:9.1f} µs/step   real-time factor {1e3 / us:7.1f}x")
+
+
+def main() -> int:
+    if "--child" in sys.argv:  # NumPy-only measurement, run by the parent with FLEXARM_NO_NUMBA=1
+        print(json.dumps(measure(Path(sys.argv[sys.argv.index("--child") + 1]), n_lib=400, n_fmu=400)))
+        return 0
+    sys.path.insert(0, str(ROOT))
+    from build_fmus import build_all
+
+    t_start = time.perf_counter()
+    fmu_path = build_all(only="plant")["plant"]
+    print(f"plant step cost per 1 ms communication step (median after warm-up), FMU {fmu_path}")
+    _print(measure(fmu_path, n_lib=5000, n_fmu=5000))
+    env = {**os.environ, "FLEXARM_NO_NUMBA": "1"}
+    proc = subprocess.run([sys.executable, __file__, "--child", str(fmu_path)], env=env, capture_output=True,
+                          text=True, timeout=300)
+    if proc.returncode != 0:
+        print(f"NumPy-only run failed:\n{proc.stderr}", file=sys.stderr)
+        return 1
+    _print(json.loads(proc.stdout.strip().splitlines()[-1]))
+    print(f"(benchmark wall time {time.perf_counter() - t_start:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

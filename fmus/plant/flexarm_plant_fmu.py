@@ -1,0 +1,151 @@
+"""Plant FMU: the 11-element Sandia flexible arm (FMI 2.0 co-simulation).
+
+A thin wrapper over :mod:`flexarm`: every equation lives in
+:class:`flexarm.ArmModel` and :func:`flexarm.integrator.advance`; this module
+only maps FMI variables to and from them. The module name is unique among
+this project's FMUs (pythonfmu imports it by name; see
+``fmus/common/flexarm_fmu_base.py``).
+
+Interface (full table in ``docs/fmu-interface.md``):
+
+* inputs ``tau1``, ``tau2`` (N·m), held constant over each step;
+* parameters ``payload_mass`` (kg), ``q1_0``, ``q2_0`` (rad), ``substeps``;
+* outputs at the communication point: element angles and rates, joint
+  angles and rates, strain-gauge angles, tip position, link-tip
+  accelerations and accelerometer signals.
+
+The accelerations are evaluated with the torque held over the step that
+ended at the communication point (at the start time: the torque inputs as set
+during initialisation), so no output depends directly on the current
+inputs and a controller can be connected without an algebraic loop.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from flexarm_fmu_base import FlexarmSlave, Var, variable_table
+from pythonfmu.default_experiment import DefaultExperiment
+
+from flexarm.integrator import DEFAULT_SUBSTEPS, advance
+from flexarm.model import (
+    ArmModel,
+    N,
+    joint_angles,
+    joint_velocities,
+    rigid_configuration,
+    strain_gauge_angles,
+)
+from flexarm.parameters import load_parameters
+
+
+def _out(name: str, unit: str, description: str) -> Var:
+    # Outputs are functions of the state and the torque of the finished step:
+    # no direct feedthrough from the inputs (empty dependencies).
+    return Var(name, "output", "continuous", unit, description, depends_on=())
+
+
+_ELEMENTS = ("hub 1", "bracket 1", "link 1 segment 1", "link 1 segment 2", "link 1 segment 3",
+             "bracket 2 with the elbow stator", "rotor 2", "bracket 3", "link 2 segment 1",
+             "link 2 segment 2", "link 2 segment 3")
+_GAUGES = ("link 1 root (theta3 - theta2)", "link 1 middle (theta4 - theta3)", "link 1 outer (theta5 - theta4)",
+           "link 2 root (theta9 - theta8)", "link 2 middle (theta10 - theta9)", "link 2 outer (theta11 - theta10)")
+
+VARIABLES = variable_table([
+    ("tau1", "input", "continuous", "N.m", "Joint-1 (shoulder) motor torque, held over the step", 0.0),
+    ("tau2", "input", "continuous", "N.m", "Joint-2 (elbow) motor torque, held over the step", 0.0),
+    ("payload_mass", "parameter", "fixed", "kg", "Extra point mass at the tip of link 2",
+     float(load_parameters().payload_mass), (0.0, 10.0)),
+    ("q1_0", "parameter", "fixed", "rad", "Initial joint-1 angle (arm undeformed and at rest)",
+     0.0, (-2 * math.pi, 2 * math.pi)),
+    ("q2_0", "parameter", "fixed", "rad", "Initial joint-2 (elbow) angle, relative to link 1",
+     math.pi / 2, (-math.pi, math.pi)),
+    ("substeps", "parameter", "fixed", "1", "RODAS4 substeps per communication step", int(DEFAULT_SUBSTEPS), (1, 64)),
+    *[_out(f"theta{i + 1}", "rad", f"Absolute angle of element {i + 1} ({e})") for i, e in enumerate(_ELEMENTS)],
+    *[_out(f"omega{i + 1}", "rad/s", f"Angular rate of element {i + 1} ({e})") for i, e in enumerate(_ELEMENTS)],
+    _out("q1", "rad", "Joint-1 angle (encoder 1) = theta1"),
+    _out("q2", "rad", "Joint-2 angle (encoder 2) = theta7 - theta6"),
+    _out("qd1", "rad/s", "Joint-1 rate (tachometer 1)"),
+    _out("qd2", "rad/s", "Joint-2 rate (tachometer 2)"),
+    *[_out(f"eps{k + 1}", "rad", f"Strain-gauge angle at the {g}") for k, g in enumerate(_GAUGES)],
+    _out("tip_x", "m", "Tip of link 2, x (shoulder axis at the origin)"),
+    _out("tip_y", "m", "Tip of link 2, y"),
+    _out("link1_tip_ax", "m/s2", "Acceleration of the link-1 tip, x"),
+    _out("link1_tip_ay", "m/s2", "Acceleration of the link-1 tip, y"),
+    _out("link2_tip_ax", "m/s2", "Acceleration of the link-2 tip, x"),
+    _out("link2_tip_ay", "m/s2", "Acceleration of the link-2 tip, y"),
+    _out("acc1_n", "m/s2", "Link-1 tip acceleration normal to link 1 (accelerometer 1 axis)"),
+    _out("acc2_n", "m/s2", "Link-2 tip acceleration normal to link 2 (accelerometer 2 axis)"),
+])
+
+
+class FlexarmPlant(FlexarmSlave):
+    """The Sandia two-link flexible arm as an FMI 2.0 co-simulation slave.
+
+    State: z = (theta_1..theta_11 rad, omega_1..omega_11 rad/s), advanced by
+    :func:`flexarm.integrator.advance` (RODAS4, ``substeps`` equal substeps
+    per communication step of whatever length the master asks).
+    """
+
+    VARIABLES = VARIABLES
+    description = "Sandia two-link flexible arm, 11-element model (plant)"
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=1e-3)
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.model: ArmModel | None = None
+        self._model_payload: float | None = None
+        self.z = np.zeros(2 * N)
+        self.tau_held = np.zeros(2)  # torque of the last finished step (for the accelerations)
+        self.last_error = 0.0
+
+    def _build_model(self, payload_mass: float) -> None:
+        if self.model is None or self._model_payload != payload_mass:
+            self.model = ArmModel(load_parameters(payload_mass=payload_mass))
+            self._model_payload = payload_mass
+
+    def _torque(self) -> np.ndarray:
+        return np.array([self.value("tau1"), self.value("tau2")])
+
+    def initialize(self) -> None:
+        self._build_model(self.value("payload_mass"))
+        z = np.concatenate([rigid_configuration(self.value("q1_0"), self.value("q2_0")), np.zeros(N)])
+        tau = self._torque()
+        self.set_outputs(self._outputs(z, tau))
+        self.z, self.tau_held, self.last_error = z, tau, 0.0
+
+    def step(self, t: float, h: float) -> None:
+        tau = self._torque()
+        z, err = advance(self.model, self.z, tau, h, self.value("substeps"))
+        outputs = self._outputs(z, tau)
+        # Commit only after everything succeeded: a failed step leaves the state untouched.
+        self.set_outputs(outputs)
+        self.z, self.tau_held, self.last_error = z, tau, err
+
+    def _outputs(self, z: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """All outputs in table order for state z and held torque tau."""
+        model = self.model
+        theta, omega = z[:N], z[N:]
+        tip_acc = model.link_tip_accelerations(theta, omega, tau)
+        return np.concatenate([
+            theta, omega,
+            joint_angles(theta), joint_velocities(omega),
+            strain_gauge_angles(theta),
+            model.tip_position(theta),
+            tip_acc.ravel(),
+            model.accelerometer_signals(theta, omega, tau, tip_accelerations=tip_acc),
+        ])
+
+    def get_internal_state(self) -> dict:
+        return {"z": self.z.tolist(), "tau_held": self.tau_held.tolist(), "last_error": self.last_error}
+
+    def set_internal_state(self, state: dict) -> None:
+        z = np.array(state["z"], dtype=float)
+        if z.shape != (2 * N,):
+            raise ValueError(f"z: expected {2 * N} state values, got {z.shape}")
+        if self.value("payload_mass") != self._model_payload or self.model is None:
+            self._build_model(self.value("payload_mass"))
+        self.z = z
+        self.tau_held = np.array(state["tau_held"], dtype=float)
+        self.last_error = float(state["last_error"])

@@ -1,0 +1,387 @@
+"""The plant FMU: valid model description, same numbers as the library, modes, error handling, isolation."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import site
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException, calloc, free
+from fmpy.fmi2 import (
+    FMU2Slave,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+)
+from fmpy.validation import validate_fmu
+
+from flexarm import ArmModel, joint_angles, joint_velocities, rigid_configuration, strain_gauge_angles
+from flexarm.integrator import DEFAULT_SUBSTEPS, simulate
+from flexarm.model import N
+from flexarm.modes import modal_analysis
+from flexarm.parameters import load_parameters
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from build_fmus import build_all  # noqa: E402
+
+DT = 1e-3
+
+
+@pytest.fixture(scope="module")
+def fmu_path(tmp_path_factory) -> Path:
+    return build_all(tmp_path_factory.mktemp("fmus"), only="plant", force=True)["plant"]
+
+
+@pytest.fixture(scope="module")
+def unzipped(fmu_path, tmp_path_factory):
+    return extract(str(fmu_path), unzipdir=str(tmp_path_factory.mktemp("plant_unzipped")))
+
+
+class Plant:
+    """The plant FMU driven step by step through fmpy's FMU2Slave, with its log captured."""
+
+    def __init__(self, fmu_path, unzipdir, name="plant", **params):
+        self.md = read_model_description(str(fmu_path))
+        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
+        self.outputs = [v.name for v in self.md.modelVariables if v.causality == "output"]
+        self.messages: list[tuple[int, str]] = []
+
+        def logger(component, instance, status, category, message):
+            self.messages.append((status, message.decode()))
+
+        # Keep the callbacks referenced as long as the instance lives (ctypes).
+        self._callbacks = cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(logger)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=unzipdir,
+                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
+        self.fmu.instantiate(callbacks=cb, loggingOn=True)
+        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.enterInitializationMode()
+        for key, value in params.items():
+            if key == "substeps":
+                self.fmu.setInteger([self.vr[key]], [value])
+            else:
+                self.fmu.setReal([self.vr[key]], [value])
+        self.fmu.exitInitializationMode()
+        self.time = 0.0
+
+    def set_torque(self, tau1, tau2):
+        self.fmu.setReal([self.vr["tau1"], self.vr["tau2"]], [tau1, tau2])
+
+    def step(self, h=DT):
+        self.fmu.doStep(self.time, h)
+        self.time += h
+
+    def get(self, names=None) -> dict[str, float]:
+        names = self.outputs if names is None else names
+        return dict(zip(names, self.fmu.getReal([self.vr[n] for n in names])))
+
+    def state(self) -> np.ndarray:
+        names = [f"theta{i + 1}" for i in range(N)] + [f"omega{i + 1}" for i in range(N)]
+        return np.array(list(self.get(names).values()))
+
+    def errors(self) -> list[str]:
+        return [m for s, m in self.messages if s >= 3]
+
+    def close(self):
+        self.fmu.terminate()
+        self.fmu.freeInstance()
+
+
+def torque_profile(n_steps):
+    t = np.arange(n_steps) * DT
+    tau1 = 3.0 * np.sin(2 * np.pi * t / 1.2) * (t < 1.0)
+    tau2 = 1.0 * np.sign(np.sin(2 * np.pi * t / 0.45))
+    return np.column_stack([tau1, tau2])
+
+
+# -- model description ---------------------------------------------------------------
+def test_validate_fmu_reports_no_problems(fmu_path):
+    assert validate_fmu(str(fmu_path)) == []
+
+
+def test_model_description_declares_interface(fmu_path):
+    md = read_model_description(str(fmu_path))
+    by_name = {v.name: v for v in md.modelVariables}
+    assert by_name["tau1"].causality == "input" and by_name["tau1"].unit == "N.m"
+    assert by_name["payload_mass"].causality == "parameter" and by_name["payload_mass"].variability == "fixed"
+    assert (float(by_name["payload_mass"].min), float(by_name["payload_mass"].max)) == (0.0, 10.0)
+    assert by_name["substeps"].type == "Integer" and int(by_name["substeps"].start) == DEFAULT_SUBSTEPS
+    for name, unit in [("theta7", "rad"), ("omega3", "rad/s"), ("eps6", "rad"), ("tip_x", "m"), ("acc2_n", "m/s2")]:
+        assert by_name[name].causality == "output" and by_name[name].unit == unit
+    assert {u.name for u in md.unitDefinitions} >= {"rad", "rad/s", "N.m", "m", "m/s2", "kg"}
+    assert len(md.outputs) == len(md.initialUnknowns) == 40  # 11 + 11 + 2 + 2 + 6 + 2 + 4 + 2
+    assert all(u.dependencies == [] for u in md.outputs)  # no direct feedthrough
+    assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
+    assert md.coSimulation.modelIdentifier == "FlexarmPlant"
+
+
+def test_docs_list_every_variable(fmu_path):
+    doc = (ROOT / "docs" / "fmu-interface.md").read_text()
+    md = read_model_description(str(fmu_path))
+    missing = [v.name for v in md.modelVariables if f"`{v.name}`" not in doc]
+    assert not missing, f"docs/fmu-interface.md does not describe {missing}"
+
+
+# -- numbers -----------------------------------------------------------------------------
+def test_outputs_at_start_are_consistent(fmu_path, unzipped):
+    q0 = (0.3, 1.2)
+    plant = Plant(fmu_path, unzipped, q1_0=q0[0], q2_0=q0[1], payload_mass=0.275, tau1=1.5, tau2=-0.5)
+    try:
+        model = ArmModel(load_parameters(payload_mass=0.275))
+        theta = rigid_configuration(*q0)
+        y = plant.get()
+        assert (y["q1"], y["q2"]) == q0
+        assert [y[f"theta{i + 1}"] for i in range(N)] == theta.tolist()
+        assert [y["tip_x"], y["tip_y"]] == model.tip_position(theta).tolist()
+        acc = model.accelerometer_signals(theta, np.zeros(N), [1.5, -0.5])
+        np.testing.assert_array_equal([y["acc1_n"], y["acc2_n"]], acc)
+        assert abs(y["acc1_n"]) > 0  # torque set in initialisation mode is used at t0
+    finally:
+        plant.close()
+
+
+def test_fmu_reproduces_library_simulation(fmu_path, unzipped):
+    """The FMU layer changes nothing: same states as flexarm.integrator.simulate, step by step."""
+    q0, payload, substeps, n = (0.1, 1.3), 0.275, 3, 1500
+    torques = torque_profile(n)
+    model = ArmModel(load_parameters(payload_mass=payload))
+    z0 = np.concatenate([rigid_configuration(*q0), np.zeros(N)])
+    reference = simulate(model, z0, torques, DT, substeps)
+    plant = Plant(fmu_path, unzipped, q1_0=q0[0], q2_0=q0[1], payload_mass=payload, substeps=substeps)
+    try:
+        fmu_states = [plant.state()]
+        derived_checked = 0
+        for k, tau in enumerate(torques):
+            plant.set_torque(*tau)
+            plant.step()
+            fmu_states.append(plant.state())
+            if k % 250 == 0:
+                z = reference[k + 1]
+                th, om = z[:N], z[N:]
+                y = plant.get()
+                expected = np.r_[joint_angles(th), joint_velocities(om), strain_gauge_angles(th),
+                                 model.tip_position(th), model.link_tip_accelerations(th, om, tau).ravel(),
+                                 model.accelerometer_signals(th, om, tau)]
+                got = [y[n] for n in ("q1", "q2", "qd1", "qd2", "eps1", "eps2", "eps3", "eps4", "eps5", "eps6",
+                                      "tip_x", "tip_y", "link1_tip_ax", "link1_tip_ay", "link2_tip_ax",
+                                      "link2_tip_ay", "acc1_n", "acc2_n")]
+                np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+                derived_checked += 1
+        assert np.max(np.abs(np.array(fmu_states) - reference)) <= 1e-12
+        assert derived_checked == 6
+        assert not plant.errors()
+    finally:
+        plant.close()
+
+
+def _spectral_peak(x, fs, f_lo=2.0, f_hi=60.0) -> float:
+    """Frequency (Hz) of the largest spectral peak in [f_lo, f_hi], Hann window, parabolic interpolation."""
+    x = np.asarray(x) - np.mean(x)
+    n_fft = 8 * len(x)
+    spec = np.abs(np.fft.rfft(x * np.hanning(len(x)), n_fft))
+    f = np.fft.rfftfreq(n_fft, 1.0 / fs)
+    band = np.flatnonzero((f >= f_lo) & (f <= f_hi))
+    i = band[np.argmax(spec[band])]
+    a, b, c = np.log(spec[i - 1:i + 2])
+    return float(f[i] + 0.5 * (a - c) / (a - 2 * b + c) * (f[1] - f[0]))
+
+
+def test_torque_pulse_shows_calibrated_modes(fmu_path, unzipped):
+    """Free vibration after a 20 ms pulse: eps peaks at the modal link frequencies (within 5 %)."""
+    q0 = (0.0, math.pi / 2)
+    modes = modal_analysis(ArmModel(), q=q0)
+    f1, f2 = modes.link_frequency(1), modes.link_frequency(2)
+    plant = Plant(fmu_path, unzipped, q1_0=q0[0], q2_0=q0[1])
+    try:
+        eps = []
+        for k in range(6100):
+            plant.set_torque(*((2.0, 1.0) if k < 20 else (0.0, 0.0)))
+            plant.step()
+            if k >= 100:  # 6 s of free vibration
+                y = plant.get(["eps1", "eps4"])
+                eps.append((y["eps1"], y["eps4"]))
+        eps = np.array(eps)
+        peak1, peak2 = _spectral_peak(eps[:, 0], 1 / DT), _spectral_peak(eps[:, 1], 1 / DT)
+        print(f"link 1: FFT peak {peak1:.3f} Hz, modal {f1:.3f} Hz; link 2: FFT peak {peak2:.3f} Hz, modal {f2:.3f} Hz")
+        assert abs(peak1 / f1 - 1) < 0.05 and abs(peak2 / f2 - 1) < 0.05
+        assert 15 < peak1 < 25 and 6 < peak2 < 10  # the paper's 20 Hz and 8 Hz
+    finally:
+        plant.close()
+
+
+def test_get_and_set_fmu_state_repeat_steps(fmu_path, unzipped):
+    plant = Plant(fmu_path, unzipped)
+    try:
+        plant.set_torque(2.0, -0.5)
+        for _ in range(50):
+            plant.step()
+        saved = plant.fmu.getFMUstate()
+        t_saved = plant.time
+        for _ in range(30):
+            plant.step()
+        first = plant.get()
+        plant.fmu.setFMUstate(saved)
+        plant.time = t_saved
+        for _ in range(30):
+            plant.step()
+        assert plant.get() == first
+        blob = plant.fmu.serializeFMUstate(saved)
+        restored = plant.fmu.deSerializeFMUstate(blob)
+        plant.fmu.setFMUstate(restored)
+        plant.time = t_saved
+        for _ in range(30):
+            plant.step()
+        assert plant.get() == first
+        plant.fmu.freeFMUstate(saved)
+        plant.fmu.freeFMUstate(restored)
+        assert not plant.errors()
+    finally:
+        plant.close()
+
+
+def test_two_instances_are_independent(fmu_path, unzipped):
+    a, b = Plant(fmu_path, unzipped, name="a"), Plant(fmu_path, unzipped, name="b", payload_mass=1.0)
+    try:
+        for p in (a, b):
+            p.set_torque(1.0, 0.5)
+            for _ in range(100):
+                p.step()
+        assert a.get()["q1"] > b.get()["q1"] > 0  # the payload slows the arm down
+    finally:
+        a.close()
+        b.close()
+
+
+# -- bad inputs: an error status and a log message, never a crash ----------------------------------
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_non_finite_torque_is_rejected(fmu_path, unzipped, bad):
+    plant = Plant(fmu_path, unzipped)
+    try:
+        plant.set_torque(0.5, 0.0)
+        plant.step()
+        before = plant.state()
+        plant.set_torque(bad, 0.0)
+        with pytest.raises(FMICallException, match="fmi2DoStep"):
+            plant.fmu.doStep(plant.time, DT)
+        assert any("tau1" in m and "finite" in m for m in plant.errors()), plant.messages
+        np.testing.assert_array_equal(plant.state(), before)  # nothing advanced
+        plant.set_torque(0.5, 0.0)  # a valid value clears the error: the host carries on
+        plant.step()
+        assert np.all(np.isfinite(plant.state()))
+    finally:
+        plant.close()
+
+
+@pytest.mark.parametrize("name,value", [("payload_mass", -0.1), ("payload_mass", 11.0), ("q2_0", 4.0),
+                                        ("payload_mass", math.nan)])
+def test_out_of_range_parameter_is_rejected(fmu_path, unzipped, name, value):
+    plant = Plant(fmu_path, unzipped, **{name: value})
+    try:
+        with pytest.raises(FMICallException, match="fmi2DoStep"):
+            plant.step()
+        assert any(name in m and "[" in m for m in plant.errors()), plant.messages
+    finally:
+        plant.close()
+
+
+def test_out_of_range_substeps_is_rejected(fmu_path, unzipped):
+    plant = Plant(fmu_path, unzipped, substeps=0)
+    try:
+        with pytest.raises(FMICallException):
+            plant.step()
+        assert any("substeps" in m and "[1, 64]" in m for m in plant.errors()), plant.messages
+    finally:
+        plant.close()
+
+
+@pytest.mark.parametrize("h", [0.0, -1e-3, math.nan])
+def test_bad_step_size_is_rejected(fmu_path, unzipped, h):
+    plant = Plant(fmu_path, unzipped)
+    try:
+        with pytest.raises(FMICallException, match="fmi2DoStep"):
+            plant.fmu.doStep(0.0, h)
+        assert any("step_size" in m for m in plant.errors()), plant.messages
+        plant.step()  # still usable
+    finally:
+        plant.close()
+
+
+def test_setting_an_output_is_rejected(fmu_path, unzipped):
+    plant = Plant(fmu_path, unzipped)
+    try:
+        plant.fmu.setReal([plant.vr["q1"]], [1.0])
+        assert plant.get(["q1"])["q1"] == 0.0
+        assert any("q1" in m and "cannot be set" in m for m in plant.errors())
+    finally:
+        plant.close()
+
+
+# -- the FMU is self-contained ---------------------------------------------------------------
+_ISOLATED_RUN = r"""
+import importlib.util, json, sys
+sys.path.extend(json.loads(sys.argv[1]))  # site-packages without .pth files: no editable 'flexarm'
+assert importlib.util.find_spec("flexarm") is None, "flexarm importable outside the FMU"
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+md = read_model_description("plant.fmu")
+vr = {v.name: v.valueReference for v in md.modelVariables}
+import os
+unzipdir = extract("plant.fmu", unzipdir=os.path.abspath("unzipped"))
+fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
+                instanceName="isolated")
+fmu.instantiate()
+fmu.setupExperiment(startTime=0.0)
+fmu.enterInitializationMode()
+fmu.exitInitializationMode()
+fmu.setReal([vr["tau1"], vr["tau2"]], [2.0, 0.5])
+for k in range(200):
+    fmu.doStep(k * 1e-3, 1e-3)
+names = ["theta%d" % i for i in range(1, 12)] + ["omega%d" % i for i in range(1, 12)]
+z = fmu.getReal([vr[n] for n in names])
+import flexarm, flexarm._kernels
+print(json.dumps({"z": z, "flexarm": flexarm.__file__, "numba": flexarm._kernels.HAVE_NUMBA}))
+fmu.terminate()
+fmu.freeInstance()
+"""
+
+
+def test_fmu_runs_alone_without_the_project(fmu_path, tmp_path):
+    """Copied alone into an empty folder, the FMU runs in a process that cannot import the project.
+
+    `python -I -S`: no PYTHONPATH, no user site, no script or current folder on
+    sys.path, and no site-packages processing, so the editable install's
+    import hook for `flexarm` (a .pth file) is not installed. The
+    site-packages folders are then appended as plain paths so that fmpy,
+    NumPy and SciPy import. The only `flexarm` left is the FMU's own copy.
+    FLEXARM_NO_NUMBA=1 runs the NumPy path (what a machine without Numba
+    gets) and avoids a fresh Numba compile in the throwaway folder.
+    """
+    work = tmp_path / "alone"
+    work.mkdir()
+    shutil.copy2(fmu_path, work / "plant.fmu")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
+    env["FLEXARM_NO_NUMBA"] = "1"
+    paths = [p for p in site.getsitepackages() if not Path(p).resolve().is_relative_to(ROOT)]
+    proc = subprocess.run([sys.executable, "-I", "-S", "-c", _ISOLATED_RUN, json.dumps(paths)], cwd=work, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert Path(result["flexarm"]).resolve().is_relative_to((work / "unzipped" / "resources").resolve())
+    assert result["numba"] is False
+    model = ArmModel()
+    z0 = np.concatenate([rigid_configuration(0.0, math.pi / 2), np.zeros(N)])
+    reference = simulate(model, z0, np.tile([2.0, 0.5], (200, 1)))[-1]
+    np.testing.assert_allclose(result["z"], reference, rtol=0, atol=1e-9)  # NumPy vs Numba kernels
