@@ -26,7 +26,7 @@ def plot_scenario(name: str, results, desired: dict, traj, plant: str, driver: s
     """Three PNGs in `folder`; returns their paths."""
     out = []
     fig, ax = plt.subplots(figsize=(6, 6))
-    ax.plot(traj.tip_x, traj.tip_y, "k--", lw=2, label="desired (optimiser)")
+    ax.plot(traj.tip[:, 0], traj.tip[:, 1], "k--", lw=2, label="desired (optimiser)")
     for r in results:
         if f"{plant}.tip_x" in r.series:
             ax.plot(r.series[f"{plant}.tip_x"], r.series[f"{plant}.tip_y"], lw=1,

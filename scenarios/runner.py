@@ -138,7 +138,10 @@ def desired_states(traj, n_samples: int, dt: float) -> dict[str, np.ndarray]:
 
 
 def traj_sha(traj) -> str:
-    return getattr(traj, "sha256", "")
+    """SHA-256 of the committed trajectory file the controller FMUs carry."""
+    from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
+
+    return sha256_file(DEFAULT_TRAJECTORY_FILE)
 
 
 def _bar(label: str):
