@@ -44,7 +44,7 @@ def main(argv=None) -> int:
                 from .plots import plot_scenario
 
                 traj = desired_trajectory()
-                desired = desired_states(traj, sc.samples + 1, sc.step_size)
+                desired = desired_states(traj, len(results[0].series["time"]), sc.step_size)
                 pngs = plot_scenario(sc.name, results, desired, traj, "plant", "controller", args.out / sc.name)
                 print("   plots: " + ", ".join(str(p) for p in pngs))
             print(f"   results: {args.out / sc.name}")

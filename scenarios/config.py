@@ -40,7 +40,7 @@ class Scenario:
     parameters: dict[str, dict]
     cases: list[Case]
     step_size: float = 1e-3
-    samples: int = 2058
+    samples: int | str = "trajectory"
     paper_table: str | None = None
     record: list[str] = field(default_factory=list)
 
@@ -79,9 +79,11 @@ def load_scenario(path: str | Path) -> Scenario:
     step = sc.get("step_size_s", 1e-3)
     _require(isinstance(step, (int, float)) and math.isfinite(step) and 1e-6 <= step <= 0.1,
              f"{p.name}: scenario.step_size_s", "a number of seconds in [1e-6, 0.1]", step)
-    samples = sc.get("samples", 2058)
-    _require(isinstance(samples, int) and 1 <= samples <= 10_000_000, f"{p.name}: scenario.samples",
-             "an integer in [1, 10000000]", samples)
+    samples = sc.get("samples", "trajectory")
+    _require(samples == "trajectory" or (isinstance(samples, int) and not isinstance(samples, bool)
+                                         and 1 <= samples <= 10_000_000),
+             f"{p.name}: scenario.samples", "an integer in [1, 10000000] or \"trajectory\" (as long as the slew)",
+             samples)
     fmus = doc.get("fmus", {})
     _require(isinstance(fmus, dict) and fmus and all(isinstance(v, str) for v in fmus.values()),
              f"{p.name}: [fmus]", "a table of instance = \"built FMU name or path to a .fmu\"", fmus)

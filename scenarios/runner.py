@@ -94,15 +94,20 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     record = [(plant, v) for v in PLANT_STATE + ["tip_x", "tip_y"]] + [(driver, "tau1"), (driver, "tau2")]
     record += [tuple(s.split(".", 1)) for s in scenario.record if tuple(s.split(".", 1)) not in record]
     traj = desired_trajectory()
-    n = scenario.samples
+    n = run_length(scenario, traj)
     desired = desired_states(traj, n + 1, scenario.step_size)
+    start = start_parameters(traj)
     checksums = {inst: sha256_file(p) for inst, p in paths.items()}
     commit = git_commit()
     folder = out_dir / scenario.name
     results = []
     for case in scenario.cases:
+        params = {inst: dict(v) for inst, v in case.parameters.items()}
+        # The paper's runs start on the trajectory: the plant's initial joint angles
+        # come from the trajectory file unless the scenario sets them.
+        params[plant] = {**start, **params.get(plant, {})}
         system = master.System(fmus=paths, order=scenario.order, connections=connections,
-                               parameters=case.parameters, record=record, step_size=scenario.step_size, n_steps=n)
+                               parameters=params, record=record, step_size=scenario.step_size, n_steps=n)
         t0 = time.perf_counter()
         out = master.run(system, progress=_bar(f"{scenario.name}:{case.key}") if progress else None)
         wall = time.perf_counter() - t0
@@ -123,11 +128,24 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
             "metric_units": {"peak_tau1": "N.m", "peak_tau2": "N.m", "peak_position_error": "deg",
                              "peak_velocity_error": "deg/s", "rms_position_error": "deg",
                              "rms_velocity_error": "deg/s"},
-            "parameters": case.parameters, "fmus": {k: str(v) for k, v in paths.items()},
+            "parameters": params, "samples": n, "fmus": {k: str(v) for k, v in paths.items()},
             "fmu_sha256": checksums, "commit": commit, "wall_time_s": wall, "steps_done": out["steps_done"],
             "trajectory_sha256": traj_sha(traj), "fmu_log_tail": out["log"][-20:],
         })
     return results
+
+
+def run_length(scenario: Scenario, traj) -> int:
+    """Communication steps of a run: the scenario's, or the slew's length ("trajectory")."""
+    return traj.n_samples if scenario.samples == "trajectory" else int(scenario.samples)
+
+
+def start_parameters(traj) -> dict[str, float]:
+    """Plant parameters that start the arm at the trajectory's initial joint angles (at rest, undeformed)."""
+    from flexarm import joint_angles
+
+    q = joint_angles(traj.theta[0])
+    return {"q1_0": float(q[0]), "q2_0": float(q[1])}
 
 
 def desired_states(traj, n_samples: int, dt: float) -> dict[str, np.ndarray]:

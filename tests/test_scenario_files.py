@@ -34,7 +34,7 @@ def test_shipped_scenarios_load():
     assert {"table1", "table2", "table3"} <= names
     t2 = load_scenario("table2")
     assert [c.key for c in t2.cases] == ["none", "noise", "tip", "tip_noise"]
-    assert t2.samples == 2058 and t2.step_size == 0.001
+    assert t2.samples == "trajectory" and t2.step_size == 0.001
     tip_noise = t2.cases[3].parameters
     assert tip_noise["plant"]["payload_mass"] == 0.275 and tip_noise["sensors"]["noise_enabled"] is True
     assert t2.cases[0].parameters["plant"]["payload_mass"] == 0.0
