@@ -80,10 +80,19 @@ class FmuSpec:
     extra_files: tuple[Path, ...] = field(default=())
 
 
+#: Direct-feedthrough sampling glue shared by the sensors and controller FMUs.
+FEEDTHROUGH = ROOT / "fmus" / "sensors" / "flexarm_feedthrough.py"
+#: The controller FMUs: one slave module each, sharing flexarm_controller_base.py.
+CONTROLLER_DIR = ROOT / "fmus" / "controller"
+
 #: Every FMU of the project; sensors and controller add one entry each.
 FMUS: dict[str, FmuSpec] = {
     spec.name: spec for spec in (
         FmuSpec("plant", ROOT / "fmus" / "plant" / "flexarm_plant_fmu.py"),
+        FmuSpec("sensors", ROOT / "fmus" / "sensors" / "flexarm_sensors_fmu.py", (FEEDTHROUGH,)),
+        *(FmuSpec(f"controller{suffix}", CONTROLLER_DIR / f"flexarm_controller{suffix}_fmu.py",
+                  (FEEDTHROUGH, CONTROLLER_DIR / "flexarm_controller_base.py"))
+          for suffix in ("", "_ff", "_fb", "_dlqr")),
     )
 }
 
@@ -167,7 +176,9 @@ def build_fmu(spec: FmuSpec, out_dir: Path) -> Path:
         os.close(fd)
         tmp_fmu = Path(tmp_name)
         try:
-            with _import_sandbox([COMMON_DIR, spec.script.parent]):
+            # Folders of extra modules too: the builder imports the script, which may import them.
+            extra_dirs = [e.parent for e in spec.extra_files if e.suffix == ".py"]
+            with _import_sandbox([COMMON_DIR, spec.script.parent, *extra_dirs]):
                 FmuBuilder.build_FMU(spec.script, dest=tmp_fmu, project_files=project_files,
                                      documentation_folder=doc_dir, **FMU_OPTIONS)
             problems = validate_fmu(str(tmp_fmu))

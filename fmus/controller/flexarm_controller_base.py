@@ -1,0 +1,179 @@
+"""Shared part of the controller FMUs (FMI 2.0 co-simulation): one interface, several control laws.
+
+A thin wrapper over :class:`flexarm.control.TrackingController`: the
+feedforward, the gain schedules, the state reconstruction and the saturation
+all live in :mod:`flexarm.control` / :mod:`flexarm.lqr`; this module only maps
+FMI variables to and from them. Each controller FMU is a subclass in its own
+slave module (unique module and class names, see
+``fmus/common/flexarm_fmu_base.py``) that fixes the control mode and the
+kind of gain set:
+
+==================  ==========================  ==========================
+FMU                 model identifier            law
+==================  ==========================  ==========================
+``controller``      ``FlexarmController``       feedforward + scheduled LQR
+``controller_ff``   ``FlexarmControllerFF``     feedforward only (open loop)
+``controller_fb``   ``FlexarmControllerFB``     scheduled LQR only
+``controller_dlqr`` ``FlexarmControllerDLQR``   feedforward + discrete LQR
+==================  ==========================  ==========================
+
+All have the same variables, so a scenario swaps them with one line. The
+trajectory (``flexarm/data/trajectory.npz``) and the gain schedules
+(``flexarm/data/gains/``) travel in the bundled ``flexarm`` package.
+
+Sampling (direct feedthrough, :mod:`flexarm_feedthrough`): the torques at
+communication point t_k are computed from the measurements present at t_k,
+with the trajectory sample k = round(t_k / 1 ms); the plant holds them over
+[t_k, t_k + h).
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+from flexarm_feedthrough import FeedthroughSlave
+from flexarm_fmu_base import Var, variable_table
+from pythonfmu.default_experiment import DefaultExperiment
+
+from flexarm.control import PEAK_TORQUE, TrackingController
+from flexarm.lqr import OMEGA7_CHOICES, canonical_name, default_trajectory_path
+
+#: Measured signals the law uses (sensors FMU output names), in the order q, q̇, ε.
+USED_INPUTS = ("q1_m", "q2_m", "qd1_m", "qd2_m", *(f"eps{i}_m" for i in range(1, 7)))
+#: Accepted for plug-compatibility with the sensors FMU, not used by the law.
+UNUSED_INPUTS = ("acc1_m", "acc2_m")
+#: ``schedule_period`` value (s) -> :data:`flexarm.lqr.SCHEDULES` label.
+SCHEDULE_PERIODS = {0.2: "200ms", 0.02: "20ms", 0.0: "single"}
+#: Gain-set aliases accepted besides :data:`flexarm.lqr.GAIN_SET_NAMES`.
+GAIN_SET_ALIASES = {"experimental": "eq32"}
+DEFAULT_GAIN_SET = "gamma0.1"
+
+_INPUT_INFO = {
+    "q1_m": ("rad", "Measured joint-1 angle (encoder 1)"),
+    "q2_m": ("rad", "Measured joint-2 angle (encoder 2)"),
+    "qd1_m": ("rad/s", "Measured joint-1 rate (tachometer 1)"),
+    "qd2_m": ("rad/s", "Measured joint-2 rate (tachometer 2)"),
+    **{f"eps{i}_m": ("rad", f"Measured strain-gauge segment angle {i}") for i in range(1, 7)},
+    "acc1_m": ("m/s2", "Measured link-1 tip acceleration (accepted, not used by the control law)"),
+    "acc2_m": ("m/s2", "Measured link-2 tip acceleration (accepted, not used by the control law)"),
+}
+
+VARIABLES = variable_table([
+    *[Var(name, "input", "continuous", *_INPUT_INFO[name], 0.0) for name in (*USED_INPUTS, *UNUSED_INPUTS)],
+    Var("gain_set", "parameter", "fixed", None,
+        "LQR gain set: gamma1, gamma0.1, gamma0, eq32 (alias experimental), dlqr-<set>; "
+        "gamma_1 style accepted", DEFAULT_GAIN_SET, type="String"),
+    Var("schedule_period", "parameter", "fixed", "s",
+        "Gain-switching period: 0.2, 0.02, or 0 for one gain set (mid-slew)", 0.2, 0.0, 10.0),
+    Var("tau1_max", "parameter", "fixed", "N.m", "Saturation |tau1| <= tau1_max (shoulder motor peak torque)",
+        float(PEAK_TORQUE[0]), 1e-9, 1000.0),
+    Var("tau2_max", "parameter", "fixed", "N.m", "Saturation |tau2| <= tau2_max (elbow motor peak torque)",
+        float(PEAK_TORQUE[1]), 1e-9, 1000.0),
+    Var("omega7", "parameter", "fixed", None,
+        "How the theta7-rate error is formed: tachometer (qd2 error) or rigid (qd1 + qd2 errors)",
+        "tachometer", type="String"),
+    Var("tau1", "output", "continuous", "N.m", "Joint-1 (shoulder) motor torque command", depends_on=USED_INPUTS),
+    Var("tau2", "output", "continuous", "N.m", "Joint-2 (elbow) motor torque command", depends_on=USED_INPUTS),
+])
+
+
+def gain_set_name(value: str, discrete: bool = False) -> str:
+    """The :mod:`flexarm.lqr` name of a ``gain_set`` parameter value.
+
+    Parameters
+    ----------
+    value : str
+        ``gamma1``, ``gamma0.1``, ``gamma0``, ``eq32``, ``dlqr-<set>``,
+        ``dlqr`` (= ``dlqr-gamma0.1``); also ``gamma_1``-style names,
+        ``experimental`` (= ``eq32``) and ``dlqr_<set>``.
+    discrete : bool
+        Return the discrete (``dlqr-``) design of the same weights.
+
+    Raises
+    ------
+    ValueError
+        Naming ``gain_set`` and the allowed names.
+    """
+    name = value.strip()
+    is_dlqr = name == "dlqr" or name.startswith(("dlqr-", "dlqr_"))
+    base = "gamma0.1" if name == "dlqr" else name[5:] if is_dlqr else name
+    base = GAIN_SET_ALIASES.get(base, base)
+    if base.startswith("gamma_"):
+        base = "gamma" + base[6:]
+    name = f"dlqr-{base}" if discrete or is_dlqr else base
+    try:
+        return canonical_name(name)
+    except ValueError as exc:
+        raise ValueError(f"gain_set: {value!r} is not a gain set ({exc})") from None
+
+
+def schedule_label(period: float) -> str:
+    """The :data:`flexarm.lqr.SCHEDULES` label of a ``schedule_period`` value in s."""
+    for p, label in SCHEDULE_PERIODS.items():
+        if abs(period - p) <= 1e-12:
+            return label
+    raise ValueError(f"schedule_period: {period!r} s is not one of 0.2, 0.02 or 0 (one gain set)")
+
+
+class ControllerSlave(FeedthroughSlave):
+    """A tracking controller as an FMI 2.0 co-simulation slave (direct feedthrough, stateless).
+
+    Subclasses set :attr:`MODE` (a :data:`flexarm.control.MODES` entry) and
+    :attr:`DISCRETE` (use the ``dlqr-`` design of the named weights).
+    """
+
+    VARIABLES = VARIABLES
+    MODE: ClassVar[str] = "ff+fb"
+    DISCRETE: ClassVar[bool] = False
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=2.058, step_size=1e-3)
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.law: TrackingController | None = None
+        self._key = None
+        self._used_vrs = [self._vr[n] for n in USED_INPUTS]
+
+    def _config(self) -> tuple:
+        omega7 = self.value("omega7")
+        if omega7 not in OMEGA7_CHOICES:
+            raise ValueError(f"omega7: {omega7!r} is not one of {OMEGA7_CHOICES}")
+        name = gain_set_name(self.value("gain_set"), self.DISCRETE)
+        return (name, schedule_label(self.value("schedule_period")), self.value("tau1_max"),
+                self.value("tau2_max"), omega7)
+
+    def setup(self) -> None:
+        key = self._config()
+        if self.law is not None and key == self._key:
+            return
+        name, schedule, tau1_max, tau2_max, omega7 = key
+        gains = None
+        if self.MODE != "ff":  # feedforward only needs no gains (the name is still checked above)
+            from flexarm.lqr import GainSchedule
+
+            try:
+                gains = GainSchedule.load(name, schedule)
+            except (ValueError, OSError) as exc:
+                raise ValueError(f"gain_set = {self.value('gain_set')!r}, schedule_period = "
+                                 f"{self.value('schedule_period')!r} s: {exc}") from None
+        self.law = TrackingController(default_trajectory_path(), gains, mode=self.MODE,
+                                      saturation=(tau1_max, tau2_max), omega7=omega7)
+        self._key = key
+
+    def evaluate(self) -> np.ndarray:
+        x = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)
+        return self.law.torque(self.time, x[0:2], x[2:4], x[4:10])
+
+    def check_step(self, t: float, h: float) -> None:
+        dt = self.law.dt
+        end = (t + h) / dt
+        if abs(end - round(end)) > 1e-6:
+            raise ValueError(f"step_size: t + h = {t + h!r} s is not on the controller's sample grid "
+                             f"(multiples of {dt:g} s, the trajectory's sample time)")
+
+    def get_sample_state(self) -> dict:
+        return {}  # stateless: the torque is a function of the time and the inputs
+
+    def set_sample_state(self, state: dict) -> None:
+        if self.law is None or self._key != self._config():
+            self.setup()

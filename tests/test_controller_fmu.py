@@ -1,0 +1,297 @@
+"""The controller FMUs: one interface, same torques as flexarm.control, closed loop with the plant FMU."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException, calloc, free
+from fmpy.fmi2 import (
+    FMU2Slave,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+)
+from fmpy.validation import validate_fmu
+
+from flexarm.control import TrackingController, tracking_errors
+from flexarm.lqr import DEFAULT_GAIN_DIR, GainSchedule, as_trajectory_data, default_trajectory_path
+from flexarm.model import N, joint_angles, joint_velocities, strain_gauge_angles
+from flexarm.sensors import MEASURED_SIGNAL_NAMES
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from build_fmus import build_all  # noqa: E402
+
+DT = 1e-3
+PAYLOAD = 0.275
+CONTROLLERS = ("controller", "controller_ff", "controller_fb", "controller_dlqr")
+USED = MEASURED_SIGNAL_NAMES[:10]  # q1_m .. eps6_m (the accelerometers are accepted, unused)
+
+pytestmark = pytest.mark.skipif(
+    not default_trajectory_path().is_file() or not any(DEFAULT_GAIN_DIR.glob("*.npz")),
+    reason="flexarm/data/trajectory.npz or flexarm/data/gains/ not generated yet")
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory) -> dict[str, Path]:
+    return build_all(tmp_path_factory.mktemp("fmus"), only=[*CONTROLLERS, "plant", "sensors"], force=True)
+
+
+@pytest.fixture(scope="module")
+def unzipped(fmus, tmp_path_factory) -> dict[str, str]:
+    return {name: extract(str(path), unzipdir=str(tmp_path_factory.mktemp(f"{name}_unzipped")))
+            for name, path in fmus.items()}
+
+
+@pytest.fixture(scope="module")
+def trajectory():
+    return as_trajectory_data(default_trajectory_path())
+
+
+class Slave:
+    """An FMU driven step by step through fmpy's FMU2Slave, with its log captured."""
+
+    def __init__(self, fmu_path, unzipdir, name, **params):
+        self.md = read_model_description(str(fmu_path))
+        self.vars = {v.name: v for v in self.md.modelVariables}
+        self.messages: list[tuple[int, str]] = []
+
+        def logger(component, instance, status, category, message):
+            self.messages.append((status, message.decode()))
+
+        self._callbacks = cb = fmi2CallbackFunctions()  # referenced as long as the instance lives
+        cb.logger = fmi2CallbackLoggerTYPE(logger)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=unzipdir,
+                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
+        self.fmu.instantiate(callbacks=cb, loggingOn=True)
+        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.enterInitializationMode()
+        self.set(**params)
+        self.fmu.exitInitializationMode()
+        self.time = 0.0
+
+    def set(self, **values):
+        for name, value in values.items():
+            var = self.vars[name]
+            setter = {"Real": self.fmu.setReal, "Integer": self.fmu.setInteger, "Boolean": self.fmu.setBoolean,
+                      "String": self.fmu.setString}[var.type]
+            setter([var.valueReference], [value])
+
+    def set_vector(self, names, values):
+        self.fmu.setReal([self.vars[n].valueReference for n in names], [float(v) for v in values])
+
+    def get(self, names) -> np.ndarray:
+        return np.array(self.fmu.getReal([self.vars[n].valueReference for n in names]))
+
+    def step(self, h=DT):
+        self.fmu.doStep(self.time, h)
+        self.time += h
+
+    def errors(self) -> list[str]:
+        return [m for s, m in self.messages if s >= 3]
+
+    def close(self):
+        self.fmu.terminate()
+        self.fmu.freeInstance()
+
+
+def measurements(z) -> np.ndarray:
+    """Noiseless q, q̇, ε of a state, in USED order."""
+    th, om = z[:N], z[N:]
+    return np.concatenate([joint_angles(th), joint_velocities(om), strain_gauge_angles(th)])
+
+
+# -- model description ---------------------------------------------------------------
+@pytest.mark.parametrize("name", CONTROLLERS)
+def test_validate_fmu_reports_no_problems(fmus, name):
+    assert validate_fmu(str(fmus[name])) == []
+
+
+def test_every_controller_has_the_same_interface(fmus):
+    def interface(name):
+        md = read_model_description(str(fmus[name]))
+        return [(v.name, v.causality, v.variability, v.type, v.unit, v.start, v.min, v.max)
+                for v in md.modelVariables]
+
+    reference = interface("controller")
+    for name in CONTROLLERS[1:]:
+        assert interface(name) == reference, name
+    ids = {read_model_description(str(fmus[n])).coSimulation.modelIdentifier for n in CONTROLLERS}
+    assert len(ids) == len(CONTROLLERS)  # distinct binaries, loadable side by side
+
+
+def test_inputs_are_the_sensor_outputs_and_outputs_the_plant_inputs(fmus):
+    md = read_model_description(str(fmus["controller"]))
+    sensors = read_model_description(str(fmus["sensors"]))
+    plant = read_model_description(str(fmus["plant"]))
+    by_name = {v.name: v for v in md.modelVariables}
+    inputs = [v.name for v in md.modelVariables if v.causality == "input"]
+    outputs = [v.name for v in md.modelVariables if v.causality == "output"]
+    assert inputs == list(MEASURED_SIGNAL_NAMES)
+    assert [v.name for v in sensors.modelVariables if v.causality == "output"] == inputs
+    assert outputs == ["tau1", "tau2"]
+    assert [v.name for v in plant.modelVariables if v.causality == "input"] == outputs
+    assert all(by_name[n].unit == "N.m" for n in outputs)
+    for unknown in md.outputs:  # direct feedthrough from the ten used measurements, not the accelerometers
+        assert [v.name for v in unknown.dependencies] == list(USED)
+    assert by_name["gain_set"].type == "String" and by_name["schedule_period"].unit == "s"
+    assert (float(by_name["tau1_max"].start), float(by_name["tau2_max"].start)) == (7.0, 2.25)
+
+
+def test_docs_list_every_variable(fmus):
+    doc = (ROOT / "docs" / "fmu-interface.md").read_text()
+    md = read_model_description(str(fmus["controller"]))
+    missing = [v.name for v in md.modelVariables if f"`{v.name}`" not in doc]
+    assert not missing, f"docs/fmu-interface.md does not describe {missing}"
+    assert all(f"`{name}`" in doc for name in CONTROLLERS)
+
+
+# -- numbers ---------------------------------------------------------------------------
+CASES = [
+    ("controller", dict(gain_set="gamma_1", schedule_period=0.2), "gamma1", "200ms", "ff+fb"),
+    ("controller", dict(gain_set="gamma_0", schedule_period=0.02, tau1_max=3.0, tau2_max=1.0),
+     "gamma0", "20ms", "ff+fb"),
+    ("controller", dict(gain_set="experimental", schedule_period=0.0, omega7="rigid"), "eq32", "single", "ff+fb"),
+    ("controller_ff", dict(gain_set="gamma_0.1"), None, None, "ff"),
+    ("controller_fb", dict(gain_set="gamma_0.1", schedule_period=0.2), "gamma0.1", "200ms", "fb"),
+    ("controller_dlqr", dict(gain_set="gamma_0.1", schedule_period=0.2), "dlqr-gamma0.1", "200ms", "ff+fb"),
+]
+
+
+@pytest.mark.parametrize("fmu,params,gains,schedule,mode", CASES, ids=[f"{c[0]}-{i}" for i, c in enumerate(CASES)])
+def test_torques_equal_flexarm_control_bit_for_bit(fmus, unzipped, trajectory, fmu, params, gains, schedule, mode):
+    if gains is not None and not (DEFAULT_GAIN_DIR / f"{gains}_{schedule}.npz").is_file():
+        pytest.skip(f"gain file {gains}_{schedule} not generated")
+    law = TrackingController(default_trajectory_path(), GainSchedule.load(gains, schedule) if gains else None,
+                             mode=mode, saturation=(params.get("tau1_max", 7.0), params.get("tau2_max", 2.25)),
+                             omega7=params.get("omega7", "tachometer"))
+    rng = np.random.default_rng(0)
+    n = trajectory.n_steps + 200  # past the slew: the hold
+    ctrl = Slave(fmus[fmu], unzipped[fmu], fmu, **params)
+    try:
+        for k in range(n):
+            if k % 7 == 0 or k > n - 5:  # a subsample of the points, all steps taken
+                z = trajectory.z[min(k, trajectory.n_steps)]
+                y = measurements(z) + rng.normal(0.0, [1e-2] * 4 + [1e-4] * 6)
+                ctrl.set_vector(USED, y)
+                ctrl.set_vector(["acc1_m", "acc2_m"], rng.normal(0.0, 10.0, 2))  # ignored
+                tau = ctrl.get(["tau1", "tau2"])
+                expected = law.torque_at(k, y[0:2], y[2:4], y[4:10])
+                np.testing.assert_array_equal(tau, expected, err_msg=f"k = {k}")
+            ctrl.step()
+        assert not ctrl.errors()
+    finally:
+        ctrl.close()
+
+
+def test_outputs_follow_the_inputs_set_at_the_same_point(fmus, unzipped, trajectory):
+    # a sample where the feedforward is well inside the torque limits
+    margin = np.max(np.abs(trajectory.tau[:-1]) / [7.0, 2.25], axis=1)
+    k = int(np.argmin(margin[100:-100])) + 100
+    ctrl = Slave(fmus["controller"], unzipped["controller"], "ctrl", gain_set="gamma_1")
+    try:
+        for _ in range(k):
+            ctrl.step()
+        y = measurements(trajectory.z[k])
+        ctrl.set_vector(USED, y)
+        on_track = ctrl.get(["tau1", "tau2"])
+        np.testing.assert_allclose(on_track, trajectory.tau[k], atol=1e-9)  # zero error: pure feedforward
+        ctrl.set_vector(["q1_m"], [y[0] + 0.01])
+        off_track = ctrl.get(["tau1", "tau2"])
+        assert off_track[0] < on_track[0]  # q1 ahead of the plan: shoulder torque reduced at once
+        state = ctrl.fmu.getFMUstate()
+        ctrl.step()
+        after = ctrl.get(["tau1", "tau2"])
+        ctrl.fmu.setFMUstate(state)
+        ctrl.fmu.freeFMUstate(state)
+        ctrl.time -= DT
+        np.testing.assert_array_equal(ctrl.get(["tau1", "tau2"]), off_track)
+        ctrl.step()
+        np.testing.assert_array_equal(ctrl.get(["tau1", "tau2"]), after)
+    finally:
+        ctrl.close()
+
+
+def closed_loop(fmus, unzipped, trajectory, controller: str, n: int, **params) -> np.ndarray:
+    """Plant FMU (0.275 kg payload) + controller FMU, perfect measurement; states (n + 1, 22)."""
+    theta0 = trajectory.z[0, :N]
+    q0 = joint_angles(theta0)
+    plant = Slave(fmus["plant"], unzipped["plant"], "plant", payload_mass=PAYLOAD, q1_0=q0[0], q2_0=q0[1])
+    ctrl = Slave(fmus[controller], unzipped[controller], controller, **params)
+    names = [f"theta{i + 1}" for i in range(N)] + [f"omega{i + 1}" for i in range(N)]
+    plant_out = ["q1", "q2", "qd1", "qd2", *(f"eps{i}" for i in range(1, 7)), "acc1_n", "acc2_n"]
+    try:
+        states = [plant.get(names)]
+        for _ in range(n):
+            ctrl.set_vector(MEASURED_SIGNAL_NAMES, plant.get(plant_out))  # plant.q1 -> controller.q1_m, ...
+            plant.set_vector(["tau1", "tau2"], ctrl.get(["tau1", "tau2"]))
+            plant.step()
+            ctrl.step()
+            states.append(plant.get(names))
+        assert not plant.errors() and not ctrl.errors()
+        return np.array(states)
+    finally:
+        plant.close()
+        ctrl.close()
+
+
+def test_closed_loop_with_payload_tracks_better_than_feedforward(fmus, unzipped, trajectory):
+    n = trajectory.n_steps
+    np.testing.assert_allclose(trajectory.z[0, N:], 0.0, atol=1e-12)  # starts at rest
+    fb = tracking_errors(closed_loop(fmus, unzipped, trajectory, "controller", n, gain_set="gamma_0.1"), trajectory)
+    ff = tracking_errors(closed_loop(fmus, unzipped, trajectory, "controller_ff", n), trajectory)
+    print(f"\n0.275 kg payload, {n} steps: pos rms ff+fb {fb['pos_rms']:.3f} deg, ff {ff['pos_rms']:.3f} deg; "
+          f"pos peak {fb['pos_peak']:.3f} / {ff['pos_peak']:.3f} deg")
+    assert fb["pos_rms"] < ff["pos_rms"]
+
+
+# -- errors ----------------------------------------------------------------------------
+@pytest.mark.parametrize("params,word", [
+    (dict(gain_set="gamma_7"), "gain_set"),
+    (dict(gain_set="nonsense"), "gain_set"),
+    (dict(schedule_period=0.1), "schedule_period"),
+    (dict(omega7="estimated"), "omega7"),
+])
+def test_bad_parameters_fail_initialisation_with_their_name(fmus, unzipped, params, word):
+    ctrl = Slave(fmus["controller"], unzipped["controller"], "bad", **params)
+    try:
+        assert any(word in m for m in ctrl.errors()), ctrl.errors()
+        with pytest.raises(FMICallException):
+            ctrl.step()
+    finally:
+        ctrl.close()
+
+
+def test_out_of_range_saturation_is_rejected(fmus, unzipped):
+    ctrl = Slave(fmus["controller_ff"], unzipped["controller_ff"], "bad", tau1_max=0.0)
+    try:
+        assert any("tau1_max" in m and "allowed range" in m for m in ctrl.errors())
+    finally:
+        ctrl.close()
+
+
+def test_steps_off_the_sample_grid_are_rejected(fmus, unzipped):
+    ctrl = Slave(fmus["controller_ff"], unzipped["controller_ff"], "grid")
+    try:
+        with pytest.raises(FMICallException):
+            ctrl.fmu.doStep(0.0, 0.5e-3)
+        assert any("step_size" in m and "sample grid" in m for m in ctrl.errors())
+        ctrl.step(2e-3)  # a multiple of the sample time is fine
+    finally:
+        ctrl.close()
+
+
+@pytest.mark.parametrize("name", CONTROLLERS)
+def test_many_instances_in_one_process(fmus, unzipped, name):
+    """pythonfmu 0.7.0 drops a reference to the slave module per instantiation (see flexarm_feedthrough)."""
+    for i in range(6):
+        ctrl = Slave(fmus[name], unzipped[name], f"{name}{i}")
+        ctrl.step()
+        ctrl.close()
