@@ -26,7 +26,14 @@ from pathlib import Path
 
 import numpy as np
 from fmpy import extract, read_model_description
-from fmpy.fmi2 import FMU2Slave
+from fmpy.fmi1 import calloc, free
+from fmpy.fmi2 import (
+    FMU2Slave,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+)
 
 
 class CoSimulationError(RuntimeError):
@@ -73,7 +80,12 @@ class _Unit:
         self.slave = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzipdir,
                                modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
         self.instantiated = False
-        self.slave.instantiate(loggingOn=True, logger=logger)
+        # Keep the ctypes callbacks referenced as long as the instance lives.
+        self._callbacks = cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(logger)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self.slave.instantiate(callbacks=cb, loggingOn=True)
         self.instantiated = True
 
     def vr(self, var: str) -> int:
