@@ -74,6 +74,7 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import hashlib
+import importlib.metadata
 import json
 import os
 import subprocess
@@ -82,7 +83,6 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import control
 import numpy as np
 import scipy
 import scipy.linalg
@@ -376,6 +376,10 @@ def design_gain(model: ArmModel, z_bar, Q, R=R_PAPER, tau_bar=(0.0, 0.0), discre
     Qt = T.T @ Q @ T
     Qt = 0.5 * (Qt + Qt.T)
     Phit, Gamt = zoh(At, Bt, dt)
+    # python-control only for the design: the controller FMUs load gain files
+    # through this module and must run with NumPy/SciPy alone.
+    import control
+
     if discrete:
         Kt, Pt, _ = control.dlqr(Phit, Gamt, Qt, R, method="scipy")
         res_scaled = discrete_riccati_residual(Phit, Gamt, Qt, R, Pt)
@@ -775,7 +779,7 @@ def design_schedule(model: ArmModel, trajectory, name: str, schedule: str = "200
         "payload_mass_kg": float(model.params.payload_mass),
         "commit": _git_commit(),
         "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "versions": {"python-control": control.__version__, "scipy": scipy.__version__,
+        "versions": {"python-control": importlib.metadata.version("control"), "scipy": scipy.__version__,
                      "numpy": np.__version__},
         "max_residual": float(col("residual").max()),
         "max_abs_gain": float(np.abs(col("K")).max()),
