@@ -65,6 +65,18 @@ class System:
     divergence_limit: float = 1e4
 
 
+def logging_callbacks(logger) -> fmi2CallbackFunctions:
+    """FMI 2.0 callbacks routing the FMU's log to `logger(component, instance, status, category, message)`.
+
+    Keep the returned object referenced as long as the instance lives (ctypes).
+    """
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(logger)
+    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    return cb
+
+
 class _Unit:
     """One loaded FMU: its slave and variable references by name."""
 
@@ -80,12 +92,8 @@ class _Unit:
         self.slave = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzipdir,
                                modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
         self.instantiated = False
-        # Keep the ctypes callbacks referenced as long as the instance lives.
-        self._callbacks = cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(logger)
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        self.slave.instantiate(callbacks=cb, loggingOn=True)
+        self._callbacks = logging_callbacks(logger)
+        self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
         self.instantiated = True
 
     def vr(self, var: str) -> int:

@@ -4,14 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 from fmpy import read_model_description
-from fmpy.fmi1 import calloc, free
-from fmpy.fmi2 import (
-    FMU2Slave,
-    fmi2CallbackAllocateMemoryTYPE,
-    fmi2CallbackFreeMemoryTYPE,
-    fmi2CallbackFunctions,
-    fmi2CallbackLoggerTYPE,
-)
+from fmpy.fmi2 import FMU2Slave
+
+from scenarios.master import logging_callbacks
 
 DT = 1e-3
 
@@ -27,10 +22,7 @@ class Slave:
         def logger(component, instance, status, category, message):
             self.messages.append((status, message.decode()))
 
-        self._callbacks = cb = fmi2CallbackFunctions()  # referenced as long as the instance lives
-        cb.logger = fmi2CallbackLoggerTYPE(logger)
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self._callbacks = cb = logging_callbacks(logger)  # referenced as long as the instance lives
         self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=unzipdir,
                              modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
         self.fmu.instantiate(callbacks=cb, loggingOn=True)

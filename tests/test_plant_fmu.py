@@ -14,14 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fmpy import extract, read_model_description
-from fmpy.fmi1 import FMICallException, calloc, free
-from fmpy.fmi2 import (
-    FMU2Slave,
-    fmi2CallbackAllocateMemoryTYPE,
-    fmi2CallbackFreeMemoryTYPE,
-    fmi2CallbackFunctions,
-    fmi2CallbackLoggerTYPE,
-)
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
 from flexarm import ArmModel, joint_angles, joint_velocities, rigid_configuration, strain_gauge_angles
@@ -29,6 +23,7 @@ from flexarm.integrator import DEFAULT_SUBSTEPS, simulate
 from flexarm.model import N
 from flexarm.modes import modal_analysis
 from flexarm.parameters import load_parameters
+from scenarios.master import logging_callbacks
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -59,11 +54,7 @@ class Plant:
         def logger(component, instance, status, category, message):
             self.messages.append((status, message.decode()))
 
-        # Keep the callbacks referenced as long as the instance lives (ctypes).
-        self._callbacks = cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(logger)
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self._callbacks = cb = logging_callbacks(logger)  # referenced as long as the instance lives
         self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=unzipdir,
                              modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
         self.fmu.instantiate(callbacks=cb, loggingOn=True)
