@@ -353,3 +353,33 @@ def advance(z, tau, dt, substeps, mc, kl, j2p, j2d, coef_a, coef_c, gamma):
         z, e = rodas4_step(z, tau, h, mc, kl, j2p, j2d, coef_a, coef_c, gamma)
         err = max(err, np.max(np.abs(e)))
     return z, err
+
+
+@_jit
+def chain_kinematics(theta, omega, alpha, length, ends):
+    """Positions and accelerations of the distal ends of elements `ends`.
+
+    Parameters
+    ----------
+    theta, omega, alpha : (n,) angles (rad), rates (rad/s), accelerations (rad/s²)
+    length : (n,) element lengths (m)
+    ends : (m,) int, 0-based elements
+
+    Returns
+    -------
+    (m, 4) rows (x, y, ẍ, ÿ) in m and m/s², one pass over the chain.
+    """
+    out = np.zeros((ends.shape[0], 4))
+    x = y = ax = ay = 0.0
+    j = 0
+    for i in range(theta.shape[0]):
+        c, s = np.cos(theta[i]), np.sin(theta[i])
+        om2 = omega[i] * omega[i]
+        x += length[i] * c
+        y += length[i] * s
+        ax += length[i] * (-s * alpha[i] - c * om2)
+        ay += length[i] * (c * alpha[i] - s * om2)
+        while j < ends.shape[0] and ends[j] == i:
+            out[j, 0], out[j, 1], out[j, 2], out[j, 3] = x, y, ax, ay
+            j += 1
+    return out

@@ -106,10 +106,15 @@ class TrackingController:
         self._q_d = np.array([joint_angles(th) for th in th_d])
         self._qdot_d = np.array([joint_velocities(om) for om in om_d])
         eps_d = np.array([strain_gauge_angles(th) for th in th_d])
-        self._theta_hat_d = np.array([reconstruct_angles(q, e) for q, e in zip(self._q_d, eps_d)])
+        # The estimate x̂ is linear in the 10 measurements m = (q1, q2, q̇1, q̇2, ε1..ε6):
+        # x̂ = E m, so x̂ − x̂_d[k] = E m − x̂_d[k], and the law is one small mat-vec per sample.
+        self._estimator = _estimator_matrix(omega7)
+        m_d = np.column_stack([self._q_d, self._qdot_d, eps_d])
+        self._x_hat_d = m_d @ self._estimator.T
         if schedule is not None:
             self._gain_index = np.array([schedule.index_at(k * self.dt) for k in range(self.n_steps + 1)])
             self._gains = schedule.reduced_gains()
+            self._gains_per_measurement = np.array([g @ self._estimator for g in self._gains])
 
     # -- trajectory lookup --------------------------------------------------------------
     def sample_index(self, t: float) -> int:
@@ -158,25 +163,19 @@ class TrackingController:
         Returns
         -------
         ndarray, shape (22,)
-            Angle errors (11) and velocity errors with only the θ̇1 and θ̇7
-            entries non-zero.
+            Angle errors (11, eqs. 21-31 with rigid brackets) and velocity
+            errors with only the θ̇1 and θ̇7 entries non-zero.
         """
-        q = _vector(q, 2, "q", "encoder angles in rad")
-        qdot = _vector(qdot, 2, "qdot", "tachometer rates in rad/s")
-        strain = _vector(strain, 6, "strain", "strain-gauge angles in rad")
-        kc = self._clamped(k)
-        err = np.zeros(2 * N)
-        err[:N] = reconstruct_angles(q, strain) - self._theta_hat_d[kc]
-        dq = qdot - self._qdot_d[kc]
-        err[N + 0] = dq[0]
-        err[N + 6] = dq[1] + (dq[0] if self.omega7 == "rigid" else 0.0)
-        return err
+        return self._estimator @ _measurements(q, qdot, strain) - self._x_hat_d[self._clamped(k)]
 
     def torque_at(self, k: int, q, qdot, strain) -> np.ndarray:
         """Motor torques for sample k, N·m, shape (2,) (see :meth:`error_estimate` for inputs)."""
         tau = self.feedforward(k)
         if self.mode != "ff":
-            tau = tau - self.gain(k) @ self.error_estimate(k, q, qdot, strain)
+            kc = self._clamped(k)
+            gains = self._gains_per_measurement[self._gain_index[kc]]
+            # K (E m − x̂_d) with K E precomputed; equal to K @ error_estimate(...) up to rounding.
+            tau -= gains @ _measurements(q, qdot, strain) - self._gains[self._gain_index[kc]] @ self._x_hat_d[kc]
         if self.saturation is not None:
             tau = np.clip(tau, -self.saturation, self.saturation)
         return tau
@@ -184,6 +183,34 @@ class TrackingController:
     def torque(self, t: float, q, qdot, strain) -> np.ndarray:
         """Motor torques at time t (s), N·m, shape (2,); t is rounded to the sample grid."""
         return self.torque_at(self.sample_index(t), q, qdot, strain)
+
+
+def _estimator_matrix(omega7: str) -> np.ndarray:
+    """E, shape (22, 10): x̂ = E m for m = (q1, q2, q̇1, q̇2, ε1..ε6) (eqs. 21-31, module docstring)."""
+    est = np.zeros((2 * N, 10))
+    for j in range(10):
+        m = np.zeros(10)
+        m[j] = 1.0
+        est[:N, j] = reconstruct_angles(m[0:2], m[4:10])
+    est[N + 0, 2] = 1.0
+    est[N + 6, 3] = 1.0
+    if omega7 == "rigid":
+        est[N + 6, 2] = 1.0
+    return est
+
+
+def _measurements(q, qdot, strain) -> np.ndarray:
+    """The 10 measurements as one vector, validated (shapes and finiteness)."""
+    try:
+        m = np.concatenate((q, qdot, strain)).astype(float, copy=False)
+        ok = m.shape == (10,) and np.shape(q) == (2,) and np.shape(qdot) == (2,) and np.isfinite(m).all()
+    except (ValueError, TypeError):
+        ok = False
+    if not ok:  # name the offending argument
+        _vector(q, 2, "q", "encoder angles in rad")
+        _vector(qdot, 2, "qdot", "tachometer rates in rad/s")
+        _vector(strain, 6, "strain", "strain-gauge angles in rad")
+    return m
 
 
 def _vector(x, n: int, name: str, what: str) -> np.ndarray:

@@ -29,6 +29,8 @@ from .parameters import (
 
 N = N_ELEMENTS
 N_STATE = 2 * N_ELEMENTS
+#: The accelerometer-carrying link ends, in ascending order (chain_kinematics needs that).
+_LINK_TIPS = np.array([LINK1_TIP_ELEMENT, LINK2_TIP_ELEMENT], dtype=np.int64)
 
 
 class ArmModel:
@@ -189,9 +191,16 @@ class ArmModel:
 
     def link_tip_accelerations(self, theta, omega, tau) -> np.ndarray:
         """Accelerations of the link-1 and link-2 tips, m/s², shape (2, 2) rows (x, y)."""
+        return self.link_tip_kinematics(theta, omega, tau)[:, 2:]
+
+    def link_tip_kinematics(self, theta, omega, tau) -> np.ndarray:
+        """Positions and accelerations of the link-1 and link-2 tips, shape (2, 4) rows (x, y, ẍ, ÿ), m and m/s².
+
+        One compiled pass over the chain (the plant FMU needs these every 1 ms step).
+        """
+        theta, omega = _f(theta), _f(omega)
         alpha = self.acceleration(theta, omega, tau)
-        return np.array([self.point_acceleration(theta, omega, alpha, LINK1_TIP_ELEMENT),
-                         self.point_acceleration(theta, omega, alpha, LINK2_TIP_ELEMENT)])
+        return kern.chain_kinematics(theta, omega, alpha, self.length, _LINK_TIPS)
 
     def accelerometer_signals(self, theta, omega, tau, tip_accelerations=None) -> np.ndarray:
         """Tip accelerations normal to the link (the accelerometers' axis), m/s², shape (2,).

@@ -51,7 +51,6 @@ available through :meth:`SensorBank.curvatures`.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 import os
@@ -553,7 +552,7 @@ class SensorBank:
     def get_state(self) -> dict:
         """A deep, picklable snapshot: generator state, filter states, priming flag, sample count."""
         return {
-            "rng": copy.deepcopy(self._rng.bit_generator.state),
+            "rng": _copy_rng_state(self._rng.bit_generator.state),
             "primed": self._primed,
             "n_samples": self.n_samples,
             "strain_filter": None if self._strain_filter is None else self._strain_filter.state.copy(),
@@ -567,7 +566,7 @@ class SensorBank:
             if (saved is None) != (flt is None) or (flt is not None and np.shape(saved) != flt.state.shape):
                 raise ValueError(f"state[{key!r}]: does not match this bank's filter settings")
         rng = np.random.Generator(np.random.PCG64())
-        rng.bit_generator.state = copy.deepcopy(state["rng"])
+        rng.bit_generator.state = _copy_rng_state(state["rng"])
         self._rng = rng
         if self._strain_filter is not None:
             self._strain_filter.state = np.array(state["strain_filter"], dtype=float)
@@ -588,3 +587,11 @@ class SensorBank:
         if x.shape != (N_SIGNALS,):
             raise ValueError(f"true_signals: expected shape ({N_SIGNALS},) in TRUE_SIGNALS order, got {x.shape}")
         return x
+
+
+def _copy_rng_state(state: Mapping) -> dict:
+    """Copy of a bit generator's state dict: nested dicts copied, ints shared (immutable).
+
+    Cheaper than ``copy.deepcopy``; the sensors FMU snapshots it at every step.
+    """
+    return {k: _copy_rng_state(v) if isinstance(v, Mapping) else v for k, v in state.items()}

@@ -27,6 +27,8 @@ class Case:
     key: str
     label: str
     parameters: dict[str, dict]
+    #: FMU instance -> built FMU name or .fmu path for this case (the scenario's, with the case's overrides).
+    fmus: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass
@@ -111,11 +113,18 @@ def load_scenario(path: str | Path) -> Scenario:
     for i, c in enumerate(raw_cases):
         _require(isinstance(c.get("key"), str) and c["key"].isidentifier(), f"{p.name}: cases[{i}].key",
                  "an identifier (letters, digits, _)", c.get("key"))
+        unknown = set(c) - {"key", "label", "parameters", "fmus"}
+        _require(not unknown, f"{p.name}: cases[{i}]", "keys allowed: ['fmus', 'key', 'label', 'parameters']",
+                 sorted(unknown))
         over = c.get("parameters", {})
         for fmu in over:
             _require(fmu in fmus, f"{p.name}: cases[{i}].parameters.{fmu}", f"an FMU instance from {sorted(fmus)}",
                      fmu)
-        cases.append(Case(c["key"], c.get("label", c["key"]), _merge(params, over)))
+        swap = c.get("fmus", {})
+        for inst, name in swap.items():
+            _require(inst in fmus and isinstance(name, str) and name, f"{p.name}: cases[{i}].fmus.{inst}",
+                     f"an FMU instance from {sorted(fmus)} = \"built FMU name or .fmu path\"", name)
+        cases.append(Case(c["key"], c.get("label", c["key"]), _merge(params, over), {**fmus, **swap}))
     keys = [c.key for c in cases]
     _require(len(set(keys)) == len(keys), f"{p.name}: cases", "unique keys", keys)
     record = doc.get("record", {}).get("signals", [])

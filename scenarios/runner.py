@@ -10,9 +10,11 @@ from pathlib import Path
 import numpy as np
 from fmpy import read_model_description
 
+from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
+
 from . import master
 from .config import Scenario
-from .metrics import METRICS, table_metrics
+from .metrics import METRICS, UNITS, table_metrics
 from .results import git_commit, sha256_file, write_csv, write_json
 
 REPO = Path(__file__).resolve().parent.parent
@@ -32,13 +34,19 @@ class CaseResult:
     series: dict[str, np.ndarray]
 
 
-def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = None, build: bool = True) -> dict:
-    """FMU instance -> .fmu path; names are built into `fmu_dir` (rebuilt when older than their sources)."""
-    names = dict(scenario.fmus)
+def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = None, build: bool = True,
+                 names: dict[str, str] | None = None) -> dict[str, Path]:
+    """FMU instance -> .fmu path; names are built into `fmu_dir` (rebuilt when older than their sources).
+
+    `names` (instance -> FMU name or path) defaults to the scenario's ``[fmus]``;
+    `controller` replaces the ``controller`` instance's FMU.
+    """
+    names = dict(scenario.fmus if names is None else names)
     if controller is not None:
         names["controller"] = controller
     paths = {}
     to_build = [n for n in names.values() if not n.endswith(".fmu")]
+    built = {}
     if to_build and build:
         sys.path.insert(0, str(REPO))
         import build_fmus
@@ -48,7 +56,7 @@ def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = Non
         if name.endswith(".fmu"):
             p = Path(name) if Path(name).is_absolute() else (scenario.path.parent / name)
         else:
-            p = built[name] if build else fmu_dir / f"{name}.fmu"
+            p = built.get(name, fmu_dir / f"{name}.fmu")
         if not p.is_file():
             raise master.CoSimulationError(f"fmus.{inst}: no FMU at {p}")
         paths[inst] = p
@@ -84,55 +92,100 @@ def desired_trajectory():
     return load_trajectory()
 
 
-def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
-                 progress: bool = True) -> list[CaseResult]:
-    """Run every case; write per-case CSV and JSON into out_dir/<scenario>/."""
-    paths = resolve_fmus(scenario, fmu_dir, controller)
+@dataclass
+class Setup:
+    """What every case of one FMU set shares: FMU paths, wiring, records, run length, desired states."""
+
+    scenario: Scenario
+    paths: dict[str, Path]
+    connections: list[master.Connection]
+    plant: str
+    driver: str
+    record: list[tuple[str, str]]
+    n_steps: int
+    desired: dict[str, np.ndarray]
+    start: dict[str, float]
+
+    def open_master(self, algorithm: str = "gauss-seidel") -> master.Master:
+        """Load this set's FMUs once (reuse the master for every case that shares them)."""
+        return master.Master(self.paths, self.scenario.order, self.connections, algorithm)
+
+    def case_parameters(self, case_parameters: dict[str, dict]) -> dict[str, dict]:
+        """The case's parameters, with the plant started on the trajectory unless the case says otherwise."""
+        params = {inst: dict(v) for inst, v in case_parameters.items()}
+        params[self.plant] = {**self.start, **params.get(self.plant, {})}
+        return params
+
+
+def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
+            names: dict[str, str] | None = None, build: bool = True) -> Setup:
+    """Resolve (and build) the FMUs, wire them, and precompute what the cases share."""
+    paths = resolve_fmus(scenario, fmu_dir, controller, build, names)
     connections = connect_by_name(paths, scenario.connections)
-    plant = next(c.dst_fmu for c in connections if c.dst_var == "tau1")
-    driver = next(c.src_fmu for c in connections if c.dst_var == "tau1")
+    torque_edges = [c for c in connections if c.dst_var == "tau1"]
+    if not torque_edges:
+        raise master.CoSimulationError("connections: nothing drives an input 'tau1' (the plant's torque)")
+    plant, driver = torque_edges[0].dst_fmu, torque_edges[0].src_fmu
     record = [(plant, v) for v in PLANT_STATE + ["tip_x", "tip_y"]] + [(driver, "tau1"), (driver, "tau2")]
     record += [tuple(s.split(".", 1)) for s in scenario.record if tuple(s.split(".", 1)) not in record]
     traj = desired_trajectory()
     n = run_length(scenario, traj)
-    desired = desired_states(traj, n + 1, scenario.step_size)
-    start = start_parameters(traj)
-    checksums = {inst: sha256_file(p) for inst, p in paths.items()}
-    commit = git_commit()
-    folder = out_dir / scenario.name
-    results = []
+    return Setup(scenario, paths, connections, plant, driver, record, n,
+                 desired_states(traj, n + 1, scenario.step_size), start_parameters(traj))
+
+
+def simulate_case(setup: Setup, m: master.Master, parameters: dict[str, dict],
+                  progress=None) -> tuple[dict, dict[str, float] | None]:
+    """One run on a loaded master: the master's result and the table metrics (None when unbounded)."""
+    out = m.run(setup.case_parameters(parameters), setup.record, setup.n_steps, setup.scenario.step_size,
+                progress=progress)
+    if out["status"] != "ok":
+        return out, None
+    sig, p, d = out["signals"], setup.plant, setup.driver
+    theta = np.column_stack([sig[f"{p}.theta{i}"] for i in range(1, N_EL + 1)])
+    omega = np.column_stack([sig[f"{p}.omega{i}"] for i in range(1, N_EL + 1)])
+    tau = np.column_stack([sig[f"{d}.tau1"], sig[f"{d}.tau2"]])
+    return out, table_metrics(tau, theta, omega, setup.desired["theta"], setup.desired["omega"])
+
+
+def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
+                 progress: bool = True, algorithm: str = "gauss-seidel") -> list[CaseResult]:
+    """Run every case; write per-case CSV and JSON into out_dir/<scenario>/.
+
+    Cases with the same FMUs share one loaded master (reset between cases).
+    """
+    groups: dict[tuple, list] = {}
     for case in scenario.cases:
-        params = {inst: dict(v) for inst, v in case.parameters.items()}
-        # The paper's runs start on the trajectory: the plant's initial joint angles
-        # come from the trajectory file unless the scenario sets them.
-        params[plant] = {**start, **params.get(plant, {})}
-        system = master.System(fmus=paths, order=scenario.order, connections=connections,
-                               parameters=params, record=record, step_size=scenario.step_size, n_steps=n)
-        t0 = time.perf_counter()
-        out = master.run(system, progress=_bar(f"{scenario.name}:{case.key}") if progress else None)
-        wall = time.perf_counter() - t0
-        sig = out["signals"]
-        series = {"time": out["time"], **{k: v for k, v in sig.items()}}
-        metrics = None
-        if out["status"] == "ok":
-            theta = np.column_stack([sig[f"{plant}.theta{i}"] for i in range(1, N_EL + 1)])
-            omega = np.column_stack([sig[f"{plant}.omega{i}"] for i in range(1, N_EL + 1)])
-            tau = np.column_stack([sig[f"{driver}.tau1"], sig[f"{driver}.tau2"]])
-            metrics = table_metrics(tau, theta, omega, desired["theta"], desired["omega"])
-        results.append(CaseResult(case.key, case.label, out["status"], out["message"], metrics, wall, series))
-        write_csv(folder / f"{case.key}.csv", series)
-        write_json(folder / f"{case.key}.json", {
-            "scenario": scenario.name, "scenario_file": str(scenario.path),
-            "scenario_sha256": sha256_file(scenario.path), "case": case.key, "label": case.label,
-            "status": out["status"], "message": out["message"], "metrics": metrics,
-            "metric_units": {"peak_tau1": "N.m", "peak_tau2": "N.m", "peak_position_error": "deg",
-                             "peak_velocity_error": "deg/s", "rms_position_error": "deg",
-                             "rms_velocity_error": "deg/s"},
-            "parameters": params, "samples": n, "fmus": {k: str(v) for k, v in paths.items()},
-            "fmu_sha256": checksums, "commit": commit, "wall_time_s": wall, "steps_done": out["steps_done"],
-            "trajectory_sha256": traj_sha(traj), "fmu_log_tail": out["log"][-20:],
-        })
-    return results
+        groups.setdefault(tuple(sorted(case.fmus.items())) if case.fmus else (), []).append(case)
+    by_key: dict[str, CaseResult] = {}
+    commit = git_commit()
+    traj_hash = sha256_file(DEFAULT_TRAJECTORY_FILE)
+    folder = out_dir / scenario.name
+    for names, cases in groups.items():
+        setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None)
+        checksums = {inst: sha256_file(p) for inst, p in setup.paths.items()}
+        with setup.open_master(algorithm) as m:
+            for case in cases:
+                params = setup.case_parameters(case.parameters)
+                t0 = time.perf_counter()
+                bar = _bar(f"{scenario.name}:{case.key}") if progress else None
+                out, metrics = simulate_case(setup, m, case.parameters, progress=bar)
+                wall = time.perf_counter() - t0
+                series = {"time": out["time"], **out["signals"]}
+                by_key[case.key] = CaseResult(case.key, case.label, out["status"], out["message"], metrics, wall,
+                                              series)
+                write_csv(folder / f"{case.key}.csv", series)
+                write_json(folder / f"{case.key}.json", {
+                    "scenario": scenario.name, "scenario_file": str(scenario.path),
+                    "scenario_sha256": sha256_file(scenario.path), "case": case.key, "label": case.label,
+                    "status": out["status"], "message": out["message"], "metrics": metrics,
+                    "metric_units": dict(UNITS), "parameters": params, "samples": setup.n_steps,
+                    "algorithm": algorithm, "fmus": {k: str(v) for k, v in setup.paths.items()},
+                    "fmu_sha256": checksums, "commit": commit, "wall_time_s": wall,
+                    "steps_done": out["steps_done"], "trajectory_sha256": traj_hash,
+                    "fmu_log_tail": out["log"][-20:],
+                })
+    return [by_key[c.key] for c in scenario.cases]
 
 
 def run_length(scenario: Scenario, traj) -> int:
@@ -153,13 +206,6 @@ def desired_states(traj, n_samples: int, dt: float) -> dict[str, np.ndarray]:
     theta, omega = np.asarray(traj.theta), np.asarray(traj.omega)
     idx = np.minimum(np.arange(n_samples), len(theta) - 1)
     return {"theta": theta[idx], "omega": omega[idx] * (np.arange(n_samples) < len(theta))[:, None]}
-
-
-def traj_sha(traj) -> str:
-    """SHA-256 of the committed trajectory file the controller FMUs carry."""
-    from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
-
-    return sha256_file(DEFAULT_TRAJECTORY_FILE)
 
 
 def _bar(label: str):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from flexarm import ArmModel, load_parameters, rigid_configuration
-from flexarm.control import ControllerError, TrackingController, simulate_closed_loop, tracking_errors
+from flexarm.control import PEAK_TORQUE, ControllerError, TrackingController, simulate_closed_loop, tracking_errors
 from flexarm.integrator import simulate
 from flexarm.lqr import GainSchedule, TrajectoryData, default_trajectory_path, design_schedule
 from flexarm.model import N, joint_angles, joint_velocities, reconstruct_angles, strain_gauge_angles
@@ -77,6 +77,21 @@ def test_velocity_error_interpretation(synthetic):
     assert np.isclose(e_t[N], 0.01) and np.isclose(e_t[N + 6], -0.02)
     assert np.isclose(e_r[N + 6], -0.01)
     assert np.count_nonzero(e_t[N:]) == 2
+
+
+def test_error_estimate_is_the_reconstruction_error(synthetic):
+    """The precomputed linear estimator equals eqs. 21-31 applied to measured and desired sensor values."""
+    traj, sched = synthetic
+    rng = np.random.default_rng(3)
+    c = TrackingController(traj, sched)
+    for k in (0, 250, 599):
+        q_d, qd_d, eps_d = sensors(traj.z[k])
+        q, qd, eps = q_d + rng.normal(size=2), qd_d + rng.normal(size=2), eps_d + rng.normal(scale=1e-2, size=6)
+        e = c.error_estimate(k, q, qd, eps)
+        assert np.allclose(e[:N], reconstruct_angles(q, eps) - reconstruct_angles(q_d, eps_d), atol=1e-14)
+        tau = c.torque_at(k, q, qd, eps)
+        unsat = c.feedforward(k) - c.gain(k) @ e
+        assert np.allclose(tau, np.clip(unsat, -np.array(PEAK_TORQUE), PEAK_TORQUE), rtol=1e-12, atol=1e-12)
 
 
 def test_feedforward_only_replays_trajectory_torques(synthetic):

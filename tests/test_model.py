@@ -141,7 +141,11 @@ def test_tip_velocity_and_acceleration_by_differentiation(model):
     v_fd = (model.tip_position(th + h * om) - model.tip_position(th - h * om)) / (2 * h)
     assert np.allclose(model.tip_velocity(th, om), v_fd, rtol=1e-7, atol=1e-9)
     alpha = model.acceleration(th, om, tau)
-    a = model.link_tip_accelerations(th, om, tau)[1]
+    both = model.link_tip_accelerations(th, om, tau)
+    a = both[1]
+    # the one-pass chain sum agrees with the per-point formula at both link tips
+    assert np.allclose(both[0], model.point_acceleration(th, om, alpha, 4), rtol=1e-12, atol=1e-12)
+    assert np.allclose(both[1], model.point_acceleration(th, om, alpha, 10), rtol=1e-12, atol=1e-12)
     v_next = model.tip_velocity(th + h * om, om + h * alpha)
     v_prev = model.tip_velocity(th - h * om, om - h * alpha)
     assert np.allclose(a, (v_next - v_prev) / (2 * h), rtol=1e-5, atol=1e-5)

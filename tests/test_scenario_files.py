@@ -54,10 +54,21 @@ def test_cases_override_base_parameters(tmp_path):
     ('key = "a"', 'key = "a b"', "cases[0].key"),
     ('key = "b"', 'key = "a"', "unique keys"),
     ('name = "mine"', 'name = "mine"\nsampels = 3', "sampels"),
+    ('key = "b"', 'key = "b"\nfmus.contoller = "controller_fb"', "cases[1].fmus.contoller"),
+    ('key = "b"', 'key = "b"\nfmu.controller = "controller_fb"', "cases[1]: keys allowed"),
 ])
 def test_bad_fields_are_named(tmp_path, old, new, field):
     with pytest.raises(ScenarioError, match=field.replace("[", r"\[").replace("]", r"\]")):
         load_scenario(write(tmp_path, GOOD.replace(old, new, 1)))
+
+
+def test_cases_may_swap_an_fmu(tmp_path):
+    sc = load_scenario(write(tmp_path, GOOD.replace('key = "b"', 'key = "b"\nfmus.controller = "controller_fb"')))
+    assert sc.cases[0].fmus == {"plant": "plant", "controller": "controller_ff"}
+    assert sc.cases[1].fmus == {"plant": "plant", "controller": "controller_fb"}
+    swaps = {c.key: c.fmus["controller"] for c in load_scenario("compare_ff_fb").cases}
+    assert swaps == {"ff": "controller_ff", "fb": "controller_fb", "both": "controller",
+                     "ff_tip": "controller_ff", "fb_tip": "controller_fb", "both_tip": "controller"}
 
 
 def test_unknown_scenario_lists_the_known_ones():
