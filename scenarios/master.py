@@ -22,8 +22,9 @@ arrives one step later, and the recorded signals are the values exchanged.
 
 A :class:`Master` loads its FMUs once and can run many times (``fmi2Reset``
 between runs), which is what sweeps do; :func:`run` is the one-shot form.
-Values move between FMUs through preallocated ctypes buffers, one
-``fmi2GetReal``/``fmi2SetReal`` pair per connected FMU pair and step.
+Values move between FMUs through preallocated ctypes buffers: per step one
+``fmi2GetReal`` per FMU (connections and records together) and one
+``fmi2SetReal`` per connected pair of FMUs.
 Everything the master loads is freed, also when a step fails.
 """
 
@@ -161,23 +162,36 @@ class _Unit:
             shutil.rmtree(self.unzipdir, ignore_errors=True)
 
 
-class _Transfer:
-    """Reals from one FMU's outputs to another's inputs through one shared buffer."""
+class _Port:
+    """Some Real outputs of one FMU, read with one ``fmi2GetReal`` into a preallocated buffer."""
 
-    def __init__(self, src: _Unit, src_vrs: list[int], dst: _Unit | None, dst_vrs: list[int]):
-        n = len(src_vrs)
-        self.src, self.dst, self.n = src, dst, n
-        self.src_vrs = (fmi2ValueReference * n)(*src_vrs)
+    def __init__(self, unit: _Unit, vrs: list[int]):
+        n = len(vrs)
+        self.unit, self.n = unit, n
+        self.vrs = (fmi2ValueReference * n)(*vrs)
+        self.buffer = (fmi2Real * n)()
+        self.values = np.frombuffer(self.buffer, dtype=np.float64)
+        self.position = {vr: i for i, vr in enumerate(vrs)}
+
+    def read(self) -> None:
+        status = self.unit.get_real(self.unit.slave.component, self.vrs, self.n, self.buffer)
+        if status > 1:
+            raise CoSimulationError(f"{self.unit.name}: fmi2GetReal returned {_STATUS.get(status, status)}")
+
+
+class _Link:
+    """The connections from one FMU to another: values gathered from the source's port, one ``fmi2SetReal``."""
+
+    def __init__(self, port: _Port, src_vrs: list[int], dst: _Unit, dst_vrs: list[int]):
+        n = len(dst_vrs)
+        self.port, self.dst, self.n = port, dst, n
+        self.index = np.array([port.position[vr] for vr in src_vrs])
         self.dst_vrs = (fmi2ValueReference * n)(*dst_vrs)
         self.buffer = (fmi2Real * n)()
         self.values = np.frombuffer(self.buffer, dtype=np.float64)
 
-    def read(self) -> None:
-        status = self.src.get_real(self.src.slave.component, self.src_vrs, self.n, self.buffer)
-        if status > 1:
-            raise CoSimulationError(f"{self.src.name}: fmi2GetReal returned {_STATUS.get(status, status)}")
-
     def write(self) -> None:
+        self.values[:] = self.port.values[self.index]
         status = self.dst.set_real(self.dst.slave.component, self.dst_vrs, self.n, self.buffer)
         if status > 1:
             raise CoSimulationError(f"{self.dst.name}: fmi2SetReal returned {_STATUS.get(status, status)}")
@@ -224,21 +238,80 @@ class Master:
             raise CoSimulationError(f"could not load the FMUs: {exc}; log: {self.messages[-5:]}") from exc
 
     def _wire(self, connections: list[Connection]) -> None:
-        rank = {name: i for i, name in enumerate(self.order)}
-        groups: dict[tuple[str, str], list[tuple[int, int]]] = {}
+        self.groups: dict[tuple[str, str], list[tuple[int, int]]] = {}
         for c in connections:
             for inst in (c.src_fmu, c.dst_fmu):
                 if inst not in self.units:
                     raise CoSimulationError(f"connection {c.src_fmu}.{c.src_var} -> {c.dst_fmu}.{c.dst_var}: "
                                             f"no FMU instance '{inst}' (have: {sorted(self.units)})")
             src, dst = self.units[c.src_fmu], self.units[c.dst_fmu]
-            groups.setdefault((c.src_fmu, c.dst_fmu), []).append((src.vr(c.src_var), dst.vr(c.dst_var)))
-        # forward[name]: transfers into `name` from FMUs earlier in the order; feedback: the rest.
-        self.forward: dict[str, list[_Transfer]] = {name: [] for name in self.order}
-        self.feedback: list[_Transfer] = []
-        for (s, d), pairs in groups.items():
-            t = _Transfer(self.units[s], [p[0] for p in pairs], self.units[d], [p[1] for p in pairs])
-            (self.forward[d] if rank[s] < rank[d] else self.feedback).append(t)
+            self.groups.setdefault((c.src_fmu, c.dst_fmu), []).append((src.vr(c.src_var), dst.vr(c.dst_var)))
+
+    def _plan(self, record: list[tuple[str, str]]) -> tuple[list, list]:
+        """The per-step operations and, per recorded signal, (port, position) to read it from.
+
+        Every FMU's needed outputs (connections and records) are read with one
+        call at its turn. A recorded output that depends on an input set later
+        in the step (a feedback edge, per the modelDescription's output
+        dependencies) is read again at the end, so records are always the
+        values at t_k after all inputs are set.
+        """
+        rank = {name: i for i, name in enumerate(self.order)}
+        needed: dict[str, list[int]] = {name: [] for name in self.order}
+        for (s, _d), pairs in self.groups.items():
+            needed[s] += [vr for vr, _ in pairs if vr not in needed[s]]
+        rec_vrs = []
+        for inst, var in record:
+            if inst not in self.units:
+                raise CoSimulationError(f"record: no FMU instance '{inst}' (have: {sorted(self.units)})")
+            vr = self.units[inst].vr(var)
+            rec_vrs.append(vr)
+            if vr not in needed[inst]:
+                needed[inst].append(vr)
+        ports = {name: _Port(self.units[name], vrs) for name, vrs in needed.items() if vrs}
+        forward = {name: [] for name in self.order}
+        feedback = []
+        for (s, d), pairs in self.groups.items():
+            link = _Link(ports[s], [p[0] for p in pairs], self.units[d], [p[1] for p in pairs])
+            (forward[d] if rank[s] < rank[d] else feedback).append(link)
+        if self.algorithm == "jacobi":  # every value as it was before any input changed, then all inputs set
+            ops = [port.read for port in ports.values()]
+            ops += [link.write for name in self.order for link in forward[name]] + [link.write for link in feedback]
+            return ops, [(ports[inst], ports[inst].position[vr]) for (inst, _), vr in zip(record, rec_vrs)]
+        ops = []
+        for name in self.order:
+            ops += [link.write for link in forward[name]]
+            if name in ports:
+                ops.append(ports[name].read)
+        ops += [link.write for link in feedback]
+        late_inputs = {name: set() for name in self.order}
+        for link in feedback:
+            late_inputs[link.dst.name] |= {vr for vr in link.dst_vrs}
+        reread = {}
+        sources = []
+        for (inst, var), vr in zip(record, rec_vrs):
+            unit = self.units[inst]
+            if late_inputs[inst] and self._depends_on(unit, var, late_inputs[inst]):
+                reread.setdefault(inst, [])
+                if vr not in reread[inst]:
+                    reread[inst].append(vr)
+                sources.append((inst, vr))
+            else:
+                sources.append((ports[inst], ports[inst].position[vr]))
+        again = {inst: _Port(self.units[inst], vrs) for inst, vrs in reread.items()}
+        ops += [port.read for port in again.values()]
+        return ops, [(again[src], again[src].position[vr]) if isinstance(src, str) else (src, vr)
+                     for src, vr in sources]
+
+    @staticmethod
+    def _depends_on(unit: _Unit, var: str, inputs: set[int]) -> bool:
+        """Whether output `var` may depend on any of the input value references `inputs`."""
+        for out in unit.md.outputs:
+            if out.variable.name == var:
+                if out.dependencies is None:  # not declared: assume it depends on every input
+                    return True
+                return any(d.valueReference in inputs for d in out.dependencies)
+        return False  # not an output (a state or local): only changes when the FMU steps
 
     def __enter__(self) -> Master:
         return self
@@ -306,41 +379,24 @@ class Master:
         except Exception as exc:
             self._used = True
             raise CoSimulationError(f"could not initialise the FMUs: {exc}; log: {self.messages[-5:]}") from exc
-        # One read per recorded FMU: columns of `data` filled from its buffer.
-        readers, columns = [], []
-        by_unit: dict[str, list[int]] = {}
-        for i, (inst, _var) in enumerate(record):
-            if inst not in self.units:
-                raise CoSimulationError(f"record: no FMU instance '{inst}' (have: {sorted(self.units)})")
-            by_unit.setdefault(inst, []).append(i)
-        for inst, cols in by_unit.items():
-            unit = self.units[inst]
-            readers.append(_Transfer(unit, [unit.vr(record[i][1]) for i in cols], None, [0] * len(cols)))
-            columns.append(np.array(cols))
-        # (read?, write?, transfer) in the order of the algorithm; records are read at "record".
-        if self.algorithm == "gauss-seidel":
-            schedule = [(True, True, t) for name in self.order for t in self.forward[name]]
-            schedule += [(True, True, t) for t in self.feedback] + [(False, False, "record")]
-        else:  # every value (records too) as it was before any input changed, then all inputs set
-            every = [t for name in self.order for t in self.forward[name]] + self.feedback
-            schedule = [(True, False, t) for t in every] + [(False, False, "record")]
-            schedule += [(False, True, t) for t in every]
+        ops, sources = self._plan(record)
+        # data[k] is gathered from the ports' buffers: one fancy-index per port.
+        gathers = {}
+        for col, (port, pos) in enumerate(sources):
+            gathers.setdefault(id(port), (port, [], []))
+            gathers[id(port)][1].append(col)
+            gathers[id(port)][2].append(pos)
+        gathers = [(port, np.array(cols), np.array(pos)) for port, cols, pos in gathers.values()]
         steppers = [(u.do_step, u.slave.component, u.name) for u in (self.units[name] for name in self.order)]
         every_pct = max(1, n // 100)
         status, message, k = "ok", "", 0
         try:
             for k in range(n + 1):
-                for read, write, t in schedule:
-                    if t == "record":
-                        for reader, cols in zip(readers, columns):
-                            reader.read()
-                            data[k, cols] = reader.values
-                        continue
-                    if read:
-                        t.read()
-                    if write:
-                        t.write()
+                for op in ops:
+                    op()
                 row = data[k]
+                for port, cols, pos in gathers:
+                    row[cols] = port.values[pos]
                 if not (np.isfinite(row).all() and (np.abs(row) < divergence_limit).all()):
                     status, message = "unbounded", f"signals left the bounds at t = {time[k]:.3f} s"
                     break
