@@ -19,6 +19,9 @@ signal first and only then sets the inputs, as masters that step all FMUs in
 parallel do (libcosim's fixed-step algorithm, fmpy's ``simulate_ssp``): a
 signal passing through a direct-feedthrough FMU (sensors, controller)
 arrives one step later, and the recorded signals are the values exchanged.
+It follows libcosim exactly, so that the two masters can be compared bit for
+bit: one exchange round per FMU during initialisation, and time points kept
+in integer nanoseconds (t_k = k·h_ns / 1e9, step t_k+1 − t_k).
 
 A :class:`Master` loads its FMUs once and can run many times (``fmi2Reset``
 between runs), which is what sweeps do; :func:`run` is the one-shot form.
@@ -336,6 +339,14 @@ class Master:
             for var, value in parameters.get(name, {}).items():
                 unit.set(var, value)
             unit.slave.enterInitializationMode()
+        if self.algorithm == "jacobi":
+            # As libcosim: one exchange round per FMU in initialisation mode, so that a
+            # chain of feedthrough FMUs is consistent at the start time.
+            ops, _ = self._plan([])
+            for _ in range(len(self.units)):
+                for op in ops:
+                    op()
+        for unit in self.units.values():
             unit.slave.exitInitializationMode()
         self._used = True
 
@@ -371,7 +382,11 @@ class Master:
             raise CoSimulationError("the master is closed")
         self.messages.clear()
         n, h = int(n_steps), float(step_size)
-        time = np.arange(n + 1) * h
+        if self.algorithm == "jacobi":  # libcosim's clock: integer nanoseconds, converted per point
+            time = np.arange(n + 1) * round(h * 1e9) / 1e9
+        else:
+            time = np.arange(n + 1) * h
+        steps = np.diff(time) if self.algorithm == "jacobi" else np.full(n, h)
         record = list(record)
         data = np.full((n + 1, len(record)), np.nan)
         try:
@@ -402,9 +417,9 @@ class Master:
                     break
                 if k == n:
                     break
-                tk = time[k]
+                tk, hk = time[k], steps[k]
                 for do_step, component, name in steppers:
-                    st = do_step(component, tk, h, 1)
+                    st = do_step(component, tk, hk, 1)
                     if st > 1:
                         raise CoSimulationError(f"{name}: fmi2DoStep returned {_STATUS.get(st, st)}; "
                                                 f"log: {self.messages[-3:]}")
