@@ -1,20 +1,32 @@
-"""Drive one FMU step by step through fmpy's low-level FMU2Slave, with its log captured (test helper)."""
+"""Drive one FMU step by step through fmpy's low-level FMU2Slave, with its log captured (test helpers)."""
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 from fmpy import read_model_description
+from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave
 
 from scenarios.master import logging_callbacks
 
 DT = 1e-3
+#: fmi2Status values.
+OK, WARNING, DISCARD, ERROR, FATAL = 0, 1, 2, 3, 4
 
 
 class Slave:
-    """An FMU driven step by step through fmpy's FMU2Slave, with its log captured."""
+    """An FMU driven step by step through fmpy's FMU2Slave, with its log captured.
 
-    def __init__(self, fmu_path, unzipdir, name="fmu", **params):
+    With ``start=True`` (default) the instance is set up at t = 0, `params`
+    are set in initialisation mode, and it leaves initialisation mode (any
+    error raises ``FMICallException``); with ``start=False`` it is only
+    instantiated (for tests of the state machine).
+    """
+
+    def __init__(self, fmu_path, unzipdir, name="fmu", *, start=True, **params):
         self.md = read_model_description(str(fmu_path))
         self.vars = {v.name: v for v in self.md.modelVariables}
         self.messages: list[tuple[int, str]] = []
@@ -26,6 +38,12 @@ class Slave:
         self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=unzipdir,
                              modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
         self.fmu.instantiate(callbacks=cb, loggingOn=True)
+        self.time = 0.0
+        if start:
+            self.start(**params)
+
+    def start(self, **params):
+        """setupExperiment(0) -> enterInitializationMode -> set `params` -> exitInitializationMode."""
         self.fmu.setupExperiment(startTime=0.0)
         self.fmu.enterInitializationMode()
         self.set(**params)
@@ -45,13 +63,100 @@ class Slave:
     def get(self, names) -> np.ndarray:
         return np.array(self.fmu.getReal([self.vars[n].valueReference for n in names]))
 
+    def outputs(self) -> np.ndarray:
+        """Every Real output, in model-description order."""
+        return self.get([v.name for v in self.md.modelVariables if v.causality == "output" and v.type == "Real"])
+
     def step(self, h=DT):
         self.fmu.doStep(self.time, h)
         self.time += h
 
+    def status(self, method: str, *args) -> int:
+        """Call ``self.fmu.<method>(*args)`` and return its fmi2Status (0 for OK) instead of raising."""
+        try:
+            getattr(self.fmu, method)(*args)
+        except FMICallException as exc:
+            return int(exc.status)
+        return OK
+
     def errors(self) -> list[str]:
-        return [m for s, m in self.messages if s >= 3]
+        return [m for s, m in self.messages if s >= ERROR]
 
     def close(self):
-        self.fmu.terminate()
+        try:
+            self.fmu.terminate()
+        except FMICallException:  # e.g. still in initialisation mode after a failed initialisation
+            pass
         self.fmu.freeInstance()
+
+
+def rss_mb() -> float:
+    """Resident set size of this process in MB (VmRSS of /proc/self/status)."""
+    text = Path("/proc/self/status").read_text()
+    return int(re.search(r"^VmRSS:\s+(\d+)\s+kB", text, re.M).group(1)) / 1024.0
+
+
+# -- every FMU of the project, built once per test process ----------------------------------------
+_BUILT: dict[str, Path] = {}
+
+
+def built_fmus() -> dict[str, Path]:
+    """Every FMU of build_fmus.FMUS, freshly built (force) into a temporary folder once per process."""
+    import atexit
+    import shutil
+    import sys
+    import tempfile
+
+    if not _BUILT:
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+        from build_fmus import build_all
+
+        out = Path(tempfile.mkdtemp(prefix="flexarm_fmus_"))
+        atexit.register(shutil.rmtree, out, True)
+        _BUILT.update(build_all(out, force=True))
+    return dict(_BUILT)
+
+
+def _wave(k: int, amplitude: float, period_steps: float, phase: float = 0.0) -> float:
+    return amplitude * np.sin(2 * np.pi * k / period_steps + phase)
+
+
+def _plant_inputs(k: int) -> dict[str, float]:
+    return {"tau1": _wave(k, 3.0, 700), "tau2": _wave(k, 1.0, 230, 0.5)}
+
+
+def _sensor_inputs(k: int) -> dict[str, float]:
+    names = ("q1", "q2", "qd1", "qd2", "eps1", "eps2", "eps3", "eps4", "eps5", "eps6", "acc1_n", "acc2_n")
+    scale = (0.5, 1.2, 1.0, 2.0, 1e-3, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2, 5.0, 10.0)
+    return {n: s * (0.3 + np.sin(2 * np.pi * k / (37 + 11 * i) + i)) for i, (n, s) in enumerate(zip(names, scale))}
+
+
+def _controller_inputs(k: int) -> dict[str, float]:
+    y = _sensor_inputs(k)
+    return {f"{n}_m" if not n.startswith("acc") else n.replace("_n", "_m"): v for n, v in y.items()}
+
+
+#: Per FMU: parameters that exercise its state (noise and filters on for the sensors) and its
+#: inputs at communication point k (smooth, inside every range).
+SCENARIOS: dict[str, dict] = {
+    "plant": {"params": {"payload_mass": 0.275, "q1_0": 0.1, "substeps": 3}, "inputs": _plant_inputs},
+    "sensors": {"params": {"noise_enabled": True, "noise_seed": 11, "accelerometer_noise_m_per_s2": 0.05,
+                           "strain_gauge_filter": True, "accelerometer_filter": True, "adc_quantization": True},
+                "inputs": _sensor_inputs},
+    **{name: {"params": {"gain_set": "gamma0.1" if name != "controller_dlqr" else "dlqr-gamma0.1"},
+              "inputs": _controller_inputs}
+       for name in ("controller", "controller_ff", "controller_fb", "controller_dlqr")},
+}
+
+
+def drive(slave: Slave, name: str, k0: int, n: int) -> np.ndarray:
+    """Run `n` communication points from k0 with SCENARIOS[name]'s inputs: (n, outputs) read before each step."""
+    inputs = SCENARIOS[name]["inputs"]
+    rows = []
+    for k in range(k0, k0 + n):
+        u = inputs(k)
+        slave.set_vector(list(u), list(u.values()))
+        rows.append(slave.outputs())
+        slave.fmu.doStep(k * DT, DT)
+        slave.time = (k + 1) * DT
+    return np.array(rows)

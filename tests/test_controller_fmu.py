@@ -205,18 +205,27 @@ def test_closed_loop_with_payload_tracks_better_than_feedforward(fmus, unzipped,
     (dict(omega7="estimated"), "omega7"),
 ])
 def test_bad_parameters_fail_initialisation_with_their_name(fmus, unzipped, params, word):
-    ctrl = Slave(fmus["controller"], unzipped["controller"], "bad", **params)
+    ctrl = Slave(fmus["controller"], unzipped["controller"], "bad", start=False)
     try:
+        ctrl.fmu.setupExperiment(startTime=0.0)
+        ctrl.fmu.enterInitializationMode()
+        ctrl.set(**params)
+        with pytest.raises(FMICallException, match="fmi2ExitInitializationMode") as exc:
+            ctrl.fmu.exitInitializationMode()
+        assert exc.value.status == 3  # fmi2Error
         assert any(word in m for m in ctrl.errors()), ctrl.errors()
-        with pytest.raises(FMICallException):
-            ctrl.step()
+        assert ctrl.status("doStep", 0.0, DT) == 3  # still in initialisation mode
     finally:
         ctrl.close()
 
 
 def test_out_of_range_saturation_is_rejected(fmus, unzipped):
-    ctrl = Slave(fmus["controller_ff"], unzipped["controller_ff"], "bad", tau1_max=0.0)
+    ctrl = Slave(fmus["controller_ff"], unzipped["controller_ff"], "bad", start=False)
     try:
+        ctrl.fmu.setupExperiment(startTime=0.0)
+        ctrl.fmu.enterInitializationMode()
+        with pytest.raises(FMICallException, match="fmi2SetReal"):
+            ctrl.set(tau1_max=0.0)
         assert any("tau1_max" in m and "allowed range" in m for m in ctrl.errors())
     finally:
         ctrl.close()
@@ -235,7 +244,7 @@ def test_steps_off_the_sample_grid_are_rejected(fmus, unzipped):
 
 @pytest.mark.parametrize("name", CONTROLLERS)
 def test_many_instances_in_one_process(fmus, unzipped, name):
-    """pythonfmu 0.7.0 drops a reference to the slave module per instantiation (see flexarm_feedthrough)."""
+    """pythonfmu 0.7.0 drops a reference to the slave module per instantiation (see pin_module_namespace)."""
     for i in range(6):
         ctrl = Slave(fmus[name], unzipped[name], f"{name}{i}")
         ctrl.step()

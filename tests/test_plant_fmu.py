@@ -1,13 +1,11 @@
-"""The plant FMU: valid model description, same numbers as the library, modes, error handling, isolation."""
+"""The plant FMU: valid model description, same numbers as the library, modes, error handling.
+
+Running it alone outside the project: tests/test_fmu_standalone.py.
+"""
 
 from __future__ import annotations
 
-import json
 import math
-import os
-import shutil
-import site
-import subprocess
 import sys
 from pathlib import Path
 
@@ -45,7 +43,7 @@ def unzipped(fmu_path, tmp_path_factory):
 class Plant:
     """The plant FMU driven step by step through fmpy's FMU2Slave, with its log captured."""
 
-    def __init__(self, fmu_path, unzipdir, name="plant", **params):
+    def __init__(self, fmu_path, unzipdir, name="plant", *, start=True, **params):
         self.md = read_model_description(str(fmu_path))
         self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
         self.outputs = [v.name for v in self.md.modelVariables if v.causality == "output"]
@@ -58,15 +56,19 @@ class Plant:
         self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=unzipdir,
                              modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
         self.fmu.instantiate(callbacks=cb, loggingOn=True)
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
+        self.time = 0.0
+        if start:
+            self.fmu.setupExperiment(startTime=0.0)
+            self.fmu.enterInitializationMode()
+            self.set(**params)
+            self.fmu.exitInitializationMode()
+
+    def set(self, **params):
         for key, value in params.items():
             if key == "substeps":
                 self.fmu.setInteger([self.vr[key]], [value])
             else:
                 self.fmu.setReal([self.vr[key]], [value])
-        self.fmu.exitInitializationMode()
-        self.time = 0.0
 
     def set_torque(self, tau1, tau2):
         self.fmu.setReal([self.vr["tau1"], self.vr["tau2"]], [tau1, tau2])
@@ -87,7 +89,10 @@ class Plant:
         return [m for s, m in self.messages if s >= 3]
 
     def close(self):
-        self.fmu.terminate()
+        try:
+            self.fmu.terminate()
+        except FMICallException:  # not allowed in initialisation mode (after a failed initialisation)
+            pass
         self.fmu.freeInstance()
 
 
@@ -256,7 +261,7 @@ def test_two_instances_are_independent(fmu_path, unzipped):
         b.close()
 
 
-# -- bad inputs: an error status and a log message, never a crash ----------------------------------
+# -- bad inputs: fmi2Error and a log message, never a crash; the FMU stays usable ------------------
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
 def test_non_finite_torque_is_rejected(fmu_path, unzipped, bad):
     plant = Plant(fmu_path, unzipped)
@@ -264,10 +269,13 @@ def test_non_finite_torque_is_rejected(fmu_path, unzipped, bad):
         plant.set_torque(0.5, 0.0)
         plant.step()
         before = plant.state()
-        plant.set_torque(bad, 0.0)
-        with pytest.raises(FMICallException, match="fmi2DoStep"):
-            plant.fmu.doStep(plant.time, DT)
+        with pytest.raises(FMICallException, match="fmi2SetReal") as exc:
+            plant.set_torque(bad, 0.0)
+        assert exc.value.status == 3  # fmi2Error
         assert any("tau1" in m and "finite" in m for m in plant.errors()), plant.messages
+        with pytest.raises(FMICallException, match="fmi2DoStep") as exc:  # refused until a valid value is set
+            plant.fmu.doStep(plant.time, DT)
+        assert exc.value.status == 3
         np.testing.assert_array_equal(plant.state(), before)  # nothing advanced
         plant.set_torque(0.5, 0.0)  # a valid value clears the error: the host carries on
         plant.step()
@@ -277,23 +285,23 @@ def test_non_finite_torque_is_rejected(fmu_path, unzipped, bad):
 
 
 @pytest.mark.parametrize("name,value", [("payload_mass", -0.1), ("payload_mass", 11.0), ("q2_0", 4.0),
-                                        ("payload_mass", math.nan)])
+                                        ("payload_mass", math.nan), ("substeps", 0), ("substeps", 65)])
 def test_out_of_range_parameter_is_rejected(fmu_path, unzipped, name, value):
-    plant = Plant(fmu_path, unzipped, **{name: value})
+    """fmi2Error at the set and at the end of initialisation, naming the range; a valid value recovers."""
+    plant = Plant(fmu_path, unzipped, start=False)
     try:
-        with pytest.raises(FMICallException, match="fmi2DoStep"):
-            plant.step()
-        assert any(name in m and "[" in m for m in plant.errors()), plant.messages
-    finally:
-        plant.close()
-
-
-def test_out_of_range_substeps_is_rejected(fmu_path, unzipped):
-    plant = Plant(fmu_path, unzipped, substeps=0)
-    try:
-        with pytest.raises(FMICallException):
-            plant.step()
-        assert any("substeps" in m and "[1, 64]" in m for m in plant.errors()), plant.messages
+        plant.fmu.setupExperiment(startTime=0.0)
+        plant.fmu.enterInitializationMode()
+        with pytest.raises(FMICallException, match="fmi2Set") as exc:
+            plant.set(**{name: value})
+        assert exc.value.status == 3
+        expected_range = "[1, 64]" if name == "substeps" else "["
+        assert any(name in m and expected_range in m for m in plant.errors()), plant.messages
+        with pytest.raises(FMICallException, match="fmi2ExitInitializationMode"):
+            plant.fmu.exitInitializationMode()  # refused: the master did not get the value it asked for
+        plant.set(**{name: 3 if name == "substeps" else 0.5})
+        plant.fmu.exitInitializationMode()
+        plant.step()
     finally:
         plant.close()
 
@@ -302,8 +310,9 @@ def test_out_of_range_substeps_is_rejected(fmu_path, unzipped):
 def test_bad_step_size_is_rejected(fmu_path, unzipped, h):
     plant = Plant(fmu_path, unzipped)
     try:
-        with pytest.raises(FMICallException, match="fmi2DoStep"):
+        with pytest.raises(FMICallException, match="fmi2DoStep") as exc:
             plant.fmu.doStep(0.0, h)
+        assert exc.value.status == 3
         assert any("step_size" in m for m in plant.errors()), plant.messages
         plant.step()  # still usable
     finally:
@@ -313,66 +322,26 @@ def test_bad_step_size_is_rejected(fmu_path, unzipped, h):
 def test_setting_an_output_is_rejected(fmu_path, unzipped):
     plant = Plant(fmu_path, unzipped)
     try:
-        plant.fmu.setReal([plant.vr["q1"]], [1.0])
+        with pytest.raises(FMICallException, match="fmi2SetReal"):
+            plant.fmu.setReal([plant.vr["q1"]], [1.0])
         assert plant.get(["q1"])["q1"] == 0.0
         assert any("q1" in m and "cannot be set" in m for m in plant.errors())
     finally:
         plant.close()
 
 
-# -- the FMU is self-contained ---------------------------------------------------------------
-_ISOLATED_RUN = r"""
-import importlib.util, json, sys
-sys.path.extend(json.loads(sys.argv[1]))  # site-packages without .pth files: no editable 'flexarm'
-assert importlib.util.find_spec("flexarm") is None, "flexarm importable outside the FMU"
-from fmpy import extract, read_model_description
-from fmpy.fmi2 import FMU2Slave
-md = read_model_description("plant.fmu")
-vr = {v.name: v.valueReference for v in md.modelVariables}
-import os
-unzipdir = extract("plant.fmu", unzipdir=os.path.abspath("unzipped"))
-fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
-                instanceName="isolated")
-fmu.instantiate()
-fmu.setupExperiment(startTime=0.0)
-fmu.enterInitializationMode()
-fmu.exitInitializationMode()
-fmu.setReal([vr["tau1"], vr["tau2"]], [2.0, 0.5])
-for k in range(200):
-    fmu.doStep(k * 1e-3, 1e-3)
-names = ["theta%d" % i for i in range(1, 12)] + ["omega%d" % i for i in range(1, 12)]
-z = fmu.getReal([vr[n] for n in names])
-import flexarm, flexarm._kernels
-print(json.dumps({"z": z, "flexarm": flexarm.__file__, "numba": flexarm._kernels.HAVE_NUMBA}))
-fmu.terminate()
-fmu.freeInstance()
-"""
-
-
-def test_fmu_runs_alone_without_the_project(fmu_path, tmp_path):
-    """Copied alone into an empty folder, the FMU runs in a process that cannot import the project.
-
-    `python -I -S`: no PYTHONPATH, no user site, no script or current folder on
-    sys.path, and no site-packages processing, so the editable install's
-    import hook for `flexarm` (a .pth file) is not installed. The
-    site-packages folders are then appended as plain paths so that fmpy,
-    NumPy and SciPy import. The only `flexarm` left is the FMU's own copy.
-    FLEXARM_NO_NUMBA=1 runs the NumPy path (what a machine without Numba
-    gets) and avoids a fresh Numba compile in the throwaway folder.
-    """
-    work = tmp_path / "alone"
-    work.mkdir()
-    shutil.copy2(fmu_path, work / "plant.fmu")
-    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
-    env["FLEXARM_NO_NUMBA"] = "1"
-    paths = [p for p in site.getsitepackages() if not Path(p).resolve().is_relative_to(ROOT)]
-    proc = subprocess.run([sys.executable, "-I", "-S", "-c", _ISOLATED_RUN, json.dumps(paths)], cwd=work, env=env,
-                          capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    result = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert Path(result["flexarm"]).resolve().is_relative_to((work / "unzipped" / "resources").resolve())
-    assert result["numba"] is False
-    model = ArmModel()
-    z0 = np.concatenate([rigid_configuration(0.0, math.pi / 2), np.zeros(N)])
-    reference = simulate(model, z0, np.tile([2.0, 0.5], (200, 1)))[-1]
-    np.testing.assert_allclose(result["z"], reference, rtol=0, atol=1e-9)  # NumPy vs Numba kernels
+def test_a_step_that_leaves_the_finite_numbers_is_discarded(fmu_path, unzipped):
+    """fmi2Discard, FMI's "step not done": the state stays at t, fmi2LastSuccessfulTime = t."""
+    plant = Plant(fmu_path, unzipped)
+    try:
+        plant.step()
+        before = plant.state()
+        plant.set_torque(1e300, 0.0)  # finite, accepted, but no integrator survives it
+        with pytest.raises(FMICallException, match="fmi2DoStep") as exc:
+            plant.fmu.doStep(plant.time, DT)
+        assert exc.value.status == 2  # fmi2Discard
+        assert any(s == 1 and "discarded" in m and "non-finite" in m for s, m in plant.messages), plant.messages
+        assert plant.fmu.getRealStatus(2) == pytest.approx(plant.time)  # fmi2LastSuccessfulTime
+        np.testing.assert_array_equal(plant.state(), before)
+    finally:
+        plant.close()

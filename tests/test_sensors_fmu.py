@@ -279,25 +279,43 @@ def test_step_size_must_equal_sample_period(fmu_path, unzipped):
 
 
 def test_bad_parameters_are_rejected_with_their_name_and_range(fmu_path, unzipped):
-    sensors = Slave(fmu_path, unzipped, noise_seed=-1, strain_gauge_filter_order=9)
+    sensors = Slave(fmu_path, unzipped, start=False)
     try:
+        sensors.fmu.setupExperiment(startTime=0.0)
+        sensors.fmu.enterInitializationMode()
+        for name, value in (("noise_seed", -1), ("strain_gauge_filter_order", 9)):
+            with pytest.raises(FMICallException) as exc:
+                sensors.set(**{name: value})
+            assert exc.value.status == 3  # fmi2Error
         errors = " ".join(sensors.errors())
         assert "noise_seed: -1 is outside the allowed range [0, " in errors
         assert "strain_gauge_filter_order" in errors and "[1, 8]" in errors
+        with pytest.raises(FMICallException, match="fmi2ExitInitializationMode"):
+            sensors.fmu.exitInitializationMode()
+        sensors.set(noise_seed=1, strain_gauge_filter_order=2)  # valid values: initialisation goes through
+        sensors.fmu.exitInitializationMode()
+        sensors.step()
     finally:
         sensors.close()
     # a cut-off above the Nyquist frequency of the sample period fails initialisation with a clear message
-    sensors = Slave(fmu_path, unzipped, strain_gauge_filter=True, strain_gauge_cutoff_hz=600.0)
+    sensors = Slave(fmu_path, unzipped, start=False)
     try:
+        sensors.fmu.setupExperiment(startTime=0.0)
+        sensors.fmu.enterInitializationMode()
+        sensors.set(strain_gauge_filter=True, strain_gauge_cutoff_hz=600.0)
+        with pytest.raises(FMICallException, match="fmi2ExitInitializationMode"):
+            sensors.fmu.exitInitializationMode()
         assert any("strain_gauge_cutoff_hz" in m and "500" in m for m in sensors.errors())
-        with pytest.raises(FMICallException):
-            sensors.step()
+        assert sensors.status("doStep", 0.0, DT) == 3  # still in initialisation mode
+        sensors.set(strain_gauge_cutoff_hz=100.0)
+        sensors.fmu.exitInitializationMode()
+        sensors.step()
     finally:
         sensors.close()
 
 
 def test_many_instances_in_one_process(fmu_path, unzipped):
-    """pythonfmu 0.7.0 drops a reference to the slave module per instantiation (see flexarm_feedthrough)."""
+    """pythonfmu 0.7.0 drops a reference to the slave module per instantiation (see pin_module_namespace)."""
     import gc
 
     for i in range(30):

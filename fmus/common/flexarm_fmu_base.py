@@ -19,29 +19,44 @@ What the base class does
   variable value plus the subclass's own state
   (:meth:`get_internal_state` / :meth:`set_internal_state`), as JSON.
 
-Error statuses with pythonfmu 0.7.0
------------------------------------
-The pythonfmu binary maps the outcomes of the Python methods as follows: a
-``do_step`` returning ``False`` gives ``fmi2Discard``; *any* uncaught Python
-exception gives ``fmi2Fatal`` and releases the Python instance, after
-which further calls (even ``fmi2FreeInstance``) touch freed memory and can
-crash the host. No Python return value yields ``fmi2Error``. Hence this
-class catches every exception, logs it with status ``fmi2Error``
-(category ``logStatusError``) and reports failure the only safe way:
+Error statuses: the glue and the shim
+-------------------------------------
+pythonfmu 0.7.0 alone cannot return ``fmi2Error``: a ``do_step`` returning
+``False`` gives ``fmi2Discard``, and *any* uncaught Python exception gives
+``fmi2Fatal`` and releases the Python object (later calls, even
+``fmi2FreeInstance``, touch freed memory). Each FMU therefore carries a small
+C front end, ``fmus/common/fmi2_shim.c``, compiled by ``build_fmus.py`` into
+``binaries/linux64/<modelIdentifier>.so``; pythonfmu's binary sits beside it
+as ``libpythonfmu-export.so`` and receives every call through it. The shim
+tracks the FMI 2.0 co-simulation state machine and refuses calls made in the
+wrong state (``fmi2Error``, logged with the call and the state), checks the
+arguments pythonfmu does not, and passes pythonfmu its own logger callback.
+It also imports the slave module before pythonfmu does (pythonfmu crashes
+the host when that import fails) and starts Python in a native host.
+The channel from Python to the shim is the log itself: pythonfmu delivers
+the messages a call logged before the call returns, and the shim returns
+the worst of pythonfmu's status and the statuses logged during the call.
 
-* a failing ``fmi2DoStep`` (exception in :meth:`step`, step size <= 0,
-  pending invalid input) returns ``fmi2Discard`` and leaves the state at
-  the start of the step, so the master may fix the input and retry;
-* a rejected ``fmi2Set*`` value (NaN, inf, out of range, wrong causality)
-  keeps the previous value, logs an error, and - for inputs and parameters
-  set before the end of initialisation - makes every following
-  ``fmi2DoStep`` return ``fmi2Discard`` (with the message logged again)
-  until a valid value is set;
-* an exception during initialisation is logged and makes every following
-  ``fmi2DoStep`` return ``fmi2Discard``.
+This class keeps its side of that contract:
+
+* it never lets an exception reach pythonfmu (that would be ``fmi2Fatal``);
+* every failure is logged with status ``fmi2Error`` (:meth:`_error`), naming
+  the variable and its allowed range, so the call returns ``fmi2Error``;
+* a failing call changes nothing: a rejected ``fmi2Set*`` applies none of
+  its values; a refused or failed ``fmi2DoStep`` leaves the state at the
+  start of the step; a failed initialisation stays in initialisation mode;
+* a rejected input, or a parameter rejected before the end of
+  initialisation, also keeps ``fmi2ExitInitializationMode`` and
+  ``fmi2DoStep`` refused (``fmi2Error``, the reason logged again) until a
+  valid value is set, so a master that ignores the first error cannot run
+  on with a value it did not ask for;
+* only a step the subclass rejects with :class:`StepDiscarded` (e.g. the
+  integrator's state became non-finite: a smaller step may succeed) is
+  logged as a warning and returns ``fmi2Discard``, FMI's "step not done".
 
 fmpy raises ``FMICallException`` for any status worse than ``fmi2Warning``.
-Log messages reach the host only if it instantiates with ``loggingOn``.
+Messages with status warning or worse always reach the host's logger;
+the others only if the host instantiates with ``loggingOn``.
 
 Loading several FMUs in one interpreter
 ---------------------------------------
@@ -60,6 +75,7 @@ one process).
 
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import json
 import math
@@ -75,8 +91,8 @@ from pythonfmu import Fmi2Slave
 from pythonfmu.enums import Fmi2Causality, Fmi2Status, Fmi2Variability
 from pythonfmu.variables import Boolean, Integer, Real, String
 
-__all__ = ["BUNDLE_MANIFEST", "UNITS", "FlexarmSlave", "Var", "bundle_files", "complete_model_description",
-           "tree_sha256", "variable_table"]
+__all__ = ["BUNDLE_MANIFEST", "UNITS", "FlexarmSlave", "StepDiscarded", "Var", "bundle_files",
+           "complete_model_description", "pin_module_namespace", "tree_sha256", "variable_table"]
 
 #: File (in an FMU's resources) describing the bundled sources.
 BUNDLE_MANIFEST = "flexarm_bundle.json"
@@ -102,8 +118,19 @@ _CAUSALITIES = {c.name: c for c in Fmi2Causality}
 _VARIABILITIES = {v.name: v for v in Fmi2Variability}
 _TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean, "String": String}
 
+#: SHA-256 of the imported `flexarm` folder, by path (see FlexarmSlave._check_vendored_modules).
+_LOADED_TREE_SHA256: dict[Path, str] = {}
+
 # Lifecycle of an instance (FMI 2.0 co-simulation state machine, simplified).
 _INSTANTIATED, _INITIALIZATION, _STEPPING, _TERMINATED = "instantiated", "initialization", "stepping", "terminated"
+
+
+class StepDiscarded(Exception):
+    """Raised by :meth:`FlexarmSlave.step` when a step could not be completed but a smaller one may.
+
+    ``fmi2DoStep`` then returns ``fmi2Discard`` (not ``fmi2Error``) with the
+    message logged as a warning; the state stays at the start of the step.
+    """
 
 
 @dataclass(frozen=True)
@@ -249,6 +276,7 @@ class FlexarmSlave(Fmi2Slave):
         contiguous = self._output_vrs == list(range(self._output_vrs[0], self._output_vrs[-1] + 1)) \
             if self._output_vrs else False
         self._output_slice = slice(self._output_vrs[0], self._output_vrs[-1] + 1) if contiguous else None
+        self._drop_repeated_resources_path()
         self._check_vendored_modules()
 
     # -- variable table --------------------------------------------------------
@@ -351,9 +379,11 @@ class FlexarmSlave(Fmi2Slave):
     def exit_initialization_mode(self):
         try:
             self._ensure_initialized()
+            if self._errors:  # stay in initialisation mode: the master may set a valid value and retry
+                for msg in self._errors.values():
+                    self._error(f"exitInitializationMode refused: {msg}")
+                return
             self._mode = _STEPPING
-            for msg in self._errors.values():
-                self.log(f"{self.instance_name}: not ready to step: {msg}", Fmi2Status.error)
         except Exception as exc:
             self._exception("exitInitializationMode", exc, "initialization")
 
@@ -375,7 +405,7 @@ class FlexarmSlave(Fmi2Slave):
                 return False
             if self._errors:
                 for msg in self._errors.values():
-                    self.log(f"{self.instance_name}: doStep refused: {msg}", Fmi2Status.error)
+                    self._error(f"doStep refused: {msg}")
                 return False
             if not (math.isfinite(step_size) and step_size > 0.0):
                 self._error(f"step_size: must be a finite communication step > 0 s, got {step_size!r}")
@@ -388,7 +418,12 @@ class FlexarmSlave(Fmi2Slave):
                 # fmi2SetFMUstate elsewhere) but usually a master bug, so say so.
                 self.log(f"{self.instance_name}: doStep at t = {current_time!r} s but the FMU is at "
                          f"t = {self.time!r} s", Fmi2Status.warning)
-            self.step(float(current_time), float(step_size))
+            try:
+                self.step(float(current_time), float(step_size))
+            except StepDiscarded as exc:
+                self.log(f"{self.instance_name}: doStep(t={current_time!r}, h={step_size!r}) discarded: {exc}; "
+                         f"the FMU stays at t = {self.time!r} s (a smaller step may succeed)", Fmi2Status.warning)
+                return False
             self.time = current_time + step_size
             return True
         except Exception as exc:
@@ -429,32 +464,41 @@ class FlexarmSlave(Fmi2Slave):
         return self._get(vrs, self._str_vrs, "String", "")
 
     def _set(self, vrs, values, allowed: frozenset, typename: str, convert):
-        for vr, raw in zip(vrs, values):
-            try:
+        # All or nothing: a call with one bad value applies none (the shim returns fmi2Error for it).
+        try:
+            accepted, rejected = [], []
+            for vr, raw in zip(vrs, values):
                 if vr not in allowed:
-                    self._error(f"set{typename}: value reference {vr} is not a {typename} variable")
+                    rejected.append((None, f"set{typename}: value reference {vr} is not a {typename} variable"))
                     continue
                 var = self._vars[vr]
                 problem = self._settable(var)
                 if problem is None:
                     value = convert(raw)
                     problem = _check_value(var, value)
-                if problem is not None:
-                    # Inputs and not-yet-used parameters block stepping until fixed.
-                    block = var.causality == "input" or (
-                        var.causality == "parameter" and self._mode in (_INSTANTIATED, _INITIALIZATION))
-                    keep = self._values[vr]
-                    self._error(f"{problem}; value rejected, {var.name} stays {keep!r}",
-                                f"value:{var.name}" if block else None)
-                    continue
+                if problem is None:
+                    accepted.append((vr, var, value))
+                else:
+                    rejected.append((var, f"{problem}; value rejected, {var.name} stays {self._values[vr]!r}"))
+            if rejected:
+                for var, msg in rejected:
+                    # Inputs and not-yet-used parameters keep stepping refused until a valid value is set.
+                    block = var is not None and (var.causality == "input" or (
+                        var.causality == "parameter" and self._mode in (_INSTANTIATED, _INITIALIZATION)))
+                    self._error(msg, f"value:{var.name}" if block else None)
+                if accepted:
+                    self._error(f"set{typename}: nothing set ({len(accepted)} valid value(s) in the same call "
+                                "not applied either)")
+                return
+            for vr, var, value in accepted:
                 self._values[vr] = value
                 self._errors.pop(f"value:{var.name}", None)
                 if var.causality == "parameter" and self._mode in (_INSTANTIATED, _INITIALIZATION):
                     self._needs_init = True
                 elif var.causality == "input" and self._mode == _INITIALIZATION:
                     self._needs_init = True
-            except Exception as exc:
-                self._exception(f"set{typename}(vr={vr})", exc)
+        except Exception as exc:
+            self._exception(f"set{typename}(vr={list(vrs)})", exc)
 
     def _settable(self, var: Var) -> str | None:
         if var.causality == "input":
@@ -462,8 +506,8 @@ class FlexarmSlave(Fmi2Slave):
         if var.causality == "parameter":
             if var.variability == "tunable" or self._mode in (_INSTANTIATED, _INITIALIZATION):
                 return None
-            return (f"{var.name}: a fixed parameter can only be set before exitInitializationMode "
-                    f"(allowed range {var.range_text})")
+            return (f"{var.name}: a fixed parameter can only be set before exitInitializationMode, and the FMU "
+                    f"is in {self._mode} mode (allowed range {var.range_text})")
         return f"{var.name}: a variable with causality '{var.causality}' cannot be set"
 
     def set_real(self, vrs, values):
@@ -516,6 +560,31 @@ class FlexarmSlave(Fmi2Slave):
         except Exception as exc:
             self._exception("setFMUstate", exc, "state")
 
+    @staticmethod
+    def _fmu_state_from_bytes(state: bytes) -> dict:
+        # pythonfmu turns an exception here into fmi2Fatal; the shim only passes bytes it
+        # serialized (header and checksum), so this is a second line of defence.
+        try:
+            out = json.loads(state.decode("utf-8"))
+            return out if isinstance(out, dict) else {"invalid": True}
+        except Exception:
+            return {"invalid": True}
+
+    def _drop_repeated_resources_path(self) -> None:
+        """Keep one copy of this FMU's resources folder in sys.path.
+
+        pythonfmu 0.7.0 inserts it at the front at every fmi2Instantiate, so a
+        long-running host (a sweep instantiating thousands of times) would
+        otherwise search an ever longer sys.path on every import.
+        """
+        try:
+            path = sys.path
+            if self.resources and path.count(self.resources) > 1:
+                first = path.index(self.resources)
+                path[first + 1:] = [p for p in path[first + 1:] if p != self.resources]
+        except Exception as exc:  # a tidy-up only: never fail instantiation for it
+            self.log(f"{self.instance_name}: sys.path clean-up skipped: {exc}", Fmi2Status.warning)
+
     # -- vendored-module check ---------------------------------------------------------
     def _check_vendored_modules(self) -> None:
         """Warn if the imported `flexarm` differs from the copy bundled in this FMU."""
@@ -530,7 +599,9 @@ class FlexarmSlave(Fmi2Slave):
             if loaded == (Path(self.resources) / "flexarm").resolve():
                 return
             expected = json.loads(manifest.read_text())["flexarm_sha256"]
-            if tree_sha256(loaded) != expected:
+            if loaded not in _LOADED_TREE_SHA256:  # hashed once per process, not per instantiation
+                _LOADED_TREE_SHA256[loaded] = tree_sha256(loaded)
+            if _LOADED_TREE_SHA256[loaded] != expected:
                 self.log(f"{self.instance_name}: using 'flexarm' already imported from {loaded}, which differs "
                          f"from the copy bundled in this FMU (sha256 {expected[:12]}); results follow the "
                          "imported copy", Fmi2Status.warning)
@@ -543,6 +614,29 @@ class FlexarmSlave(Fmi2Slave):
         root = super().to_xml(model_options or {})
         complete_model_description(root, self._vars, {**UNITS, **self.EXTRA_UNITS})
         return root
+
+
+def pin_module_namespace(namespace: dict) -> None:
+    """Add one reference to a slave module's namespace; call as ``pin_module_namespace(globals())``.
+
+    Work-around for pythonfmu 0.7.0: its ``findClass`` (``PySlaveInstance.cpp``)
+    imports the slave module, *re-executes* the module's code with the
+    module's ``__dict__`` as globals, and then calls ``Py_DECREF`` on that
+    ``__dict__``, a borrowed reference from ``PyModule_GetDict``. Every
+    ``fmi2Instantiate`` thus removes one reference from the namespace. It
+    survives only while other references (functions defined in the module,
+    leaked along with the re-executed classes) outnumber the instantiations:
+    a slave module that defines no function, like the controller variants,
+    loses its namespace at the first instantiation, and the second one fails
+    (``module has no attribute ...``) or crashes the host.
+
+    Called at module level, this runs at the import *and* at every
+    re-execution, i.e. once before each of pythonfmu's decrements, so the
+    namespace never drops below the reference the module itself holds. (A
+    builder or test import adds a reference too; a namespace that lives as
+    long as the process anyway is the only thing leaked.)
+    """
+    ctypes.pythonapi.Py_IncRef(ctypes.py_object(namespace))
 
 
 def complete_model_description(root: Element, variables: list[Var], units: dict[str, dict]) -> None:

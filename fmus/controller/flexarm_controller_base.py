@@ -29,6 +29,7 @@ with the trajectory sample k = round(t_k / 1 ms); the plant holds them over
 
 from __future__ import annotations
 
+import functools
 from typing import ClassVar
 
 import numpy as np
@@ -116,6 +117,23 @@ def schedule_label(period: float) -> str:
     raise ValueError(f"schedule_period: {period!r} s is not one of 0.2, 0.02 or 0 (one gain set)")
 
 
+@functools.lru_cache(maxsize=16)
+def _tracking_controller(mode: str, name: str, schedule: str, tau1_max: float, tau2_max: float,
+                         omega7: str) -> TrackingController:
+    """The control law of one configuration, built once per process (about 25 ms).
+
+    Shared by the instances (and resets) with the same configuration: a
+    TrackingController does not change after construction.
+    """
+    gains = None
+    if mode != "ff":  # feedforward only needs no gains (the name is still checked by the caller)
+        from flexarm.lqr import GainSchedule
+
+        gains = GainSchedule.load(name, schedule)
+    return TrackingController(default_trajectory_path(), gains, mode=mode, saturation=(tau1_max, tau2_max),
+                              omega7=omega7)
+
+
 class ControllerSlave(FeedthroughSlave):
     """A tracking controller as an FMI 2.0 co-simulation slave (direct feedthrough, stateless).
 
@@ -146,18 +164,11 @@ class ControllerSlave(FeedthroughSlave):
         key = self._config()
         if self.law is not None and key == self._key:
             return
-        name, schedule, tau1_max, tau2_max, omega7 = key
-        gains = None
-        if self.MODE != "ff":  # feedforward only needs no gains (the name is still checked above)
-            from flexarm.lqr import GainSchedule
-
-            try:
-                gains = GainSchedule.load(name, schedule)
-            except (ValueError, OSError) as exc:
-                raise ValueError(f"gain_set = {self.value('gain_set')!r}, schedule_period = "
-                                 f"{self.value('schedule_period')!r} s: {exc}") from None
-        self.law = TrackingController(default_trajectory_path(), gains, mode=self.MODE,
-                                      saturation=(tau1_max, tau2_max), omega7=omega7)
+        try:
+            self.law = _tracking_controller(self.MODE, *key)
+        except (ValueError, OSError) as exc:
+            raise ValueError(f"gain_set = {self.value('gain_set')!r}, schedule_period = "
+                             f"{self.value('schedule_period')!r} s: {exc}") from None
         self._key = key
 
     def evaluate(self) -> np.ndarray:

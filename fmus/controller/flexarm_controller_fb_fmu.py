@@ -6,7 +6,7 @@ Same interface as ``controller`` (:mod:`flexarm_controller_base`).
 from __future__ import annotations
 
 from flexarm_controller_base import ControllerSlave
-from flexarm_feedthrough import pin_module_namespace
+from flexarm_fmu_base import pin_module_namespace
 
 pin_module_namespace(globals())  # pythonfmu 0.7.0 drops a reference per instantiation (see there)
 

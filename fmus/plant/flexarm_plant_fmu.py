@@ -14,6 +14,10 @@ Interface (full table in ``docs/fmu-interface.md``):
   angles and rates, strain-gauge angles, tip position, link-tip
   accelerations and accelerometer signals.
 
+A step whose integration leaves the finite numbers (absurd torques or step
+sizes) is discarded (``fmi2Discard``; the state stays at the communication
+point), as FMI intends for a step a smaller one may complete.
+
 The accelerations are evaluated with the torque held over the step that
 ended at the communication point (at the start time: the torque inputs as set
 during initialisation), so no output depends directly on the current
@@ -25,10 +29,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from flexarm_fmu_base import FlexarmSlave, Var, variable_table
+from flexarm_fmu_base import FlexarmSlave, StepDiscarded, Var, pin_module_namespace, variable_table
 from pythonfmu.default_experiment import DefaultExperiment
 
-from flexarm.integrator import DEFAULT_SUBSTEPS, advance
+from flexarm.integrator import DEFAULT_SUBSTEPS, IntegrationError, advance
 from flexarm.model import (
     ArmModel,
     N,
@@ -38,6 +42,8 @@ from flexarm.model import (
     strain_gauge_angles,
 )
 from flexarm.parameters import load_parameters
+
+pin_module_namespace(globals())  # pythonfmu 0.7.0 drops a reference per instantiation (see there)
 
 
 def _out(name: str, unit: str, description: str) -> Var:
@@ -117,7 +123,11 @@ class FlexarmPlant(FlexarmSlave):
 
     def step(self, t: float, h: float) -> None:
         tau = self._torque()
-        z, err = advance(self.model, self.z, tau, h, self.value("substeps"))
+        try:
+            z, err = advance(self.model, self.z, tau, h, self.value("substeps"))
+        except IntegrationError as exc:  # FMI's discard: not done, a smaller step (or more substeps) may do
+            raise StepDiscarded(f"{exc} (tau1 = {float(tau[0])!r} N.m, tau2 = {float(tau[1])!r} N.m, h = {h!r} s, "
+                                f"substeps = {self.value('substeps')})") from None
         outputs = self._outputs(z, tau)
         # Commit only after everything succeeded: a failed step leaves the state untouched.
         self.set_outputs(outputs)

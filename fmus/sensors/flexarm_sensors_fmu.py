@@ -27,8 +27,8 @@ import copy
 import math
 
 import numpy as np
-from flexarm_feedthrough import FeedthroughSlave, pin_module_namespace
-from flexarm_fmu_base import Var, variable_table
+from flexarm_feedthrough import FeedthroughSlave
+from flexarm_fmu_base import Var, pin_module_namespace, variable_table
 from pythonfmu.default_experiment import DefaultExperiment
 
 from flexarm.sensors import MEASURED_SIGNALS, TRUE_SIGNALS, SensorBank, SensorSettings

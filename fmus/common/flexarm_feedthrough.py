@@ -29,13 +29,12 @@ This module is bundled into each FMU that uses it and imported by name
 
 from __future__ import annotations
 
-import ctypes
 from abc import abstractmethod
 
 import numpy as np
 from flexarm_fmu_base import _INITIALIZATION, FlexarmSlave
 
-__all__ = ["FeedthroughSlave", "pin_module_namespace"]
+__all__ = ["FeedthroughSlave"]
 
 
 class FeedthroughSlave(FlexarmSlave):
@@ -157,26 +156,3 @@ class FeedthroughSlave(FlexarmSlave):
     def set_string(self, vrs, values):
         super().set_string(vrs, values)
         self._after_set(vrs)
-
-
-def pin_module_namespace(namespace: dict) -> None:
-    """Add one reference to a slave module's namespace; call as ``pin_module_namespace(globals())``.
-
-    Work-around for pythonfmu 0.7.0: its ``findClass`` (``PySlaveInstance.cpp``)
-    imports the slave module, *re-executes* the module's code with the
-    module's ``__dict__`` as globals, and then calls ``Py_DECREF`` on that
-    ``__dict__``, a borrowed reference from ``PyModule_GetDict``. Every
-    ``fmi2Instantiate`` thus removes one reference from the namespace. It
-    survives only while other references (functions defined in the module,
-    leaked along with the re-executed classes) outnumber the instantiations:
-    a slave module that defines no function, like the controller variants,
-    loses its namespace at the first instantiation, and the second one fails
-    (``module has no attribute ...``) or crashes the host.
-
-    Called at module level, this runs at the import *and* at every
-    re-execution, i.e. once before each of pythonfmu's decrements, so the
-    namespace never drops below the reference the module itself holds. (A
-    builder or test import adds a reference too; a namespace that lives as
-    long as the process anyway is the only thing leaked.)
-    """
-    ctypes.pythonapi.Py_IncRef(ctypes.py_object(namespace))
