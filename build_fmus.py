@@ -158,17 +158,25 @@ def _import_sandbox(paths: list[Path]):
     of the one bundled in the FMU.
     """
     saved_path = list(sys.path)
+    drop = (str(ROOT / "fmus"), tempfile.gettempdir())
+
+    def ours(name: str) -> bool:
+        return (getattr(sys.modules[name], "__file__", None) or "").startswith(drop)
+
+    # Slave and glue modules of FMUs already loaded in this process (fmpy imports them
+    # from the FMU's unpacked resources) would shadow the project's sources: set them
+    # aside while building, and put them back afterwards for those FMUs' sake.
+    shadowing = {name: sys.modules.pop(name) for name in [n for n in sys.modules if ours(n)]}
     saved_modules = set(sys.modules)
     sys.path[:0] = [str(p) for p in paths]
     try:
         yield
     finally:
         sys.path[:] = saved_path
-        drop = (str(ROOT / "fmus"), tempfile.gettempdir())
         for name in set(sys.modules) - saved_modules:
-            file = getattr(sys.modules[name], "__file__", None) or ""
-            if file.startswith(drop):
+            if ours(name):
                 del sys.modules[name]
+        sys.modules.update(shadowing)
 
 
 def c_compiler() -> str:

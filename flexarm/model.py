@@ -160,9 +160,11 @@ class ArmModel:
     def point_position(self, theta, element: int) -> np.ndarray:
         """Position of element `element`'s (0-based) distal end, m, shape (2,)."""
         theta = _f(theta)
-        l = self.length[: element + 1]
-        th = theta[: element + 1]
-        return np.array([np.sum(l * np.cos(th)), np.sum(l * np.sin(th))])
+        if not 0 <= element < N:
+            raise ValueError(f"element: a 0-based element index in [0, {N - 1}], got {element!r}")
+        # The same summation as link_tip_kinematics, so both give the same bits.
+        zeros = np.zeros(N)
+        return kern.chain_kinematics(theta, zeros, zeros, self.length, np.array([element], dtype=np.int64))[0, :2]
 
     def tip_position(self, theta) -> np.ndarray:
         """Tip of link 2 (x, y), m."""

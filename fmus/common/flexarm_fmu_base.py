@@ -269,6 +269,12 @@ class FlexarmSlave(Fmi2Slave):
         for var in self.VARIABLES:
             self._register(var)
         self._real_vrs = frozenset(i for i, v in enumerate(self._vars) if v.type == "Real")
+        # For the stepping fast path of set_real: Real inputs and their closed bounds (finite, so NaN/inf fail).
+        self._real_input_vrs = frozenset(i for i, v in enumerate(self._vars)
+                                         if v.type == "Real" and v.causality == "input")
+        self._real_bounds = {i: (-sys.float_info.max if v.min is None else v.min,
+                                 sys.float_info.max if v.max is None else v.max)
+                             for i, v in enumerate(self._vars) if i in self._real_input_vrs}
         self._int_vrs = frozenset(i for i, v in enumerate(self._vars) if v.type == "Integer")
         self._bool_vrs = frozenset(i for i, v in enumerate(self._vars) if v.type == "Boolean")
         self._str_vrs = frozenset(i for i, v in enumerate(self._vars) if v.type == "String")
@@ -309,7 +315,8 @@ class FlexarmSlave(Fmi2Slave):
 
         Raises ValueError if the count differs from the number of outputs.
         """
-        values = [float(v) for v in values]
+        tolist = getattr(values, "tolist", None)  # NumPy arrays: one C call instead of a float() per element
+        values = tolist() if tolist is not None else [float(v) for v in values]
         if len(values) != len(self._output_vrs):
             raise ValueError(f"set_outputs: expected {len(self._output_vrs)} values, got {len(values)}")
         if self._output_slice is not None:
@@ -511,6 +518,28 @@ class FlexarmSlave(Fmi2Slave):
         return f"{var.name}: a variable with causality '{var.causality}' cannot be set"
 
     def set_real(self, vrs, values):
+        # Fast path for what a master does every step: finite, in-range Real inputs while stepping.
+        # Anything else (or any doubt) takes the checked path of _set, which logs and rejects.
+        if self._mode == _STEPPING and self._real_input_vrs.issuperset(vrs):
+            try:
+                checked = []
+                bounds = self._real_bounds
+                for vr, raw in zip(vrs, values):
+                    value = float(raw)
+                    lo, hi = bounds[vr]
+                    if not lo <= value <= hi:  # False for NaN too
+                        break
+                    checked.append((vr, value))
+                else:
+                    store = self._values
+                    for vr, value in checked:
+                        store[vr] = value
+                    if self._errors:
+                        for vr, _ in checked:
+                            self._errors.pop(f"value:{self._vars[vr].name}", None)
+                    return
+            except Exception:  # noqa: BLE001 - the checked path below reports it
+                pass
         self._set(vrs, values, self._real_vrs, "Real", float)
 
     def set_integer(self, vrs, values):

@@ -137,12 +137,13 @@ class FlexarmPlant(FlexarmSlave):
         """All outputs in table order for state z and held torque tau."""
         model = self.model
         theta, omega = z[:N], z[N:]
-        tip_acc = model.link_tip_accelerations(theta, omega, tau)
+        tips = model.link_tip_kinematics(theta, omega, tau)  # rows link 1, link 2: x, y, ẍ, ÿ
+        tip_acc = tips[:, 2:]
         return np.concatenate([
             theta, omega,
             joint_angles(theta), joint_velocities(omega),
             strain_gauge_angles(theta),
-            model.tip_position(theta),
+            tips[1, :2],
             tip_acc.ravel(),
             model.accelerometer_signals(theta, omega, tau, tip_accelerations=tip_acc),
         ])
