@@ -115,6 +115,8 @@ class TrackingController:
             self._gain_index = np.array([schedule.index_at(k * self.dt) for k in range(self.n_steps + 1)])
             self._gains = schedule.reduced_gains()
             self._gains_per_measurement = np.array([g @ self._estimator for g in self._gains])
+            # K(k) x̂_d[k] per sample: the law is τ = τ_ff − K E m + K x̂_d (no per-sample product).
+            self._gain_offsets = np.einsum("kij,kj->ki", self._gains[self._gain_index], self._x_hat_d)
 
     # -- trajectory lookup --------------------------------------------------------------
     def sample_index(self, t: float) -> int:
@@ -170,14 +172,34 @@ class TrackingController:
 
     def torque_at(self, k: int, q, qdot, strain) -> np.ndarray:
         """Motor torques for sample k, N·m, shape (2,) (see :meth:`error_estimate` for inputs)."""
+        return self._torque(k, None if self.mode == "ff" else _measurements(q, qdot, strain))
+
+    def torque_from_measurements(self, k: int, measurements) -> np.ndarray:
+        """Motor torques for sample k, N·m, shape (2,), from one vector.
+
+        Parameters
+        ----------
+        k : int
+            Sample index (t = k·dt).
+        measurements : array_like, shape (10,)
+            q1, q2 (rad), q̇1, q̇2 (rad/s), ε1..ε6 (rad): the sensors FMU's first ten outputs.
+        """
+        if self.mode == "ff":
+            return self._torque(k, None)
+        m = np.asarray(measurements, dtype=float)
+        if m.shape != (10,) or not np.isfinite(m).all():
+            raise ControllerError(f"measurements: expected 10 finite values (q1, q2 rad; qd1, qd2 rad/s; "
+                                  f"eps1..eps6 rad), got {measurements!r}")
+        return self._torque(k, m)
+
+    def _torque(self, k: int, m) -> np.ndarray:
         tau = self.feedforward(k)
-        if self.mode != "ff":
+        if m is not None:
             kc = self._clamped(k)
-            gains = self._gains_per_measurement[self._gain_index[kc]]
-            # K (E m − x̂_d) with K E precomputed; equal to K @ error_estimate(...) up to rounding.
-            tau -= gains @ _measurements(q, qdot, strain) - self._gains[self._gain_index[kc]] @ self._x_hat_d[kc]
+            # K (E m − x̂_d) with K E and K x̂_d precomputed; equal to K @ error_estimate(...) up to rounding.
+            tau -= self._gains_per_measurement[self._gain_index[kc]] @ m - self._gain_offsets[kc]
         if self.saturation is not None:
-            tau = np.clip(tau, -self.saturation, self.saturation)
+            tau = np.minimum(np.maximum(tau, -self.saturation), self.saturation)  # np.clip, without its overhead
         return tau
 
     def torque(self, t: float, q, qdot, strain) -> np.ndarray:

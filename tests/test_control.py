@@ -92,6 +92,9 @@ def test_error_estimate_is_the_reconstruction_error(synthetic):
         tau = c.torque_at(k, q, qd, eps)
         unsat = c.feedforward(k) - c.gain(k) @ e
         assert np.allclose(tau, np.clip(unsat, -np.array(PEAK_TORQUE), PEAK_TORQUE), rtol=1e-12, atol=1e-12)
+        assert np.array_equal(c.torque_from_measurements(k, np.concatenate([q, qd, eps])), tau)
+    with pytest.raises(ControllerError, match="measurements: expected 10 finite"):
+        c.torque_from_measurements(0, [0.0] * 9 + [np.nan])
 
 
 def test_feedforward_only_replays_trajectory_torques(synthetic):

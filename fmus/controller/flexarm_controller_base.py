@@ -172,8 +172,8 @@ class ControllerSlave(FeedthroughSlave):
         self._key = key
 
     def evaluate(self) -> np.ndarray:
-        x = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)
-        return self.law.torque(self.time, x[0:2], x[2:4], x[4:10])
+        x = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)  # q1_m .. eps6_m
+        return self.law.torque_from_measurements(self.law.sample_index(self.time), x)
 
     def check_step(self, t: float, h: float) -> None:
         dt = self.law.dt
