@@ -229,6 +229,60 @@ else:
         return q, v
 
 
+# The RODAS4 stage right-hand sides: ż into `out` with the workspace reused
+# across the six stages (Numba: no allocation per stage, lower triangle only).
+if HAVE_NUMBA:
+
+    @_jit
+    def stage_derivative(z, tau, mc, kl, j2p, j2d, c, s, mass, out):
+        """ż = f(z) + g(z)τ (eq. 7) into `out` (2n,); c, s (n,), mass (n, n) are workspace."""
+        n = z.shape[0] // 2
+        for i in range(n):
+            c[i] = np.cos(z[i])
+            s[i] = np.sin(z[i])
+            out[i] = z[n + i]
+        rhs = out[n:]
+        for i in range(n):
+            acc = 0.0
+            for j in range(n):
+                sd = s[i] * c[j] - c[i] * s[j]
+                acc += kl[i, j] * sd - mc[i, j] * sd * z[n + j] * z[n + j]
+                if j <= i:
+                    mass[i, j] = mc[i, j] * (c[i] * c[j] + s[i] * s[j])
+            rhs[i] = acc
+        rhs[0] += tau[0]
+        rhs[j2d] += tau[1]
+        rhs[j2p] -= tau[1]
+        # Cholesky of the mass matrix in place (lower triangle), then the two substitutions.
+        for j in range(n):
+            d = mass[j, j]
+            for k in range(j):
+                d -= mass[j, k] * mass[j, k]
+            if d <= 0.0:
+                raise ValueError("mass matrix not positive definite")
+            d = np.sqrt(d)
+            mass[j, j] = d
+            for i in range(j + 1, n):
+                t = mass[i, j]
+                for k in range(j):
+                    t -= mass[i, k] * mass[j, k]
+                mass[i, j] = t / d
+        for i in range(n):
+            for k in range(i):
+                rhs[i] -= mass[i, k] * rhs[k]
+            rhs[i] /= mass[i, i]
+        for i in range(n - 1, -1, -1):
+            for k in range(i + 1, n):
+                rhs[i] -= mass[k, i] * rhs[k]
+            rhs[i] /= mass[i, i]
+
+else:
+
+    def stage_derivative(z, tau, mc, kl, j2p, j2d, c, s, mass, out):
+        """ż = f(z) + g(z)τ (eq. 7) into `out` (NumPy path; the workspace is unused)."""
+        out[:] = state_derivative(z, tau, mc, kl, j2p, j2d)
+
+
 @_jit
 def input_forces(tau, n, j2p, j2d):
     """Generalised forces B̄τ on the absolute angles, shape (n,)."""
@@ -325,15 +379,16 @@ def rodas4_step(z, tau, h, mc, kl, j2p, j2d, coef_a, coef_c, gamma):
     f[:n] = omega
     f[n:] = acc
     u = z.copy()
+    work_c, work_s, work_m = np.empty(n), np.empty(n), np.empty((n, n))
     for stage in range(6):
         if stage > 0:
             if stage < 5:
-                u = z.copy()
+                u[:] = z
                 for j in range(stage):
                     u += coef_a[stage, j] * ks[j]
             else:
-                u = u + ks[4]
-            f = state_derivative(u, tau, mc, kl, j2p, j2d)
+                u += ks[4]
+            stage_derivative(u, tau, mc, kl, j2p, j2d, work_c, work_s, work_m, f)
             for j in range(stage):
                 f += (coef_c[stage, j] / h) * ks[j]
         r_th = f[:n]
@@ -366,13 +421,14 @@ def chain_kinematics(theta, omega, alpha, length, ends):
     ----------
     theta, omega, alpha : (n,) angles (rad), rates (rad/s), accelerations (rad/s²)
     length : (n,) element lengths (m)
-    ends : (m,) int, 0-based elements
+    ends : (m,) int, 0-based elements, ascending
 
     Returns
     -------
-    (m, 4) rows (x, y, ẍ, ÿ) in m and m/s², one pass over the chain.
+    (m, 5) rows (x, y, ẍ, ÿ, a_n) in m and m/s², one pass over the chain; a_n is
+    the acceleration normal to the end element, (−sin θ_e, cos θ_e)·(ẍ, ÿ).
     """
-    out = np.zeros((ends.shape[0], 4))
+    out = np.zeros((ends.shape[0], 5))
     x = y = ax = ay = 0.0
     j = 0
     for i in range(theta.shape[0]):
@@ -384,5 +440,6 @@ def chain_kinematics(theta, omega, alpha, length, ends):
         ay += length[i] * (c * alpha[i] - s * om2)
         while j < ends.shape[0] and ends[j] == i:
             out[j, 0], out[j, 1], out[j, 2], out[j, 3] = x, y, ax, ay
+            out[j, 4] = -s * ax + c * ay
             j += 1
     return out

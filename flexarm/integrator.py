@@ -15,6 +15,8 @@ the FMUs' get/set-state and the sweeps rely on.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from . import _kernels as kern
@@ -34,17 +36,17 @@ def advance(model: ArmModel, z, tau, dt: float, substeps: int = DEFAULT_SUBSTEPS
     Returns the new state and the largest embedded error estimate of the
     substeps (a diagnostic, in the state's units).
     """
-    if not dt > 0 or not np.isfinite(dt):
+    if not (dt > 0 and math.isfinite(dt)):
         raise ValueError(f"dt: must be a finite step > 0 s, got {dt!r}")
     if int(substeps) < 1:
         raise ValueError(f"substeps: must be an integer >= 1, got {substeps!r}")
     tau = np.ascontiguousarray(tau, dtype=float)
-    if tau.shape != (2,) or not np.all(np.isfinite(tau)):
+    if tau.shape != (2,) or not np.isfinite(tau).all():
         raise ValueError(f"tau: must be two finite torques in N·m, got {tau!r}")
     z = np.ascontiguousarray(z, dtype=float)
     z_new, err = kern.advance(z, tau, float(dt), int(substeps), model.mass_coefficients, model.stiffness,
                               model.j2p, model.j2d, kern.RODAS4_A, kern.RODAS4_C, kern.RODAS4_GAMMA)
-    if not np.all(np.isfinite(z_new)):
+    if not np.isfinite(z_new).all():
         raise IntegrationError("state became non-finite")
     return z_new, float(err)
 

@@ -193,10 +193,10 @@ class ArmModel:
 
     def link_tip_accelerations(self, theta, omega, tau) -> np.ndarray:
         """Accelerations of the link-1 and link-2 tips, m/s², shape (2, 2) rows (x, y)."""
-        return self.link_tip_kinematics(theta, omega, tau)[:, 2:]
+        return self.link_tip_kinematics(theta, omega, tau)[:, 2:4]
 
     def link_tip_kinematics(self, theta, omega, tau) -> np.ndarray:
-        """Positions and accelerations of the link-1 and link-2 tips, shape (2, 4) rows (x, y, ẍ, ÿ), m and m/s².
+        """Link-1 and link-2 tips: shape (2, 5) rows (x, y, ẍ, ÿ, a_n), m and m/s² (a_n: the accelerometer).
 
         One compiled pass over the chain (the plant FMU needs these every 1 ms step).
         """
@@ -211,7 +211,9 @@ class ArmModel:
         Pass `tip_accelerations` (from :meth:`link_tip_accelerations`) when
         already computed, to avoid solving the dynamics twice.
         """
-        acc = self.link_tip_accelerations(theta, omega, tau) if tip_accelerations is None else tip_accelerations
+        if tip_accelerations is None:
+            return self.link_tip_kinematics(theta, omega, tau)[:, 4].copy()
+        acc = tip_accelerations
         theta = _f(theta)
         out = np.empty(2)
         for row, p in enumerate((LINK1_TIP_ELEMENT, LINK2_TIP_ELEMENT)):

@@ -261,16 +261,16 @@ class Master:
         """
         rank = {name: i for i, name in enumerate(self.order)}
         needed: dict[str, list[int]] = {name: [] for name in self.order}
-        for (s, _d), pairs in self.groups.items():
-            needed[s] += [vr for vr, _ in pairs if vr not in needed[s]]
         rec_vrs = []
-        for inst, var in record:
+        for inst, var in record:  # records first, in record order: they are then copied as slices
             if inst not in self.units:
                 raise CoSimulationError(f"record: no FMU instance '{inst}' (have: {sorted(self.units)})")
             vr = self.units[inst].vr(var)
             rec_vrs.append(vr)
             if vr not in needed[inst]:
                 needed[inst].append(vr)
+        for (s, _d), pairs in self.groups.items():
+            needed[s] += [vr for vr, _ in pairs if vr not in needed[s]]
         ports = {name: _Port(self.units[name], vrs) for name, vrs in needed.items() if vrs}
         forward = {name: [] for name in self.order}
         feedback = []
@@ -401,7 +401,7 @@ class Master:
             gathers.setdefault(id(port), (port, [], []))
             gathers[id(port)][1].append(col)
             gathers[id(port)][2].append(pos)
-        gathers = [(port, np.array(cols), np.array(pos)) for port, cols, pos in gathers.values()]
+        gathers = [(port, _as_index(cols), _as_index(pos)) for port, cols, pos in gathers.values()]
         steppers = [(u.do_step, u.slave.component, u.name) for u in (self.units[name] for name in self.order)]
         every_pct = max(1, n // 100)
         status, message, k = "ok", "", 0
@@ -412,7 +412,7 @@ class Master:
                 row = data[k]
                 for port, cols, pos in gathers:
                     row[cols] = port.values[pos]
-                if not (np.isfinite(row).all() and (np.abs(row) < divergence_limit).all()):
+                if not np.abs(row).max(initial=0.0) < divergence_limit:  # False for NaN and inf too
                     status, message = "unbounded", f"signals left the bounds at t = {time[k]:.3f} s"
                     break
                 if k == n:
@@ -429,6 +429,13 @@ class Master:
             status, message = "unbounded", f"step {k} (t = {k * h:.3f} s): {exc}"
         return {"time": time, "signals": {f"{f}.{v}": data[:, i] for i, (f, v) in enumerate(record)},
                 "status": status, "message": message, "log": list(self.messages), "steps_done": k}
+
+
+def _as_index(positions: list[int]) -> slice | np.ndarray:
+    """A slice where the positions are consecutive (a cheap copy), else an index array."""
+    if positions == list(range(positions[0], positions[0] + len(positions))):
+        return slice(positions[0], positions[0] + len(positions))
+    return np.array(positions)
 
 
 def run(system: System, progress: Callable[[int, int], None] | None = None) -> dict:

@@ -137,15 +137,14 @@ class FlexarmPlant(FlexarmSlave):
         """All outputs in table order for state z and held torque tau."""
         model = self.model
         theta, omega = z[:N], z[N:]
-        tips = model.link_tip_kinematics(theta, omega, tau)  # rows link 1, link 2: x, y, ẍ, ÿ
-        tip_acc = tips[:, 2:]
+        tips = model.link_tip_kinematics(theta, omega, tau)  # rows link 1, link 2: x, y, ẍ, ÿ, a_n
         return np.concatenate([
             theta, omega,
             joint_angles(theta), joint_velocities(omega),
             strain_gauge_angles(theta),
             tips[1, :2],
-            tip_acc.ravel(),
-            model.accelerometer_signals(theta, omega, tau, tip_accelerations=tip_acc),
+            tips[:, 2:4].ravel(),
+            tips[:, 4],
         ])
 
     def get_internal_state(self) -> dict:
