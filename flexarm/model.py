@@ -32,6 +32,13 @@ N_STATE = 2 * N_ELEMENTS
 #: The accelerometer-carrying link ends, in ascending order (chain_kinematics needs that).
 _LINK_TIPS = np.array([LINK1_TIP_ELEMENT, LINK2_TIP_ELEMENT], dtype=np.int64)
 
+#: What :meth:`ArmModel.observables` returns, in order (the plant FMU's outputs).
+OBSERVABLE_NAMES = (
+    *(f"theta{i}" for i in range(1, N + 1)), *(f"omega{i}" for i in range(1, N + 1)),
+    "q1", "q2", "qd1", "qd2", *(f"eps{i}" for i in range(1, 7)),
+    "tip_x", "tip_y", "link1_tip_ax", "link1_tip_ay", "link2_tip_ax", "link2_tip_ay", "acc1_n", "acc2_n",
+)
+
 
 class ArmModel:
     """Dynamics and kinematics of one parameter set.
@@ -204,6 +211,24 @@ class ArmModel:
         alpha = self.acceleration(theta, omega, tau)
         return kern.chain_kinematics(theta, omega, alpha, self.length, _LINK_TIPS)
 
+    def observables(self, z, tau) -> np.ndarray:
+        """Everything a sensor or the plant FMU reads off state z with held torque tau, shape (40,).
+
+        In :data:`OBSERVABLE_NAMES` order: θ (rad), θ̇ (rad/s), encoder angles q (rad),
+        tachometer rates q̇ (rad/s), strain-gauge angles ε (rad), link-2 tip (m),
+        link-1 and link-2 tip accelerations (m/s²), accelerometer signals (m/s²).
+        Equal to the separate functions (:func:`joint_angles`, ..., :meth:`accelerometer_signals`).
+        """
+        z = _f(z)
+        tips = self.link_tip_kinematics(z[:N], z[N:], tau)
+        out = np.empty(len(OBSERVABLE_NAMES))
+        out[: 2 * N] = z
+        out[2 * N: 2 * N + 10] = _SENSOR_MAP @ z  # q, q̇, ε are differences of angles and rates
+        out[2 * N + 10: 2 * N + 12] = tips[1, :2]
+        out[2 * N + 12: 2 * N + 16] = tips[:, 2:4].ravel()
+        out[2 * N + 16:] = tips[:, 4]
+        return out
+
     def accelerometer_signals(self, theta, omega, tau, tip_accelerations=None) -> np.ndarray:
         """Tip accelerations normal to the link (the accelerometers' axis), m/s², shape (2,).
 
@@ -273,3 +298,18 @@ def rigid_configuration(q1: float, q2: float) -> np.ndarray:
 
 def _f(x) -> np.ndarray:
     return np.ascontiguousarray(x, dtype=float)
+
+
+def _sensor_map() -> np.ndarray:
+    """The (10, 22) matrix taking z to (q1, q2, q̇1, q̇2, ε1..ε6) (differences: exact in floating point)."""
+    m = np.zeros((10, 2 * N))
+    m[0, 0] = 1.0
+    m[1, JOINT2_PAIR[1]], m[1, JOINT2_PAIR[0]] = 1.0, -1.0
+    m[2, N] = 1.0
+    m[3, N + JOINT2_PAIR[1]], m[3, N + JOINT2_PAIR[0]] = 1.0, -1.0
+    for row, e in enumerate(STRAIN_GAUGE_ELEMENTS):
+        m[4 + row, e], m[4 + row, e - 1] = 1.0, -1.0
+    return m
+
+
+_SENSOR_MAP = _sensor_map()

@@ -188,7 +188,7 @@ class _Link:
     def __init__(self, port: _Port, src_vrs: list[int], dst: _Unit, dst_vrs: list[int]):
         n = len(dst_vrs)
         self.port, self.dst, self.n = port, dst, n
-        self.index = np.array([port.position[vr] for vr in src_vrs])
+        self.index = _as_index([port.position[vr] for vr in src_vrs])
         self.dst_vrs = (fmi2ValueReference * n)(*dst_vrs)
         self.buffer = (fmi2Real * n)()
         self.values = np.frombuffer(self.buffer, dtype=np.float64)

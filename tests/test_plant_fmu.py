@@ -345,3 +345,10 @@ def test_a_step_that_leaves_the_finite_numbers_is_discarded(fmu_path, unzipped):
         np.testing.assert_array_equal(plant.state(), before)
     finally:
         plant.close()
+
+
+def test_outputs_are_the_library_observables(fmu_path):
+    from flexarm.model import OBSERVABLE_NAMES
+
+    md = read_model_description(str(fmu_path))
+    assert tuple(v.name for v in md.modelVariables if v.causality == "output") == OBSERVABLE_NAMES

@@ -36,10 +36,7 @@ from flexarm.integrator import DEFAULT_SUBSTEPS, IntegrationError, advance
 from flexarm.model import (
     ArmModel,
     N,
-    joint_angles,
-    joint_velocities,
     rigid_configuration,
-    strain_gauge_angles,
 )
 from flexarm.parameters import load_parameters
 
@@ -134,18 +131,8 @@ class FlexarmPlant(FlexarmSlave):
         self.z, self.tau_held, self.last_error = z, tau, err
 
     def _outputs(self, z: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """All outputs in table order for state z and held torque tau."""
-        model = self.model
-        theta, omega = z[:N], z[N:]
-        tips = model.link_tip_kinematics(theta, omega, tau)  # rows link 1, link 2: x, y, ẍ, ÿ, a_n
-        return np.concatenate([
-            theta, omega,
-            joint_angles(theta), joint_velocities(omega),
-            strain_gauge_angles(theta),
-            tips[1, :2],
-            tips[:, 2:4].ravel(),
-            tips[:, 4],
-        ])
+        """All outputs in table order (= flexarm.model.OBSERVABLE_NAMES) for state z and held torque tau."""
+        return self.model.observables(z, tau)
 
     def get_internal_state(self) -> dict:
         return {"z": self.z.tolist(), "tau_held": self.tau_held.tolist(), "last_error": self.last_error}
