@@ -355,7 +355,7 @@ RODAS4_C = np.array([
 
 
 @_jit
-def rodas4_step(z, tau, h, mc, kl, j2p, j2d, coef_a, coef_c, gamma):
+def _rodas4_step_vectorised(z, tau, h, mc, kl, j2p, j2d, coef_a, coef_c, gamma):
     """One RODAS4 step of size h (s) with constant torque; returns (z_new, error_estimate).
 
     The stage systems (I/(γh) − J) k = r are reduced with the second-order
@@ -398,6 +398,71 @@ def rodas4_step(z, tau, h, mc, kl, j2p, j2d, coef_a, coef_c, gamma):
         ks[stage, n:] = g * k_th - r_th
     z_new = u + ks[5]
     return z_new, ks[5].copy()
+
+
+if HAVE_NUMBA:
+
+    @_jit
+    def _rodas4_step_loops(z, tau, h, mc, kl, j2p, j2d, coef_a, coef_c, gamma):
+        """:func:`_rodas4_step_vectorised` with explicit loops: no temporaries (Numba only)."""
+        n = z.shape[0] // 2
+        theta = z[:n]
+        omega = z[n:]
+        mass, rhs, cosd, sind = assemble(theta, omega, mc, kl)
+        acc = spd_solve(mass, rhs + input_forces(tau, n, j2p, j2d))
+        q, v = tangent_matrices(mc, kl, cosd, sind, omega, acc)
+        g = 1.0 / (gamma * h)
+        w = g * g * mass - g * v - q
+        w_lu, w_piv = lu_factor(w)
+        ks = np.zeros((6, 2 * n))
+        f = np.empty(2 * n)
+        f[:n] = omega
+        f[n:] = acc
+        u = z.copy()
+        b = np.empty(n)
+        k_th = np.empty(n)
+        work_c, work_s, work_m = np.empty(n), np.empty(n), np.empty((n, n))
+        for stage in range(6):
+            if stage > 0:
+                if stage < 5:
+                    for i in range(2 * n):
+                        t = z[i]
+                        for j in range(stage):
+                            t += coef_a[stage, j] * ks[j, i]
+                        u[i] = t
+                else:
+                    for i in range(2 * n):
+                        u[i] += ks[4, i]
+                stage_derivative(u, tau, mc, kl, j2p, j2d, work_c, work_s, work_m, f)
+                for j in range(stage):
+                    cj = coef_c[stage, j] / h
+                    for i in range(2 * n):
+                        f[i] += cj * ks[j, i]
+            # M (r_ω + g r_θ) − V r_θ, then the LU solve (see _rodas4_step_vectorised)
+            for i in range(n):
+                t = 0.0
+                for j in range(n):
+                    t += mass[i, j] * (f[n + j] + g * f[j]) - v[i, j] * f[j]
+                b[i] = t
+            for i in range(n):
+                k_th[i] = b[w_piv[i]]
+            for i in range(n):
+                for k in range(i):
+                    k_th[i] -= w_lu[i, k] * k_th[k]
+            for i in range(n - 1, -1, -1):
+                for k in range(i + 1, n):
+                    k_th[i] -= w_lu[i, k] * k_th[k]
+                k_th[i] /= w_lu[i, i]
+            for i in range(n):
+                ks[stage, i] = k_th[i]
+                ks[stage, n + i] = g * k_th[i] - f[i]
+        for i in range(2 * n):
+            u[i] += ks[5, i]
+        return u, ks[5].copy()
+
+    rodas4_step = _rodas4_step_loops
+else:
+    rodas4_step = _rodas4_step_vectorised
 
 
 @_jit

@@ -559,6 +559,40 @@ class SensorBank:
             "acc_filter": None if self._acc_filter is None else self._acc_filter.state.copy(),
         }
 
+    def checkpoint(self) -> dict:
+        """A light snapshot for :meth:`rewind`: filter states, priming flag, sample count.
+
+        Unlike :meth:`get_state` it does not copy the generator (which is rewound
+        instead), so it costs next to nothing; the sensors FMU takes one per sample.
+        """
+        return {
+            "primed": self._primed,
+            "n_samples": self.n_samples,
+            "strain_filter": None if self._strain_filter is None else self._strain_filter.state.copy(),
+            "acc_filter": None if self._acc_filter is None else self._acc_filter.state.copy(),
+        }
+
+    def rewind(self, checkpoint: Mapping) -> None:
+        """Return to a :meth:`checkpoint` of this bank: the next :meth:`measure` repeats the samples since.
+
+        The generator is stepped back by the uniforms drawn since (every sample
+        draws exactly :data:`N_SIGNALS`), so the noise repeats bit for bit.
+        """
+        back = self.n_samples - int(checkpoint["n_samples"])
+        if back < 0:
+            raise ValueError(f"checkpoint: taken at sample {checkpoint['n_samples']}, after this bank's "
+                             f"{self.n_samples} samples (not a checkpoint of this bank's past)")
+        for key, flt in (("strain_filter", self._strain_filter), ("acc_filter", self._acc_filter)):
+            saved = checkpoint[key]
+            if (saved is None) != (flt is None) or (flt is not None and np.shape(saved) != flt.state.shape):
+                raise ValueError(f"checkpoint[{key!r}]: does not match this bank's filter settings")
+            if flt is not None:
+                flt.state = np.array(saved, dtype=float)
+        if back:
+            self._rng.bit_generator.advance(-N_SIGNALS * back)
+        self._primed = bool(checkpoint["primed"])
+        self.n_samples = int(checkpoint["n_samples"])
+
     def set_state(self, state: Mapping) -> None:
         """Restore a snapshot of :meth:`get_state` (of a bank with the same settings)."""
         for key, flt in (("strain_filter", self._strain_filter), ("acc_filter", self._acc_filter)):

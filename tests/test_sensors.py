@@ -371,3 +371,21 @@ def test_reconstruction_of_simulated_state_is_off_by_the_bracket_deflections(mod
     assert 0 < np.max(np.abs(d)) < 1e-3  # deformed, but stiff brackets
     assert np.max(np.abs(strain_gauge_angles(th))) > 1e-3  # the links did bend
 
+
+
+def test_rewind_repeats_the_samples_since_a_checkpoint():
+    """checkpoint/rewind (what the sensors FMU does per sample) repeats noise and filter output bit for bit."""
+    from flexarm.sensors import SensorBank, SensorSettings
+
+    bank = SensorBank(SensorSettings(noise_enabled=True, noise_seed=11, strain_gauge_filter=True,
+                                     accelerometer_filter=True))
+    x = np.linspace(0.1, 1.2, 12)
+    bank.measure(x)
+    mark = bank.checkpoint()
+    first = [bank.measure(x * (1 + 0.1 * k)) for k in range(3)]
+    bank.rewind(mark)
+    again = [bank.measure(x * (1 + 0.1 * k)) for k in range(3)]
+    assert all(np.array_equal(a, b) for a, b in zip(first, again))
+    assert bank.n_samples == 4
+    with pytest.raises(ValueError, match="checkpoint"):
+        bank.rewind({**mark, "n_samples": 99})

@@ -102,8 +102,8 @@ class FlexarmSensors(FeedthroughSlave):
 
     State: one :class:`flexarm.sensors.SensorBank` (noise generator, filter
     states), advanced once per communication point; ``_pre`` holds its
-    state before the current sample so that re-setting the inputs before
-    ``fmi2DoStep`` re-measures from the same state.
+    checkpoint before the current sample so that re-setting the inputs before
+    ``fmi2DoStep`` re-measures from the same state (the bank rewinds).
     """
 
     VARIABLES = VARIABLES
@@ -118,7 +118,7 @@ class FlexarmSensors(FeedthroughSlave):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.bank: SensorBank | None = None
-        self._pre: dict | None = None  # bank state before the sample of the current communication point
+        self._pre: dict | None = None  # bank checkpoint before the sample of the current communication point
         self._true_vrs = [self._vr[s.name] for s in TRUE_SIGNALS]
 
     def settings(self) -> SensorSettings:
@@ -133,9 +133,9 @@ class FlexarmSensors(FeedthroughSlave):
 
     def evaluate(self) -> np.ndarray:
         if self._pre is None:
-            self._pre = self.bank.get_state()
+            self._pre = self.bank.checkpoint()
         else:  # inputs changed after a read at this communication point: measure again from the same state
-            self.bank.set_state(self._pre)
+            self.bank.rewind(self._pre)
         values = self._values
         return self.bank.measure(np.array([values[vr] for vr in self._true_vrs], dtype=float))
 
