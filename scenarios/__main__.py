@@ -23,8 +23,38 @@ def main(argv=None) -> int:
     run.add_argument("--controller", help="controller FMU to use instead of the scenario's (name or .fmu path)")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
+    sweep = sub.add_parser("sweep", help="run a sweep / Monte Carlo on Dask: a name in scenarios/sweeps/ or a file")
+    sweep.add_argument("sweep")
+    sweep.add_argument("--out", type=Path, default=REPO / "results" / "sweeps",
+                       help="results folder (default: results/sweeps/; the sweep writes into OUT/<name>/)")
+    sweep.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
+    sweep.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://host:8786")
+    sweep.add_argument("--workers", type=int, help="local cluster: worker processes (default: the cores)")
+    sweep.add_argument("--serial", action="store_true", help="run in this process, no Dask (debugging)")
+    sweep.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    ssp = sub.add_parser("export-ssp", help="write a scenario as an SSP 1.0 package (.ssp) for other masters")
+    ssp.add_argument("scenario", help="table1, table2, table3 or a path to a scenario file")
+    ssp.add_argument("--out", type=Path, default=REPO / "build" / "ssp",
+                     help="folder for <name>.ssp, or a .ssp path (default: build/ssp/)")
+    ssp.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
     args = ap.parse_args(argv)
     try:
+        if args.command == "sweep":
+            from .sweep import cli as sweep_cli
+
+            return sweep_cli(args)
+        if args.command == "export-ssp":
+            from .ssp import SSPExportError, export_ssp, parameter_sets
+
+            try:
+                path = export_ssp(load_scenario(args.scenario), args.out, args.fmu_dir)
+            except SSPExportError as exc:
+                print(f"error: {exc}", file=sys.stderr)
+                return 2
+            sets = parameter_sets(path)
+            print(f"{path}: cases (parameter sets) {', '.join(sets)}")
+            return 0
         if args.command == "list":
             for s in list_scenarios():
                 print(f"{s.name:16s} {len(s.cases)} cases  {s.description}")
