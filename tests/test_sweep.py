@@ -1,0 +1,162 @@
+"""Sweeps on Dask: cluster table equals the serial one bit for bit, failures are recorded, resume, validation."""
+
+import json
+import shutil
+import time
+
+import pytest
+
+from scenarios.__main__ import main
+from scenarios.metrics import METRICS
+from scenarios.sweep import CRASH_ENV, SweepError, load_sweep, plan_sweep, read_table, run_sweep
+
+# 2 payloads (random, reproducible) x 3 gain sets (one unknown: the controller FMU refuses it) x 2 seeds = 12
+# points of 200 steps each.
+SMALL = """
+[sweep]
+name = "small"
+scenario = "table2"
+case = "noise"
+samples = 200
+
+[axes]
+plant.payload_mass = { uniform = [0.0, 0.5], count = 2, seed = 7 }
+controller.gain_set = ["gamma0.1", "gamma1", "no_such_gains"]
+sensors.noise_seed = { range = [1, 2] }
+"""
+#: Columns that must agree between two runs of the same points (not wall time, worker, dates).
+SAME = ["index", "key", "plant.payload_mass", "controller.gain_set", "sensors.noise_seed", "status", *METRICS]
+
+
+def _write(folder, text, name="small.toml"):
+    path = folder / name
+    path.write_text(text)
+    return path
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("sweep")
+    path = _write(folder, SMALL)
+    t0 = time.perf_counter()
+    res = run_sweep(path, folder / "serial", serial=True, plots=False, progress=False)
+    return path, res, time.perf_counter() - t0
+
+
+def _same(table):
+    return [{c: row[c] for c in SAME} for row in read_table(table)]
+
+
+def test_serial_table_and_provenance(small):
+    path, res, _ = small
+    rows = read_table(res.tables[0])
+    assert len(rows) == 12 and res.ran == 12
+    assert {r["status"] for r in rows if r["controller.gain_set"] != "no_such_gains"} == {"ok"}
+    failed = [r for r in rows if r["controller.gain_set"] == "no_such_gains"]
+    assert len(failed) == 4 and all(r["status"] == "failed" and "gain_set" in r["message"] for r in failed)
+    assert all(r[m] == "" for r in failed for m in METRICS)
+    assert all(len(r["fmu_sha256.plant"]) == 64 and r["commit"] for r in rows)
+    meta = json.loads((res.folder / "sweep.json").read_text())
+    assert meta["sweep_sha256"] and meta["points"] == 12 and meta["sweep_file"] == str(path)
+    # random samples: reproducible from their seed, inside their range
+    payloads = sorted({float(r["plant.payload_mass"]) for r in rows})
+    assert payloads == sorted(load_sweep(path).axes[0].values) and all(0 <= p <= 0.5 for p in payloads)
+
+
+def test_local_cluster_equals_serial_bit_for_bit(small, tmp_path):
+    path, serial, _ = small
+    res = run_sweep(path, tmp_path, workers=2, progress=False)
+    assert res.ran == 12
+    assert _same(res.tables[0]) == _same(serial.tables[0])
+    assert {p.name for p in res.plots} == {"metrics_vs_payload_mass.png", "rms_spread_over_seeds.png"}
+    assert all(p.stat().st_size > 10_000 for p in res.plots)
+
+
+def test_worker_death_is_recorded_and_the_sweep_completes(small, tmp_path, monkeypatch):
+    path, serial, _ = small
+    victim = plan_sweep(load_sweep(path)).points[1]  # gamma0.1, ok in the serial run
+    monkeypatch.setenv(CRASH_ENV, victim.key)  # test-only hook: the worker given this point calls os._exit
+    res = run_sweep(path, tmp_path, workers=2, progress=False, plots=False, allowed_failures=0)
+    rows = _same(res.tables[0])
+    assert len(rows) == 12
+    dead = rows[victim.index]
+    assert dead["status"] == "failed" and all(dead[m] == "" for m in METRICS)
+    assert "KilledWorker" in read_table(res.tables[0])[victim.index]["message"]
+    others = [r for r in rows if r["index"] != str(victim.index)]
+    assert others == [r for r in _same(serial.tables[0]) if r["index"] != str(victim.index)]
+
+
+def test_resume_skips_done_points(small, tmp_path, capsys):
+    path, serial, _ = small
+    folder = tmp_path / "small"
+    shutil.copytree(serial.folder, folder)
+    # a rerun (through the CLI) skips the 8 done points and retries the 4 failed ones
+    assert main(["sweep", str(path), "--serial", "--quiet", "--no-plots", "--out", str(tmp_path)]) == 0
+    assert "(4 run now, 8 from the journal)" in capsys.readouterr().out
+    # a crash lost the last two records, the one before was cut mid-line: those three run again
+    journal = folder / "journal.jsonl"
+    lines = journal.read_text().splitlines()
+    keep = [json.loads(x) for x in lines]
+    ok = [i for i, r in enumerate(keep) if r["status"] == "ok"]
+    cut = ok[-3:]
+    text = "\n".join(x for i, x in enumerate(lines) if i not in cut) + "\n" + lines[cut[0]][:40]
+    journal.write_text(text)
+    res = run_sweep(path, tmp_path, serial=True, plots=False, progress=False)
+    assert res.ran == 3 + 4 and res.skipped == 5
+    assert _same(res.tables[0]) == _same(serial.tables[0])
+    assert journal.read_text().endswith("\n")  # the cut line was closed before appending
+
+
+def test_fmu_swap_axis(tmp_path):
+    path = _write(tmp_path, "[sweep]\nname='swap'\nscenario='table2'\ncase='tip'\nsamples=100\n[axes]\n"
+                            "fmus.controller = ['controller', 'controller_ff']\n")
+    res = run_sweep(path, tmp_path, serial=True, plots=False, progress=False)
+    fb, ff = read_table(res.tables[0])
+    assert fb["status"] == ff["status"] == "ok" and fb["fmu_sha256.controller"] != ff["fmu_sha256.controller"]
+    assert fb["fmu_sha256.plant"] == ff["fmu_sha256.plant"] and fb["peak_tau2"] != ff["peak_tau2"]
+
+
+@pytest.mark.parametrize("text, field, allowed", [
+    ("[sweep]\nname='a'\nscenario='table2'\n[axes]\nplant.payload_mass=[0.0]\n[other]\n", "small.toml",
+     "top-level tables allowed"),
+    ("[sweep]\nname='a'\nscenario='table2'\ncase='nope'\n[axes]\nplant.payload_mass=[0.0]\n", "sweep.case",
+     "one of the scenario's cases ['none', 'noise', 'tip', 'tip_noise']"),
+    ("[sweep]\nname='a'\nscenario='no_such'\n[axes]\nplant.payload_mass=[0.0]\n", "sweep.scenario",
+     "known scenarios"),
+    ("[sweep]\nname='a'\nscenario='table2'\nsamples=0\n[axes]\nplant.payload_mass=[0.0]\n", "sweep.samples",
+     "an integer in [1, 10000000]"),
+    ("[sweep]\nname='a'\nscenario='table2'\n[axes]\nrobot.payload_mass=[0.0]\n", "axes.robot",
+     "an FMU instance of the scenario ['controller', 'plant', 'sensors']"),
+    ("[sweep]\nname='a'\nscenario='table2'\n[axes]\nsensors.noise_seed={range=[5, 1]}\n",
+     "axes.sensors.noise_seed.range", "first <= last"),
+    ("[sweep]\nname='a'\nscenario='table2'\n[axes]\nplant.payload_mass={uniform=[0, 0.5], count=4}\n",
+     "axes.plant.payload_mass.seed", "required for reproducibility"),
+    ("[sweep]\nname='a'\nscenario='table2'\n[axes]\nplant.payload_mass={grid=[0, 0.5]}\n",
+     "axes.plant.payload_mass", "{ uniform = [low, high], count = N, seed = S }"),
+    ("[sweep]\nname='a'\nscenario='table2'\n[axes]\nplant.payload_mass=[0.1, 0.1]\n",
+     "axes.plant.payload_mass", "unique values"),
+])
+def test_sweep_file_errors_name_the_field(tmp_path, text, field, allowed):
+    with pytest.raises(SweepError) as err:
+        load_sweep(_write(tmp_path, text))
+    assert field in str(err.value) and allowed in str(err.value)
+
+
+@pytest.mark.parametrize("axis, field, allowed", [
+    ("plant.payload_mass = [0.0, -1.0]", "axes.plant.payload_mass", "values in the FMU's range [0, 10] kg"),
+    ("plant.payload_mas = [0.0]", "axes.plant.payload_mas", "a parameter of FMU plant.fmu (['payload_mass'"),
+    ("controller.gain_set = [1, 2]", "axes.controller.gain_set", "strings (gain_set is String)"),
+    ("sensors.noise_enabled = { range = [0, 1] }", "axes.sensors.noise_enabled", "true or false"),
+    ("fmus.controller = ['controller', 'controller_xyz']", "axes.fmus.controller", "controller_dlqr"),
+])
+def test_axes_checked_against_the_fmus(tmp_path, axis, field, allowed):
+    path = _write(tmp_path, f"[sweep]\nname='a'\nscenario='table2'\n[axes]\n{axis}\n")
+    with pytest.raises(SweepError) as err:
+        plan_sweep(load_sweep(path))
+    assert field in str(err.value) and allowed in str(err.value)
+
+
+def test_shipped_sweeps_load():
+    rob, sched = load_sweep("robustness"), load_sweep("schedule")
+    assert rob.n_points == 360 and sched.n_points == 12
+    assert [a.field for a in rob.axes] == ["plant.payload_mass", "controller.gain_set", "sensors.noise_seed"]
