@@ -24,7 +24,7 @@ def main(argv=None) -> int:
     run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
     sweep = sub.add_parser("sweep", help="run a sweep / Monte Carlo on Dask: a name in scenarios/sweeps/ or a file")
-    sweep.add_argument("sweep")
+    sweep.add_argument("sweep", help="a sweep name in scenarios/sweeps/ (robustness, schedule) or a sweep file")
     sweep.add_argument("--out", type=Path, default=REPO / "results" / "sweeps",
                        help="results folder (default: results/sweeps/; the sweep writes into OUT/<name>/)")
     sweep.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
