@@ -355,6 +355,26 @@ RODAS4_C = np.array([
 
 
 @_jit
+def _stage_system(z, tau, h, mc, kl, j2p, j2d, gamma):
+    """What every RODAS4 stage of one step shares (see :func:`_rodas4_step_vectorised`).
+
+    Returns g = 1/(γh), M, V, the LU factors of g² M − g V − Q, and ż at z (2n,).
+    """
+    n = z.shape[0] // 2
+    theta = z[:n]
+    omega = z[n:]
+    mass, rhs, cosd, sind = assemble(theta, omega, mc, kl)
+    acc = spd_solve(mass, rhs + input_forces(tau, n, j2p, j2d))
+    q, v = tangent_matrices(mc, kl, cosd, sind, omega, acc)
+    g = 1.0 / (gamma * h)
+    w_lu, w_piv = lu_factor(g * g * mass - g * v - q)
+    f = np.empty(2 * n)
+    f[:n] = omega
+    f[n:] = acc
+    return g, mass, v, w_lu, w_piv, f
+
+
+@_jit
 def _rodas4_step_vectorised(z, tau, h, mc, kl, j2p, j2d, coef_a, coef_c, gamma):
     """One RODAS4 step of size h (s) with constant torque; returns (z_new, error_estimate).
 
@@ -366,18 +386,8 @@ def _rodas4_step_vectorised(z, tau, h, mc, kl, j2p, j2d, coef_a, coef_c, gamma):
     (this saves the 2n solves that forming A_θ and A_ω would cost).
     """
     n = z.shape[0] // 2
-    theta = z[:n]
-    omega = z[n:]
-    mass, rhs, cosd, sind = assemble(theta, omega, mc, kl)
-    acc = spd_solve(mass, rhs + input_forces(tau, n, j2p, j2d))
-    q, v = tangent_matrices(mc, kl, cosd, sind, omega, acc)
-    g = 1.0 / (gamma * h)
-    w = g * g * mass - g * v - q
-    w_lu, w_piv = lu_factor(w)
+    g, mass, v, w_lu, w_piv, f = _stage_system(z, tau, h, mc, kl, j2p, j2d, gamma)
     ks = np.zeros((6, 2 * n))
-    f = np.empty(2 * n)
-    f[:n] = omega
-    f[n:] = acc
     u = z.copy()
     work_c, work_s, work_m = np.empty(n), np.empty(n), np.empty((n, n))
     for stage in range(6):
@@ -406,18 +416,8 @@ if HAVE_NUMBA:
     def _rodas4_step_loops(z, tau, h, mc, kl, j2p, j2d, coef_a, coef_c, gamma):
         """:func:`_rodas4_step_vectorised` with explicit loops: no temporaries (Numba only)."""
         n = z.shape[0] // 2
-        theta = z[:n]
-        omega = z[n:]
-        mass, rhs, cosd, sind = assemble(theta, omega, mc, kl)
-        acc = spd_solve(mass, rhs + input_forces(tau, n, j2p, j2d))
-        q, v = tangent_matrices(mc, kl, cosd, sind, omega, acc)
-        g = 1.0 / (gamma * h)
-        w = g * g * mass - g * v - q
-        w_lu, w_piv = lu_factor(w)
+        g, mass, v, w_lu, w_piv, f = _stage_system(z, tau, h, mc, kl, j2p, j2d, gamma)
         ks = np.zeros((6, 2 * n))
-        f = np.empty(2 * n)
-        f[:n] = omega
-        f[n:] = acc
         u = z.copy()
         b = np.empty(n)
         k_th = np.empty(n)

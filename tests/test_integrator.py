@@ -5,6 +5,7 @@ import pytest
 import scipy.integrate
 
 from flexarm import ArmModel, joint_angles, rigid_configuration, strain_gauge_angles
+from flexarm import _kernels as kern
 from flexarm.integrator import DEFAULT_SUBSTEPS, PlantSimulator, advance, simulate
 from flexarm.model import N
 from flexarm.modes import modal_analysis
@@ -130,3 +131,15 @@ def test_bad_step_arguments(model):
         advance(model, z0, (np.nan, 0), 1e-3)
     with pytest.raises(ValueError, match="substeps"):
         advance(model, z0, (0, 0), 1e-3, substeps=0)
+
+
+@pytest.mark.skipif(not kern.HAVE_NUMBA, reason="the loop variant exists only with Numba")
+def test_rodas4_loop_and_vectorised_variants_agree(model):
+    """The allocation-free stage loop (Numba) computes the same step as the vectorised form (NumPy path)."""
+    rng = np.random.default_rng(5)
+    z = np.concatenate([rigid_configuration(0.3, 0.5) + 1e-3 * rng.random(N), 0.1 * rng.random(N)])
+    args = (np.array([1.0, 0.5]), 5e-4, model.mass_coefficients, model.stiffness, model.j2p, model.j2d,
+            kern.RODAS4_A, kern.RODAS4_C, kern.RODAS4_GAMMA)
+    loops, vectorised = kern._rodas4_step_loops(z, *args), kern._rodas4_step_vectorised(z, *args)
+    assert np.allclose(loops[0], vectorised[0], rtol=0, atol=1e-10)
+    assert np.allclose(loops[1], vectorised[1], rtol=0, atol=1e-10)
