@@ -158,24 +158,19 @@ def _import_sandbox(paths: list[Path]):
     of the one bundled in the FMU.
     """
     saved_path = list(sys.path)
-    drop = (str(ROOT / "fmus"), tempfile.gettempdir())
-
-    def ours(name: str) -> bool:
-        return (getattr(sys.modules[name], "__file__", None) or "").startswith(drop)
-
-    # Slave and glue modules of FMUs already loaded in this process (fmpy imports them
-    # from the FMU's unpacked resources) would shadow the project's sources: set them
-    # aside while building, and put them back afterwards for those FMUs' sake.
-    shadowing = {name: sys.modules.pop(name) for name in [n for n in sys.modules if ours(n)]}
-    saved_modules = set(sys.modules)
+    # The FMUs' own top-level modules (slave scripts and glue): by name, wherever they
+    # were imported from (this tree, or an FMU's unpacked resources).
+    ours = {p.stem for p in (ROOT / "fmus").glob("*/*.py")}
+    # Those of FMUs already loaded in this process would shadow the project's sources:
+    # set them aside while building, and put them back afterwards for those FMUs' sake.
+    shadowing = {name: sys.modules.pop(name) for name in ours & set(sys.modules)}
     sys.path[:0] = [str(p) for p in paths]
     try:
         yield
     finally:
         sys.path[:] = saved_path
-        for name in set(sys.modules) - saved_modules:
-            if ours(name):
-                del sys.modules[name]
+        for name in ours & set(sys.modules):
+            del sys.modules[name]
         sys.modules.update(shadowing)
 
 
