@@ -44,9 +44,9 @@ def _jit(func):
 if HAVE_NUMBA:
 
     @_jit
-    def _cholesky(a):
+    def _cholesky_into(a, low):
+        """Lower Cholesky factor of `a` (only its lower triangle is read) into `low`; `low` may be `a`."""
         n = a.shape[0]
-        low = np.zeros((n, n))
         for j in range(n):
             d = a[j, j]
             for k in range(j):
@@ -59,6 +59,11 @@ if HAVE_NUMBA:
                 for k in range(j):
                     s -= low[i, k] * low[j, k]
                 low[i, j] = s / low[j, j]
+
+    @_jit
+    def _cholesky(a):
+        low = np.zeros(a.shape)
+        _cholesky_into(a, low)
         return low
 
     @_jit
@@ -125,10 +130,9 @@ if HAVE_NUMBA:
         return lu, piv
 
     @_jit
-    def lu_solve(lu, piv, b):
-        """Solve with the factors of :func:`lu_factor`; b shape (n,)."""
+    def _lu_solve_into(lu, piv, b, x):
+        """Solve with the factors of :func:`lu_factor` into `x` (n,)."""
         n = lu.shape[0]
-        x = np.empty(n)
         for i in range(n):
             x[i] = b[piv[i]]
         for i in range(n):
@@ -138,6 +142,12 @@ if HAVE_NUMBA:
             for k in range(i + 1, n):
                 x[i] -= lu[i, k] * x[k]
             x[i] /= lu[i, i]
+
+    @_jit
+    def lu_solve(lu, piv, b):
+        """Solve with the factors of :func:`lu_factor`; b shape (n,)."""
+        x = np.empty(lu.shape[0])
+        _lu_solve_into(lu, piv, b, x)
         return x
 
 else:
@@ -253,28 +263,8 @@ if HAVE_NUMBA:
         rhs[0] += tau[0]
         rhs[j2d] += tau[1]
         rhs[j2p] -= tau[1]
-        # Cholesky of the mass matrix in place (lower triangle), then the two substitutions.
-        for j in range(n):
-            d = mass[j, j]
-            for k in range(j):
-                d -= mass[j, k] * mass[j, k]
-            if d <= 0.0:
-                raise ValueError("mass matrix not positive definite")
-            d = np.sqrt(d)
-            mass[j, j] = d
-            for i in range(j + 1, n):
-                t = mass[i, j]
-                for k in range(j):
-                    t -= mass[i, k] * mass[j, k]
-                mass[i, j] = t / d
-        for i in range(n):
-            for k in range(i):
-                rhs[i] -= mass[i, k] * rhs[k]
-            rhs[i] /= mass[i, i]
-        for i in range(n - 1, -1, -1):
-            for k in range(i + 1, n):
-                rhs[i] -= mass[k, i] * rhs[k]
-            rhs[i] /= mass[i, i]
+        _cholesky_into(mass, mass)  # in place: the lower triangle becomes the factor
+        _cholesky_substitute(mass, rhs)
 
 else:
 
@@ -444,15 +434,7 @@ if HAVE_NUMBA:
                 for j in range(n):
                     t += mass[i, j] * (f[n + j] + g * f[j]) - v[i, j] * f[j]
                 b[i] = t
-            for i in range(n):
-                k_th[i] = b[w_piv[i]]
-            for i in range(n):
-                for k in range(i):
-                    k_th[i] -= w_lu[i, k] * k_th[k]
-            for i in range(n - 1, -1, -1):
-                for k in range(i + 1, n):
-                    k_th[i] -= w_lu[i, k] * k_th[k]
-                k_th[i] /= w_lu[i, i]
+            _lu_solve_into(w_lu, w_piv, b, k_th)
             for i in range(n):
                 ks[stage, i] = k_th[i]
                 ks[stage, n + i] = g * k_th[i] - f[i]
