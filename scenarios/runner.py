@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 from fmpy import read_model_description
 
+from flexarm.parameters import DEFAULT_PARAMETER_FILE
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
 from . import master
@@ -160,6 +161,10 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     by_key: dict[str, CaseResult] = {}
     commit = git_commit()
     traj_hash = sha256_file(DEFAULT_TRAJECTORY_FILE)
+    # The arm's parameter file the FMUs bundle (flexarm/data/sandia_arm.toml, the same file).
+    param_file = str(DEFAULT_PARAMETER_FILE.relative_to(REPO)) if DEFAULT_PARAMETER_FILE.is_relative_to(REPO) \
+        else str(DEFAULT_PARAMETER_FILE)
+    param_hash = sha256_file(DEFAULT_PARAMETER_FILE)
     folder = out_dir / scenario.name
     for names, cases in groups.items():
         setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None)
@@ -183,6 +188,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     "algorithm": algorithm, "fmus": {k: str(v) for k, v in setup.paths.items()},
                     "fmu_sha256": checksums, "commit": commit, "wall_time_s": wall,
                     "steps_done": out["steps_done"], "trajectory_sha256": traj_hash,
+                    "parameter_file": param_file, "parameter_file_sha256": param_hash,
                     "fmu_log_tail": out["log"][-20:],
                 })
     return [by_key[c.key] for c in scenario.cases]

@@ -26,6 +26,7 @@ def test_results_written_with_provenance(table2_results):
         meta = json.loads((out / "table2" / f"{r.key}.json").read_text())
         assert meta["status"] == "ok" and len(meta["commit"]) >= 7
         assert set(meta["fmu_sha256"]) == {"plant", "sensors", "controller"}
+        assert meta["parameter_file"].endswith("sandia_arm.toml") and len(meta["parameter_file_sha256"]) == 64
         assert (out / "table2" / f"{r.key}.csv").read_text().count("\n") == meta["samples"] + 2
 
 
