@@ -90,11 +90,9 @@ def test_inputs_are_the_sensor_outputs_and_outputs_the_plant_inputs(fmus):
     assert (float(by_name["tau1_max"].start), float(by_name["tau2_max"].start)) == (7.0, 2.25)
 
 
-def test_docs_list_every_variable(fmus):
+def test_docs_name_every_controller(fmus):
+    """Every variable of every FMU: tests/test_fmu_robustness.py; here the controller variants themselves."""
     doc = (ROOT / "docs" / "fmu-interface.md").read_text()
-    md = read_model_description(str(fmus["controller"]))
-    missing = [v.name for v in md.modelVariables if f"`{v.name}`" not in doc]
-    assert not missing, f"docs/fmu-interface.md does not describe {missing}"
     assert all(f"`{name}`" in doc for name in CONTROLLERS)
 
 

@@ -407,6 +407,14 @@ class _Rows(HTMLParser):
 
 
 @pytest.mark.parametrize("name", NAMES)
+def test_interface_doc_describes_every_variable(fmus, name):
+    doc = (ROOT / "docs" / "fmu-interface.md").read_text()
+    md = read_model_description(str(fmus[name]))
+    missing = [v.name for v in md.modelVariables if f"`{v.name}`" not in doc]
+    assert not missing, f"docs/fmu-interface.md does not describe {missing} of {name}"
+
+
+@pytest.mark.parametrize("name", NAMES)
 def test_documentation_lists_every_variable(fmus, name):
     with zipfile.ZipFile(fmus[name]) as z:
         page = z.read("documentation/index.html").decode()

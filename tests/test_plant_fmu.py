@@ -13,15 +13,14 @@ import numpy as np
 import pytest
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
+from fmu_harness import Slave
 
 from flexarm import ArmModel, joint_angles, joint_velocities, rigid_configuration, strain_gauge_angles
 from flexarm.integrator import DEFAULT_SUBSTEPS, simulate
 from flexarm.model import N
 from flexarm.modes import modal_analysis
 from flexarm.parameters import load_parameters
-from scenarios.master import logging_callbacks
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -40,60 +39,24 @@ def unzipped(fmu_path, tmp_path_factory):
     return extract(str(fmu_path), unzipdir=str(tmp_path_factory.mktemp("plant_unzipped")))
 
 
-class Plant:
-    """The plant FMU driven step by step through fmpy's FMU2Slave, with its log captured."""
+class Plant(Slave):
+    """The plant FMU through the shared harness, its outputs read by name."""
 
     def __init__(self, fmu_path, unzipdir, name="plant", *, start=True, **params):
-        self.md = read_model_description(str(fmu_path))
-        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.outputs = [v.name for v in self.md.modelVariables if v.causality == "output"]
-        self.messages: list[tuple[int, str]] = []
-
-        def logger(component, instance, status, category, message):
-            self.messages.append((status, message.decode()))
-
-        self._callbacks = cb = logging_callbacks(logger)  # referenced as long as the instance lives
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=unzipdir,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
-        self.fmu.instantiate(callbacks=cb, loggingOn=True)
-        self.time = 0.0
-        if start:
-            self.fmu.setupExperiment(startTime=0.0)
-            self.fmu.enterInitializationMode()
-            self.set(**params)
-            self.fmu.exitInitializationMode()
-
-    def set(self, **params):
-        for key, value in params.items():
-            if key == "substeps":
-                self.fmu.setInteger([self.vr[key]], [value])
-            else:
-                self.fmu.setReal([self.vr[key]], [value])
+        super().__init__(fmu_path, unzipdir, name, start=start, **params)
+        self.vr = {n: v.valueReference for n, v in self.vars.items()}
+        self.output_names = [v.name for v in self.md.modelVariables if v.causality == "output"]
 
     def set_torque(self, tau1, tau2):
-        self.fmu.setReal([self.vr["tau1"], self.vr["tau2"]], [tau1, tau2])
-
-    def step(self, h=DT):
-        self.fmu.doStep(self.time, h)
-        self.time += h
+        self.set_vector(("tau1", "tau2"), (tau1, tau2))
 
     def get(self, names=None) -> dict[str, float]:
-        names = self.outputs if names is None else names
-        return dict(zip(names, self.fmu.getReal([self.vr[n] for n in names])))
+        names = self.output_names if names is None else names
+        return dict(zip(names, super().get(names).tolist()))
 
     def state(self) -> np.ndarray:
         names = [f"theta{i + 1}" for i in range(N)] + [f"omega{i + 1}" for i in range(N)]
         return np.array(list(self.get(names).values()))
-
-    def errors(self) -> list[str]:
-        return [m for s, m in self.messages if s >= 3]
-
-    def close(self):
-        try:
-            self.fmu.terminate()
-        except FMICallException:  # not allowed in initialisation mode (after a failed initialisation)
-            pass
-        self.fmu.freeInstance()
 
 
 def torque_profile(n_steps):
@@ -122,13 +85,6 @@ def test_model_description_declares_interface(fmu_path):
     assert all(u.dependencies == [] for u in md.outputs)  # no direct feedthrough
     assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
     assert md.coSimulation.modelIdentifier == "FlexarmPlant"
-
-
-def test_docs_list_every_variable(fmu_path):
-    doc = (ROOT / "docs" / "fmu-interface.md").read_text()
-    md = read_model_description(str(fmu_path))
-    missing = [v.name for v in md.modelVariables if f"`{v.name}`" not in doc]
-    assert not missing, f"docs/fmu-interface.md does not describe {missing}"
 
 
 # -- numbers -----------------------------------------------------------------------------

@@ -121,13 +121,6 @@ def test_every_sensor_setting_is_a_parameter(fmu_path):
     assert float(by_name["sample_period"].start) == DT and by_name["sample_period"].unit == "s"
 
 
-def test_docs_list_every_variable(fmu_path):
-    doc = (ROOT / "docs" / "fmu-interface.md").read_text()
-    md = read_model_description(str(fmu_path))
-    missing = [v.name for v in md.modelVariables if f"`{v.name}`" not in doc]
-    assert not missing, f"docs/fmu-interface.md does not describe {missing}"
-
-
 # -- numbers ---------------------------------------------------------------------------
 def test_everything_off_passes_the_inputs_through_exactly(fmu_path, unzipped):
     x = true_signals(50, seed=1)
