@@ -103,7 +103,6 @@ class _Unit:
 
     def __init__(self, name: str, path: Path, messages: list[str]):
         self.name = name
-        self.path = Path(path)
         self.md = read_model_description(str(path))
         self.unzipdir = extract(str(path))
         self.vars = {v.name: v for v in self.md.modelVariables}
@@ -277,34 +276,32 @@ class Master:
         for (s, d), pairs in self.groups.items():
             link = _Link(ports[s], [p[0] for p in pairs], self.units[d], [p[1] for p in pairs])
             (forward[d] if rank[s] < rank[d] else feedback).append(link)
+        again: dict[str, _Port] = {}
         if self.algorithm == "jacobi":  # every value as it was before any input changed, then all inputs set
             ops = [port.read for port in ports.values()]
             ops += [link.write for name in self.order for link in forward[name]] + [link.write for link in feedback]
-            return ops, [(ports[inst], ports[inst].position[vr]) for (inst, _), vr in zip(record, rec_vrs)]
-        ops = []
-        for name in self.order:
-            ops += [link.write for link in forward[name]]
-            if name in ports:
-                ops.append(ports[name].read)
-        ops += [link.write for link in feedback]
-        late_inputs = {name: set() for name in self.order}
-        for link in feedback:
-            late_inputs[link.dst.name] |= {vr for vr in link.dst_vrs}
-        reread = {}
+        else:
+            ops = []
+            for name in self.order:
+                ops += [link.write for link in forward[name]]
+                if name in ports:
+                    ops.append(ports[name].read)
+            ops += [link.write for link in feedback]
+            late = {name: set() for name in self.order}
+            for link in feedback:
+                late[link.dst.name].update(link.dst_vrs)
+            reread: dict[str, list[int]] = {}
+            for (inst, var), vr in zip(record, rec_vrs):
+                stale = late[inst] and self._depends_on(self.units[inst], var, late[inst])
+                if stale and vr not in reread.get(inst, []):
+                    reread.setdefault(inst, []).append(vr)
+            again = {inst: _Port(self.units[inst], vrs) for inst, vrs in reread.items()}
+            ops += [port.read for port in again.values()]
         sources = []
-        for (inst, var), vr in zip(record, rec_vrs):
-            unit = self.units[inst]
-            if late_inputs[inst] and self._depends_on(unit, var, late_inputs[inst]):
-                reread.setdefault(inst, [])
-                if vr not in reread[inst]:
-                    reread[inst].append(vr)
-                sources.append((inst, vr))
-            else:
-                sources.append((ports[inst], ports[inst].position[vr]))
-        again = {inst: _Port(self.units[inst], vrs) for inst, vrs in reread.items()}
-        ops += [port.read for port in again.values()]
-        return ops, [(again[src], again[src].position[vr]) if isinstance(src, str) else (src, vr)
-                     for src, vr in sources]
+        for (inst, _), vr in zip(record, rec_vrs):
+            port = again[inst] if inst in again and vr in again[inst].position else ports[inst]
+            sources.append((port, port.position[vr]))
+        return ops, sources
 
     @staticmethod
     def _depends_on(unit: _Unit, var: str, inputs: set[int]) -> bool:
