@@ -81,6 +81,21 @@ def is_discrete(name: str) -> bool:
     return canonical_name(name).startswith(DISCRETE_PREFIX)
 
 
+def gain_set_from_item(value: int, discrete: bool = False) -> str:
+    """The gain-set name of an item of the FMUs' ``GainSet`` Enumeration (1..4: :data:`WEIGHT_NAMES` in order).
+
+    Raises
+    ------
+    GainError
+        Naming ``gain_set`` and the allowed values.
+    """
+    if isinstance(value, bool) or value not in range(1, len(WEIGHT_NAMES) + 1):
+        raise GainError(f"gain_set: {value!r} is not one of "
+                        + ", ".join(f"{i} ({n})" for i, n in enumerate(WEIGHT_NAMES, 1)))
+    name = WEIGHT_NAMES[int(value) - 1]
+    return f"{DISCRETE_PREFIX}{name}" if discrete else name
+
+
 def resolve_gain_set(value: str, discrete: bool = False) -> str:
     """The gain-set name of a controller's ``gain_set`` value (names and aliases).
 

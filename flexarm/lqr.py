@@ -40,6 +40,7 @@ from .gain_sets import (  # noqa: F401 - re-exported
     resolve_gain_set,
     state_weight,
 )
+from .lqg_design import DEFAULT_LQG_DIR, design_lqg
 from .lqr_design import (  # noqa: F401 - re-exported
     DEFAULT_DT,
     MEASURED_VELOCITY_STATES,
@@ -89,6 +90,8 @@ def main(argv=None) -> int:
     ap.add_argument("--write", action="store_true", help="write <set>_<schedule>.npz/.json")
     ap.add_argument("--out", default=str(DEFAULT_GAIN_DIR), help="output directory for --write")
     ap.add_argument("--per-set", action="store_true", help="also print each operating point's numbers")
+    ap.add_argument("--no-lqg", action="store_true", help="skip the LQG design files (flexarm.lqg_design)")
+    ap.add_argument("--lqg-out", default=str(DEFAULT_LQG_DIR), help="output directory of the LQG design files")
     args = ap.parse_args(argv)
     if not Path(args.trajectory).exists():
         print(f"error: trajectory file {args.trajectory} does not exist", file=sys.stderr)
@@ -116,6 +119,14 @@ def main(argv=None) -> int:
           "reduced and implemented gain; maxRe: max Re eig(A - BK), continuous, full / reduced gain.")
     if args.write:
         print(f"wrote {len(done)} schedules to {args.out}")
+    if not args.no_lqg:
+        for sched in args.schedules:
+            lqg = design_lqg(model, traj, sched)
+            rho_f = max(np.abs(np.linalg.eigvals(p - m @ lqg.C @ p)).max() for p, m in zip(lqg.Phi, lqg.M))
+            print(f"LQG {sched}: {len(lqg.times)} points, max |K| {np.abs(lqg.K).max():.4g}, max |M| "
+                  f"{np.abs(lqg.M).max():.4g}, filter spectral radius {rho_f:.6f}")
+            if args.write:
+                print(f"  wrote {lqg.save(args.lqg_out)}")
     return 0
 
 
