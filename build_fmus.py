@@ -115,7 +115,7 @@ FMUS: dict[str, FmuSpec] = {
         FmuSpec("sensors", ROOT / "fmus" / "sensors" / "flexarm_sensors_fmu.py"),
         *(FmuSpec(f"controller{suffix}", CONTROLLER_DIR / f"flexarm_controller{suffix}_fmu.py",
                   (CONTROLLER_DIR / "flexarm_controller_base.py",))
-          for suffix in ("", "_ff", "_fb", "_dlqr")),
+          for suffix in ("", "_ff", "_fb", "_dlqr", "_lqg")),
     )
 }
 

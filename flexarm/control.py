@@ -40,13 +40,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from .gain_schedule import GainSchedule, TrajectoryData, as_trajectory_data
 from .integrator import DEFAULT_SUBSTEPS, PlantSimulator
-from .lqr import OMEGA7_CHOICES, GainSchedule, TrajectoryData, as_trajectory_data
+from .lqr_design import OMEGA7_CHOICES
 from .model import ArmModel, N, joint_angles, joint_velocities, reconstruct_angles, strain_gauge_angles
+from .parameters import load_parameters
 
 MODES = ("ff+fb", "ff", "fb")
-#: Motor peak torques, N·m (paper section 6).
-PEAK_TORQUE = (7.0, 2.25)
+#: Motor peak torques |τ1|, |τ2|, N·m, read from the committed parameter file (``motors.peak_torque_Nm``).
+PEAK_TORQUE = tuple(float(x) for x in load_parameters().peak_torque)
 
 
 class ControllerError(ValueError):

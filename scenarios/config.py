@@ -15,7 +15,9 @@ from pathlib import Path
 
 SCENARIO_DIR = Path(__file__).resolve().parent
 _TOP_KEYS = {"scenario", "fmus", "connections", "parameters", "cases", "record"}
-_SCENARIO_KEYS = {"name", "description", "paper_table", "step_size_s", "samples", "order", "trajectory"}
+_SCENARIO_KEYS = {"name", "description", "paper_table", "step_size_s", "samples", "order", "trajectory", "algorithm"}
+#: Master stepping algorithms a scenario may ask for (scenarios/master.py).
+ALGORITHMS = ("gauss-seidel", "jacobi")
 
 
 class ScenarioError(ValueError):
@@ -45,6 +47,8 @@ class Scenario:
     samples: int | str = "trajectory"
     paper_table: str | None = None
     record: list[str] = field(default_factory=list)
+    #: Master stepping: "gauss-seidel" (default) or "jacobi" (see scenarios/master.py).
+    algorithm: str = "gauss-seidel"
 
 
 def _require(cond: bool, where: str, allowed: str, got) -> None:
@@ -86,6 +90,8 @@ def load_scenario(path: str | Path) -> Scenario:
                                          and 1 <= samples <= 10_000_000),
              f"{p.name}: scenario.samples", "an integer in [1, 10000000] or \"trajectory\" (as long as the slew)",
              samples)
+    algorithm = sc.get("algorithm", "gauss-seidel")
+    _require(algorithm in ALGORITHMS, f"{p.name}: scenario.algorithm", f"one of {list(ALGORITHMS)}", algorithm)
     fmus = doc.get("fmus", {})
     _require(isinstance(fmus, dict) and fmus and all(isinstance(v, str) for v in fmus.values()),
              f"{p.name}: [fmus]", "a table of instance = \"built FMU name or path to a .fmu\"", fmus)
@@ -130,7 +136,7 @@ def load_scenario(path: str | Path) -> Scenario:
     record = doc.get("record", {}).get("signals", [])
     return Scenario(name=sc["name"], description=sc.get("description", ""), path=p, fmus=fmus, order=order,
                     connections=connections, parameters=params, cases=cases, step_size=float(step),
-                    samples=samples, paper_table=sc.get("paper_table"), record=record)
+                    samples=samples, paper_table=sc.get("paper_table"), record=record, algorithm=algorithm)
 
 
 def list_scenarios() -> list[Scenario]:

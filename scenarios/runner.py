@@ -150,11 +150,13 @@ def simulate_case(setup: Setup, m: master.Master, parameters: dict[str, dict],
 
 
 def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
-                 progress: bool = True, algorithm: str = "gauss-seidel") -> list[CaseResult]:
+                 progress: bool = True, algorithm: str | None = None) -> list[CaseResult]:
     """Run every case; write per-case CSV and JSON into out_dir/<scenario>/.
 
     Cases with the same FMUs share one loaded master (reset between cases).
+    ``algorithm`` None: the scenario file's (``scenario.algorithm``, default Gauss-Seidel).
     """
+    algorithm = algorithm or scenario.algorithm
     groups: dict[tuple, list] = {}
     for case in scenario.cases:
         groups.setdefault(tuple(sorted(case.fmus.items())) if case.fmus else (), []).append(case)

@@ -38,7 +38,8 @@ from flexarm_fmu_base import Var, variable_table
 from pythonfmu.default_experiment import DefaultExperiment
 
 from flexarm.control import PEAK_TORQUE, TrackingController
-from flexarm.lqr import OMEGA7_CHOICES, canonical_name, default_trajectory_path
+from flexarm.gain_sets import DEFAULT_GAIN_SET, resolve_gain_set
+from flexarm.lqr import OMEGA7_CHOICES, default_trajectory_path
 
 #: Measured signals the law uses (sensors FMU output names), in the order q, q̇, ε.
 USED_INPUTS = ("q1_m", "q2_m", "qd1_m", "qd2_m", *(f"eps{i}_m" for i in range(1, 7)))
@@ -46,9 +47,6 @@ USED_INPUTS = ("q1_m", "q2_m", "qd1_m", "qd2_m", *(f"eps{i}_m" for i in range(1,
 UNUSED_INPUTS = ("acc1_m", "acc2_m")
 #: ``schedule_period`` value (s) -> :data:`flexarm.lqr.SCHEDULES` label.
 SCHEDULE_PERIODS = {0.2: "200ms", 0.02: "20ms", 0.0: "single"}
-#: Gain-set aliases accepted besides :data:`flexarm.lqr.GAIN_SET_NAMES`.
-GAIN_SET_ALIASES = {"experimental": "eq32"}
-DEFAULT_GAIN_SET = "gamma0.1"
 
 _INPUT_INFO = {
     "q1_m": ("rad", "Measured joint-1 angle (encoder 1)"),
@@ -80,33 +78,8 @@ VARIABLES = variable_table([
 
 
 def gain_set_name(value: str, discrete: bool = False) -> str:
-    """The :mod:`flexarm.lqr` name of a ``gain_set`` parameter value.
-
-    Parameters
-    ----------
-    value : str
-        ``gamma1``, ``gamma0.1``, ``gamma0``, ``eq32``, ``dlqr-<set>``,
-        ``dlqr`` (= ``dlqr-gamma0.1``); also ``gamma_1``-style names,
-        ``experimental`` (= ``eq32``) and ``dlqr_<set>``.
-    discrete : bool
-        Return the discrete (``dlqr-``) design of the same weights.
-
-    Raises
-    ------
-    ValueError
-        Naming ``gain_set`` and the allowed names.
-    """
-    name = value.strip()
-    is_dlqr = name == "dlqr" or name.startswith(("dlqr-", "dlqr_"))
-    base = "gamma0.1" if name == "dlqr" else name[5:] if is_dlqr else name
-    base = GAIN_SET_ALIASES.get(base, base)
-    if base.startswith("gamma_"):
-        base = "gamma" + base[6:]
-    name = f"dlqr-{base}" if discrete or is_dlqr else base
-    try:
-        return canonical_name(name)
-    except ValueError as exc:
-        raise ValueError(f"gain_set: {value!r} is not a gain set ({exc})") from None
+    """The :mod:`flexarm.gain_sets` name of a ``gain_set`` parameter value (see there for the aliases)."""
+    return resolve_gain_set(value, discrete)
 
 
 def schedule_label(period: float) -> str:

@@ -1,0 +1,445 @@
+"""Gain schedules along the minimum-time trajectory: design, files, and the data-chain check.
+
+Schedules: ``200ms`` (t = 0, 0.2, ..., the paper's tables), ``20ms`` (every
+20 ms) and ``single`` (one set at mid-slew: the operating point nearest, on
+average, to every point of the slew; the paper's experiment used one set
+without saying where). Gain k is used on [t_k, t_k+1).
+
+Files: ``flexarm/data/gains/<name>_<schedule>.npz`` (arrays) and ``.json``
+(provenance: the trajectory and parameter files with their SHA-256, the
+commit, the versions). :meth:`GainSchedule.load` refuses a schedule whose
+recorded trajectory or parameter SHA-256 no longer matches the files as they
+are now, naming both files and :data:`REGENERATE_COMMAND`.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import importlib.metadata
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import scipy
+
+from .gain_sets import DISCRETE_PREFIX, GainError, canonical_name, state_weight
+from .lqr_design import DEFAULT_DT, MEASURED_VELOCITY_STATES, R_PAPER, design_gain, reduce_gain
+from .model import N_STATE, ArmModel, N
+from .parameters import DATA_DIR
+from .provenance import SOURCE_ROOT, git_commit, sha256_file, write_atomic
+
+#: Directory of the committed gain-schedule files.
+DEFAULT_GAIN_DIR = DATA_DIR / "gains"
+#: Schedule labels and their spacing in s (None: one set at mid-slew).
+SCHEDULES = {"200ms": 0.2, "20ms": 0.02, "single": None}
+#: Linearisation forms: the paper's τ̄ = 0 (eq. 11) or about the feedforward torque.
+LINEARIZATIONS = ("paper", "feedforward")
+FILE_FORMAT = "flexarm-gain-schedule/1"
+#: The command that rebuilds every gain file (and the LQG design files) from the data.
+REGENERATE_COMMAND = "python -m flexarm.lqr --write"
+
+
+class StaleDataError(GainError):
+    """A design file was made from a trajectory or parameter file that has changed since."""
+
+
+# -- trajectory access -----------------------------------------------------------------
+@dataclass
+class TrajectoryData:
+    """The desired trajectory as plain arrays (1 ms samples).
+
+    Attributes
+    ----------
+    t : ndarray, shape (n,)
+        Sample times, s, t[0] = 0, uniform spacing ``dt``.
+    tau : ndarray, shape (n, 2)
+        Feedforward torque held over [t_k, t_k+1), N·m.
+    z : ndarray, shape (n, 22)
+        Desired state (θ rad, θ̇ rad/s).
+    path : str
+        File it came from ('' when built in memory).
+    sha256 : str
+        SHA-256 of that file ('' when built in memory).
+    """
+
+    t: np.ndarray
+    tau: np.ndarray
+    z: np.ndarray
+    path: str = ""
+    sha256: str = ""
+
+    def __post_init__(self):
+        self.t = np.asarray(self.t, dtype=float)
+        self.tau = np.asarray(self.tau, dtype=float)
+        self.z = np.asarray(self.z, dtype=float)
+        n = len(self.t)
+        if self.t.ndim != 1 or n < 2:
+            raise GainError(f"trajectory t: expected a 1-D array of >= 2 times, got shape {self.t.shape}")
+        if self.tau.shape != (n, 2):
+            raise GainError(f"trajectory tau: expected shape ({n}, 2), got {self.tau.shape}")
+        if self.z.shape != (n, N_STATE):
+            raise GainError(f"trajectory z: expected shape ({n}, {N_STATE}), got {self.z.shape}")
+        steps = np.diff(self.t)
+        if abs(self.t[0]) > 1e-12 or np.ptp(steps) > 1e-9 or steps[0] <= 0:
+            raise GainError("trajectory t: must start at 0 with a uniform positive spacing")
+        for name in ("t", "tau", "z"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise GainError(f"trajectory {name}: contains non-finite values")
+
+    @property
+    def dt(self) -> float:
+        """Sample spacing, s."""
+        return float(self.t[1] - self.t[0])
+
+    @property
+    def duration(self) -> float:
+        """Slew time t[-1], s."""
+        return float(self.t[-1])
+
+    @property
+    def n_steps(self) -> int:
+        """Number of control steps of the slew (samples − 1)."""
+        return len(self.t) - 1
+
+
+def as_trajectory_data(traj) -> TrajectoryData:
+    """Convert a trajectory object, mapping or path to :class:`TrajectoryData`.
+
+    Accepts a :class:`TrajectoryData`; a path to an ``.npz`` file (loaded with
+    :func:`flexarm.trajectory.load_trajectory` when that module exists); or
+    any object or mapping with fields ``t``, ``tau1``, ``tau2``,
+    ``theta1..theta11``, ``omega1..omega11`` (or ``tau`` (n, 2), ``theta``
+    (n, 11), ``omega`` (n, 11), or ``z`` (n, 22)).
+    """
+    if isinstance(traj, TrajectoryData):
+        return traj
+    path, sha = "", ""
+    if isinstance(traj, (str, os.PathLike)):
+        path = str(traj)
+        sha = sha256_file(path)
+        traj = _load_trajectory_file(path)
+    get = (lambda k: traj[k] if k in traj else None) if hasattr(traj, "keys") else \
+        (lambda k: getattr(traj, k, None))
+    path = path or str(get("path") or get("source") or "")
+    sha = sha or str(get("sha256") or "")
+    t = get("t")
+    if t is None:
+        raise GainError("trajectory: no field 't' (sample times, s)")
+    if get("tau") is not None:
+        tau = np.asarray(get("tau"), dtype=float)
+    elif get("tau1") is not None and get("tau2") is not None:
+        tau = np.column_stack([get("tau1"), get("tau2")])
+    else:
+        raise GainError("trajectory: needs 'tau' (n, 2) or 'tau1' and 'tau2' (N·m)")
+    if get("z") is not None:
+        z = np.asarray(get("z"), dtype=float)
+    else:
+        theta = _stack(get, "theta")
+        omega = _stack(get, "omega")
+        z = np.hstack([theta, omega])
+    return TrajectoryData(np.asarray(t, dtype=float), tau, z, path, sha)
+
+
+def _stack(get, prefix: str) -> np.ndarray:
+    whole = get(prefix)
+    if whole is not None and np.ndim(whole) == 2:
+        return np.asarray(whole, dtype=float)
+    cols = [get(f"{prefix}{i}") for i in range(1, N + 1)]
+    if any(c is None for c in cols):
+        raise GainError(f"trajectory: needs '{prefix}' (n, 11) or '{prefix}1'..'{prefix}11'")
+    return np.column_stack(cols)
+
+
+def _load_trajectory_file(path: str):
+    """Arrays of a trajectory file: via :func:`flexarm.trajectory.load_trajectory` (which
+    validates) for files in its format, else the raw npz arrays (e.g. ``t``, ``tau``, ``z``)."""
+    with np.load(path, allow_pickle=False) as data:
+        raw = {k: data[k] for k in data.files if k != "metadata"}
+    if "tau1" in raw:
+        try:
+            from .trajectory import load_trajectory
+        except ImportError:  # the optimiser module (CasADi) is not needed to read the arrays
+            return raw
+        return load_trajectory(path)
+    return raw
+
+
+def default_trajectory_path() -> Path:
+    """The committed minimum-time trajectory, ``flexarm/data/trajectory.npz``."""
+    return DATA_DIR / "trajectory.npz"
+
+
+
+# -- schedules -----------------------------------------------------------------------------
+def operating_times(duration: float, schedule: str, dt: float = DEFAULT_DT) -> np.ndarray:
+    """Operating times of a schedule, s, on the ``dt`` sample grid.
+
+    ``200ms``/``20ms``: 0, spacing, ... up to the slew time; ``single``: the
+    sample nearest mid-slew.
+    """
+    if schedule not in SCHEDULES:
+        raise GainError(f"schedule: {schedule!r} is not one of {tuple(SCHEDULES)}")
+    spacing = SCHEDULES[schedule]
+    if spacing is None:
+        return np.array([round(duration / 2 / dt) * dt])
+    n = int(np.floor(duration / spacing + 1e-9)) + 1
+    return np.round(np.arange(n) * spacing / dt) * dt
+
+
+@dataclass
+class GainSchedule:
+    """Piecewise-constant gains along the trajectory.
+
+    Attributes
+    ----------
+    name : str
+        Gain-set name (e.g. ``gamma0.1``, ``dlqr-gamma0.1``).
+    schedule : str
+        ``200ms``, ``20ms`` or ``single``.
+    times : ndarray, shape (n_sets,)
+        Operating times t_k, s; gain k is used on [t_k, t_k+1), the last one
+        from t_n-1 on (including the hold after the slew).
+    gains : ndarray, shape (n_sets, 2, 22)
+        Full-state gains K_k.
+    operating_points : ndarray, shape (n_sets, 22)
+        Linearisation states z̄_k.
+    Q, R : ndarray
+        Weights, shapes (22, 22) and (2, 2).
+    residuals, rho_full, rho_reduced, rho_implemented, max_real_full, max_real_reduced : ndarray, shape (n_sets,)
+        Per-set diagnostics (see :class:`GainDesign`).
+    metadata : dict
+        Provenance (written to the JSON side file).
+    """
+
+    name: str
+    schedule: str
+    times: np.ndarray
+    gains: np.ndarray
+    operating_points: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    residuals: np.ndarray
+    rho_full: np.ndarray
+    rho_reduced: np.ndarray
+    rho_implemented: np.ndarray
+    max_real_full: np.ndarray
+    max_real_reduced: np.ndarray
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.times = np.atleast_1d(np.asarray(self.times, dtype=float))
+        self.gains = np.asarray(self.gains, dtype=float).reshape(-1, 2, N_STATE)
+        if len(self.gains) != len(self.times) or len(self.times) == 0:
+            raise GainError(f"gains: expected {len(self.times)} sets of shape (2, 22), got {self.gains.shape}")
+        if np.any(np.diff(self.times) <= 0):
+            raise GainError("times: operating times must be strictly increasing")
+        if not np.all(np.isfinite(self.gains)):
+            raise GainError("gains: contain non-finite values")
+
+    @property
+    def discrete(self) -> bool:
+        """True for a discrete-time (dlqr) design."""
+        return self.name.startswith(DISCRETE_PREFIX)
+
+    def index_at(self, t: float) -> int:
+        """Index of the set in force at time t (s); the first set before t_0."""
+        return max(int(np.searchsorted(self.times, t + 1e-9, side="right")) - 1, 0)
+
+    def gain_at(self, t: float, reduced: bool = True) -> np.ndarray:
+        """Gain in force at time t (s), shape (2, 22); ``reduced`` zeros the unmeasured velocity columns."""
+        K = self.gains[self.index_at(t)]
+        return reduce_gain(K) if reduced else K.copy()
+
+    def reduced_gains(self) -> np.ndarray:
+        """All sets with the nine unmeasured velocity columns zeroed, shape (n_sets, 2, 22)."""
+        return reduce_gain(self.gains)
+
+    # -- files ---------------------------------------------------------------------
+    def save(self, directory=None) -> Path:
+        """Write ``<name>_<schedule>.npz`` and ``.json`` atomically; returns the npz path."""
+        directory = Path(directory) if directory is not None else DEFAULT_GAIN_DIR
+        directory.mkdir(parents=True, exist_ok=True)
+        stem = directory / f"{self.name}_{self.schedule}"  # names contain dots: no with_suffix
+        arrays = dict(times=self.times, gains=self.gains, operating_points=self.operating_points, Q=self.Q,
+                      R=self.R, residuals=self.residuals, rho_full=self.rho_full, rho_reduced=self.rho_reduced,
+                      rho_implemented=self.rho_implemented, max_real_full=self.max_real_full,
+                      max_real_reduced=self.max_real_reduced)
+        npz_path = Path(f"{stem}.npz")
+        write_atomic(npz_path, lambda f: np.savez(f, **arrays))
+        meta = dict(self.metadata)
+        meta.update(format=FILE_FORMAT, name=self.name, schedule=self.schedule,
+                    npz_file=npz_path.name, npz_sha256=sha256_file(npz_path))
+        text = json.dumps(meta, indent=2, sort_keys=False) + "\n"
+        write_atomic(Path(f"{stem}.json"), text)
+        return npz_path
+
+    @classmethod
+    def load(cls, name: str, schedule: str = "200ms", directory=None) -> GainSchedule:
+        """Load a committed (or written) gain schedule.
+
+        Parameters
+        ----------
+        name : str
+            Gain-set name (``gamma1``, ``gamma0.1``, ``gamma0``, ``eq32``,
+            ``dlqr-*``, alias ``dlqr``).
+        schedule : str
+            ``200ms``, ``20ms`` or ``single``.
+        directory : path-like, optional
+            Default ``flexarm/data/gains``.
+        """
+        name = canonical_name(name)
+        if schedule not in SCHEDULES:
+            raise GainError(f"schedule: {schedule!r} is not one of {tuple(SCHEDULES)}")
+        directory = Path(directory) if directory is not None else DEFAULT_GAIN_DIR
+        stem = directory / f"{name}_{schedule}"
+        npz_path, json_path = Path(f"{stem}.npz"), Path(f"{stem}.json")
+        if not npz_path.exists():
+            raise GainError(f"gain file {npz_path} does not exist; run `{REGENERATE_COMMAND}`")
+        meta = read_design_metadata(json_path, npz_path)
+        with np.load(npz_path) as d:
+            arrays = {k: d[k] for k in d.files}
+        return cls(name=name, schedule=schedule, metadata=meta, **arrays)
+
+
+def design_schedule(model: ArmModel, trajectory, name: str, schedule: str = "200ms", R=R_PAPER,
+                    linearization: str = "paper") -> GainSchedule:
+    """Design a gain schedule along a trajectory.
+
+    Parameters
+    ----------
+    model : ArmModel
+        The controller's model (no payload: the payload is the model error).
+    trajectory : TrajectoryData, path or trajectory object
+        See :func:`as_trajectory_data`.
+    name : str
+        Gain-set name (see :func:`state_weight`).
+    schedule : str
+        ``200ms``, ``20ms`` or ``single``.
+    R : array_like, shape (2, 2)
+    linearization : str
+        ``paper`` (τ̄ = 0, eq. 11) or ``feedforward`` (τ̄ = τ_ff(t_k)).
+
+    Returns
+    -------
+    GainSchedule
+    """
+    name = canonical_name(name)
+    if linearization not in LINEARIZATIONS:
+        raise GainError(f"linearization: {linearization!r} is not one of {LINEARIZATIONS}")
+    traj = as_trajectory_data(trajectory)
+    Q = state_weight(name)
+    R = np.asarray(R, dtype=float)
+    times = operating_times(traj.duration, schedule, traj.dt)
+    idx = np.round(times / traj.dt).astype(int)
+    designs = []
+    for k in idx:
+        tau_bar = traj.tau[k] if linearization == "feedforward" else (0.0, 0.0)
+        designs.append(design_gain(model, traj.z[k], Q, R, tau_bar, discrete=name.startswith(DISCRETE_PREFIX),
+                                   dt=traj.dt))
+    col = lambda a: np.array([getattr(d, a) for d in designs])  # noqa: E731
+    meta = {
+        "description": "LQR gains K (tau = tau_ff - K (x - x_d)), eqs. 17-20/32 of the paper",
+        "design": "discrete-time dlqr on the ZOH model" if name.startswith(DISCRETE_PREFIX) else "continuous-time lqr",
+        "solver": "control.dlqr/lqr(method='scipy') in modal frequency-scaled coordinates (flexarm.lqr)",
+        "residual_definition": ("||A'P+PA-PGP+Q||_F / (||Q||_F + 2||A'P||_F + ||PGP||_F), G = B R^-1 B', "
+                                "original coordinates" if not name.startswith(DISCRETE_PREFIX) else
+                                "||F'PF-P-W+Q||_F/(||F'PF||_F+||P||_F+||W||_F+||Q||_F), "
+                                "W = F'PG(R+G'PG)^-1 G'PF, original coordinates"),
+        "linearization": ("paper: A = df/dz at z_d(t_k), tau_bar = 0 (eqs. 11-14)" if linearization == "paper"
+                          else "feedforward: A = d(f+g tau_ff)/dz at (z_d(t_k), tau_ff(t_k))"),
+        "sample_time_s": traj.dt,
+        "operating_times_s": times.tolist(),
+        "Q_diagonal": np.diag(Q).tolist(),
+        "R": R.tolist(),
+        "measured_velocity_states": list(MEASURED_VELOCITY_STATES),
+        "trajectory_file": relative_path(traj.path),
+        "trajectory_sha256": traj.sha256,
+        "parameter_file": relative_path(model.params.source),
+        "parameter_sha256": model.params.sha256,
+        "payload_mass_kg": float(model.params.payload_mass),
+        "commit": git_commit(),
+        "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "versions": {"python-control": importlib.metadata.version("control"), "scipy": scipy.__version__,
+                     "numpy": np.__version__},
+        "max_residual": float(col("residual").max()),
+        "max_abs_gain": float(np.abs(col("K")).max()),
+    }
+    return GainSchedule(name=name, schedule=schedule, times=times, gains=col("K"),
+                        operating_points=traj.z[idx], Q=Q, R=R, residuals=col("residual"),
+                        rho_full=col("rho_full"), rho_reduced=col("rho_reduced"),
+                        rho_implemented=col("rho_implemented"),
+                        max_real_full=col("max_real_full"), max_real_reduced=col("max_real_reduced"),
+                        metadata=meta)
+
+
+def relative_path(path) -> str:
+    """``path`` relative to the source root (the folder holding ``flexarm/``), absolute outside it; '' for ''."""
+    if not path:
+        return ""
+    p = Path(path).resolve()
+    try:
+        return str(p.relative_to(SOURCE_ROOT))
+    except ValueError:
+        return str(p)
+
+
+def _resolve(recorded: str) -> Path:
+    p = Path(recorded)
+    return p if p.is_absolute() else SOURCE_ROOT / p
+
+
+def read_design_metadata(json_path, data_path) -> dict:
+    """Read a design file's JSON side file and verify the data chain behind it.
+
+    Checks, against the files as they are now: the SHA-256 of ``data_path``
+    (the arrays the JSON describes) and of the trajectory and parameter files the
+    design was made from (``trajectory_file``/``trajectory_sha256``,
+    ``parameter_file``/``parameter_sha256``; a design made from in-memory data
+    records no file and is not checked for it).
+
+    Parameters
+    ----------
+    json_path, data_path : path-like
+        The ``.json`` side file and the ``.npz`` it describes.
+
+    Returns
+    -------
+    dict
+        The metadata.
+
+    Raises
+    ------
+    StaleDataError
+        Naming the design file, the trajectory and parameter files and
+        :data:`REGENERATE_COMMAND`, when a recorded SHA-256 does not match (or
+        the side file or a recorded input is missing).
+    """
+    json_path, data_path = Path(json_path), Path(data_path)
+    if not json_path.exists():
+        raise StaleDataError(f"design file {data_path}: its provenance file {json_path} is missing; "
+                             f"regenerate with `{REGENERATE_COMMAND}`")
+    meta = json.loads(json_path.read_text())
+    problems = []
+    if meta.get("npz_sha256") and sha256_file(data_path) != meta["npz_sha256"]:
+        problems.append(f"{data_path.name} differs from the SHA-256 recorded in {json_path.name}")
+    for kind in ("trajectory", "parameter"):
+        recorded, sha = meta.get(f"{kind}_file", ""), meta.get(f"{kind}_sha256", "")
+        if not recorded or not sha:
+            continue
+        path = _resolve(recorded)
+        if not path.exists():
+            problems.append(f"the {kind} file {path} it was made from does not exist")
+        elif sha256_file(path) != sha:
+            problems.append(f"the {kind} file {path} has changed since (SHA-256 {sha256_file(path)[:12]}..., "
+                            f"recorded {sha[:12]}...)")
+    if problems:
+        traj = _resolve(meta.get("trajectory_file", "")) if meta.get("trajectory_file") else "(in memory)"
+        par = _resolve(meta.get("parameter_file", "")) if meta.get("parameter_file") else "(in memory)"
+        raise StaleDataError(f"design file {data_path} is stale: " + "; ".join(problems)
+                             + f". It was made from trajectory file {traj} and parameter file {par}; "
+                             f"regenerate it with `{REGENERATE_COMMAND}` (after the trajectory, if the "
+                             "parameter file changed)")
+    return meta
+

@@ -1,0 +1,266 @@
+"""The LQG tracking controller (issue 14): Kalman filter, delay predictor, discrete LQR, integral action.
+
+No FMI here: ``fmus/controller/flexarm_controller_lqg_fmu.py`` wraps
+:class:`LqgController`. The design data come from :mod:`flexarm.lqg_design`.
+
+Each 1 ms sample k the controller receives the ten measurements m (encoders,
+tachometers, gauges) and returns the torques. With ``loop_delay_samples = d``
+the master delivers at sample k the measurement of the plant state at k − d
+(Jacobi stepping with separate sensors and controller FMUs: d = 2), and the
+torque it returns acts from sample k on. Per sample, with δ meaning "minus the
+desired value" and j = k − d:
+
+1. time update of the filter to sample j with the torque sent at j − 1:
+   x̂⁻_j = Φ x̂⁺_{j−1} + Γ δu_{j−1};
+2. measurement update: x̂⁺_j = x̂⁻_j + M (δm − C x̂⁻_j);
+3. prediction across the delay with the torques already sent (exact for the
+   linear model): x̂_k = Φ^d x̂⁺_j + Σ_i Φ^{k−1−i} Γ δu_i, i = j .. k−1;
+4. δu_k = −K x̂_k − K_ξ ξ_k, τ_k = sat(τ_ff(k) + δu_k) (the saturated value is
+   what the filter and predictor use next);
+5. integral action (optional): ξ_{k+1} = ξ_k + dt·C_q x̂_k, frozen in a sample
+   whose torque saturates (conditional integration: no wind-up).
+
+Φ, Γ, M, K are those of the schedule point in force at each sample. Before
+the first measurement's time (k < d) the filter stays at sample 0.
+After the slew the controller holds the final desired state (τ_ff = 0).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .gain_schedule import TrajectoryData, as_trajectory_data
+from .lqg_design import LqgDesign
+from .model import N_STATE
+
+#: Largest loop delay the predictor accepts, samples (the FMU's ``loop_delay_samples`` range).
+MAX_DELAY_SAMPLES = 10
+
+
+class LqgError(ValueError):
+    """An LQG controller setting or input is invalid."""
+
+
+@dataclass
+class LqgState:
+    """What the controller carries from one sample to the next.
+
+    Attributes
+    ----------
+    k : int
+        Next sample to compute.
+    x_post : ndarray, shape (22,)
+        Posterior error estimate at the filter's sample max(k − 1 − d, 0).
+    du : ndarray, shape (d + 1, 2)
+        Torque deviations τ − τ_ff sent at samples k − 1 − d .. k − 1 (oldest first), N·m.
+    xi : ndarray, shape (2,)
+        Integrated joint-angle errors, rad·s.
+    started : bool
+        Whether the filter has taken a measurement.
+    """
+
+    k: int
+    x_post: np.ndarray
+    du: np.ndarray
+    xi: np.ndarray
+    started: bool = False
+
+    def as_dict(self) -> dict:
+        """JSON-serialisable form (FMU state)."""
+        return {"k": self.k, "x_post": self.x_post.tolist(), "du": self.du.tolist(), "xi": self.xi.tolist(),
+                "started": self.started}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> LqgState:
+        """Inverse of :meth:`as_dict`."""
+        return cls(int(d["k"]), np.array(d["x_post"], dtype=float), np.array(d["du"], dtype=float).reshape(-1, 2),
+                   np.array(d["xi"], dtype=float), bool(d["started"]))
+
+
+class LqgController:
+    """Feedforward + LQG tracking controller with a 1 ms stepping API.
+
+    Parameters
+    ----------
+    trajectory : TrajectoryData, path or trajectory object
+    design : LqgDesign
+    gain_set : str
+        Weight name (:data:`flexarm.gain_sets.WEIGHT_NAMES`; a ``dlqr-`` prefix is ignored).
+    loop_delay_samples : int
+        Samples between the plant state and the measurement the controller receives, 0..10.
+    integral_action : bool
+        Feed back the integrated joint-angle errors (anti-windup by conditional integration).
+    saturation : (float, float)
+        Torque limits |τ1|, |τ2|, N·m.
+    """
+
+    def __init__(self, trajectory, design: LqgDesign, gain_set: str = "gamma0.1", loop_delay_samples: int = 0,
+                 integral_action: bool = False, saturation=(7.0, 2.25)):
+        if isinstance(loop_delay_samples, bool) or int(loop_delay_samples) != loop_delay_samples \
+                or not 0 <= loop_delay_samples <= MAX_DELAY_SAMPLES:
+            raise LqgError(f"loop_delay_samples: must be an integer in 0..{MAX_DELAY_SAMPLES}, "
+                           f"got {loop_delay_samples!r}")
+        sat = np.asarray(saturation, dtype=float)
+        if sat.shape != (2,) or not np.all(np.isfinite(sat)) or np.any(sat <= 0):
+            raise LqgError(f"saturation: two finite torque limits > 0 N·m, got {saturation!r}")
+        self.trajectory: TrajectoryData = as_trajectory_data(trajectory)
+        self.design = design
+        self.gain_set = gain_set
+        self.delay = int(loop_delay_samples)
+        self.integral_action = bool(integral_action)
+        self.saturation = sat
+        self.dt = self.trajectory.dt
+        self.n_steps = self.trajectory.n_steps
+        w = design.weight_index(gain_set)
+        self._K = design.K_integral[:, w, :, :N_STATE] if integral_action else design.K[:, w]
+        self._K_xi = design.K_integral[:, w, :, N_STATE:] if integral_action else np.zeros((len(design.times), 2, 2))
+        self._index = np.array([design.index_at(k * self.dt) for k in range(self.n_steps + 1)])
+        self._y_d = self.trajectory.z @ design.C.T  # desired measurements (the sensor map is linear)
+        self._Cq = design.C[0:2]
+
+    # -- trajectory lookup --------------------------------------------------------------
+    def sample_index(self, t: float) -> int:
+        """Sample k of time t (s): the nearest multiple of dt (t ≥ 0)."""
+        if not np.isfinite(t) or t < -0.5 * self.dt:
+            raise LqgError(f"t: must be a finite time >= 0 s, got {t!r}")
+        return int(round(t / self.dt))
+
+    def _c(self, k: int) -> int:
+        return min(k, self.n_steps)
+
+    def feedforward(self, k: int) -> np.ndarray:
+        """Feedforward torque of sample k, N·m: τ[k] during the slew, 0 after."""
+        return self.trajectory.tau[k].copy() if k < self.n_steps else np.zeros(2)
+
+    def initial_state(self) -> LqgState:
+        """The state at t = 0: on the trajectory, nothing sent, integrators empty."""
+        return LqgState(0, np.zeros(N_STATE), np.zeros((self.delay + 1, 2)), np.zeros(2))
+
+    # -- the law --------------------------------------------------------------------------
+    def estimate(self, state: LqgState, k: int, measurements) -> tuple[np.ndarray, np.ndarray]:
+        """Filter and predictor of steps 1-3 (module docstring).
+
+        Returns
+        -------
+        x_post : ndarray, shape (22,)
+            Posterior error estimate at sample j = max(k − d, 0).
+        x_now : ndarray, shape (22,)
+            Predicted error at sample k.
+        """
+        d = self.delay
+        j = max(k - d, 0)
+        i_j = self._index[self._c(j)]
+        x = state.x_post
+        if state.started and j > 0 and k - d >= 0:  # time update from j − 1 with the torque sent then
+            i_p = self._index[self._c(j - 1)]
+            x = self.design.Phi[i_p] @ x + self.design.Gamma[i_p] @ state.du[0]
+        dy = np.asarray(measurements, dtype=float) - self._y_d[self._c(j)]
+        x_post = x + self.design.M[i_j] @ (dy - self.design.C @ x)
+        x_now = x_post
+        sent = state.du[1:] if k - d >= 0 else state.du[d + 1 - k:]  # torques of samples j .. k − 1
+        for n, du in enumerate(sent):
+            i_s = self._index[self._c(j + n)]
+            x_now = self.design.Phi[i_s] @ x_now + self.design.Gamma[i_s] @ du
+        return x_post, x_now
+
+    def step(self, state: LqgState, k: int, measurements) -> tuple[np.ndarray, LqgState]:
+        """Torques of sample k and the state after it (``state`` is not changed).
+
+        Parameters
+        ----------
+        state : LqgState
+            The state after sample k − 1 (:meth:`initial_state` for k = 0).
+        k : int
+            Sample index, t = k·dt; must be ``state.k``.
+        measurements : array_like, shape (10,)
+            q1, q2 (rad), q̇1, q̇2 (rad/s), ε1..ε6 (rad), of the plant state at k − d.
+
+        Returns
+        -------
+        tau : ndarray, shape (2,)
+            Motor torques, N·m.
+        new_state : LqgState
+        """
+        if k != state.k:
+            raise LqgError(f"k: the controller is at sample {state.k}, got sample {k} (one call per sample)")
+        m = np.asarray(measurements, dtype=float)
+        if m.shape != (10,) or not np.isfinite(m).all():
+            raise LqgError(f"measurements: expected 10 finite values (q1, q2 rad; qd1, qd2 rad/s; "
+                           f"eps1..eps6 rad), got {measurements!r}")
+        x_post, x_now = self.estimate(state, k, m)
+        i_k = self._index[self._c(k)]
+        ff = self.feedforward(k)
+        tau_free = ff - self._K[i_k] @ x_now - self._K_xi[i_k] @ state.xi
+        tau = np.minimum(np.maximum(tau_free, -self.saturation), self.saturation)
+        xi = state.xi
+        if self.integral_action and np.array_equal(tau, tau_free):
+            xi = xi + self.dt * (self._Cq @ x_now)
+        du = np.vstack([state.du[1:], tau - ff])
+        return tau, LqgState(k + 1, x_post, du, xi, True)
+
+
+def lqg_controller(gain_set: str = "gamma0.1", schedule: str = "200ms", loop_delay_samples: int = 0,
+                   integral_action: bool = False, saturation=None) -> LqgController:
+    """The controller on the committed trajectory and LQG design files (torque limits from the parameter file)."""
+    from .gain_schedule import default_trajectory_path
+    from .parameters import load_parameters
+
+    sat = load_parameters().peak_torque if saturation is None else saturation
+    return LqgController(default_trajectory_path(), LqgDesign.load(schedule), gain_set, loop_delay_samples,
+                         integral_action, sat)
+
+
+def simulate_lqg(model, controller: LqgController, n_steps: int | None = None, plant_delay: int | None = None,
+                 sensors=None, z0=None, substeps: int | None = None):
+    """Run the library plant under an LQG controller, the measurement delayed by ``plant_delay`` samples.
+
+    Parameters
+    ----------
+    model : ArmModel
+        The plant (e.g. with the payload the controller does not know).
+    controller : LqgController
+    n_steps : int, optional
+        Samples; default the slew length.
+    plant_delay : int, optional
+        The loop's real delay (default the controller's ``loop_delay_samples``): the measurement
+        the controller gets at sample k is that of the state at max(k − plant_delay, 0).
+    sensors : flexarm.sensors.SensorBank, optional
+        Noise source (None: exact measurements).
+    z0 : array_like, shape (22,), optional
+        Initial state (default the trajectory's first state).
+    substeps : int, optional
+        RODAS4 substeps per step.
+
+    Returns
+    -------
+    states : ndarray, shape (n + 1, 22)
+    torques : ndarray, shape (n, 2)
+
+    Raises
+    ------
+    flexarm.integrator.IntegrationError
+        When the plant diverges.
+    """
+    from .integrator import DEFAULT_SUBSTEPS, PlantSimulator
+    from .sensors import true_signals_from_state
+
+    n_steps = controller.n_steps if n_steps is None else int(n_steps)
+    delay = controller.delay if plant_delay is None else int(plant_delay)
+    z0 = controller.trajectory.z[0] if z0 is None else np.asarray(z0, dtype=float)
+    plant = PlantSimulator(model, z0, substeps=substeps or DEFAULT_SUBSTEPS)
+    C = controller.design.C
+    state = controller.initial_state()
+    states, torques, measured = [plant.z.copy()], [], []
+    for k in range(n_steps):
+        if sensors is None:
+            measured.append(C @ plant.z)
+        else:
+            tau_prev = torques[-1] if torques else np.zeros(2)
+            measured.append(sensors.measure(true_signals_from_state(model, plant.z, tau_prev))[:10])
+        tau, state = controller.step(state, k, measured[max(k - delay, 0)])
+        plant.step(tau, controller.dt)
+        torques.append(tau)
+        states.append(plant.z.copy())
+    return np.array(states), np.array(torques).reshape(-1, 2)

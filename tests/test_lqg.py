@@ -1,0 +1,212 @@
+"""The LQG's mathematics: Kalman gains, estimation-error covariance, delay predictor, anti-windup, files."""
+
+import shutil
+
+import numpy as np
+import pytest
+
+from flexarm import ArmModel, rigid_configuration
+from flexarm.gain_schedule import StaleDataError, TrajectoryData
+from flexarm.lqg import LqgController, LqgError
+from flexarm.lqg_design import (
+    DEFAULT_LQG_DIR,
+    LqgDesign,
+    design_point,
+    measurement_covariance,
+    measurement_matrix,
+)
+from flexarm.lqr_design import scaling_transform
+from flexarm.model import N_STATE, N, joint_angles, joint_velocities, strain_gauge_angles
+from flexarm.sensors import SensorSettings
+
+TIP_SIGMA = 0.9  # N, about the committed design's payload force
+
+
+@pytest.fixture(scope="module")
+def model():
+    return ArmModel()
+
+
+@pytest.fixture(scope="module")
+def rest():
+    return np.r_[rigid_configuration(-0.9, 1.0), np.zeros(N)]
+
+
+@pytest.fixture(scope="module")
+def point(model, rest):
+    return design_point(model, rest, np.zeros(2), measurement_covariance(), TIP_SIGMA)
+
+
+def one_point_design(point, rest) -> LqgDesign:
+    return LqgDesign(schedule="single", times=np.array([0.0]), operating_points=rest[None], tau_bar=np.zeros((1, 2)),
+                     Phi=point.Phi[None], Gamma=point.Gamma[None], W=point.W[None], M=point.M[None],
+                     P_prior=point.P_prior[None], P_post=point.P_post[None], K=point.K[None],
+                     K_integral=point.K_integral[None], C=measurement_matrix(), V=measurement_covariance())
+
+
+def resting_trajectory(rest, n=4000) -> TrajectoryData:
+    return TrajectoryData(np.arange(n + 1) * 1e-3, np.zeros((n + 1, 2)), np.tile(rest, (n + 1, 1)))
+
+
+def doubling_dare(A, G, H, iterations=60):
+    """X = AᵀX(I + GX)⁻¹A + H by the structure-preserving doubling algorithm (not scipy's Schur method)."""
+    n = len(A)
+    for _ in range(iterations):
+        S = np.linalg.inv(np.eye(n) + G @ H)
+        A, G, H = A @ S @ A, G + A @ S @ G @ A.T, H + A.T @ H @ S @ A
+        G, H = 0.5 * (G + G.T), 0.5 * (H + H.T)
+    return H
+
+
+def test_measurement_matrix_is_the_sensor_map(rest):
+    rng = np.random.default_rng(3)
+    z = rest + rng.normal(scale=0.1, size=N_STATE)
+    expect = np.r_[joint_angles(z[:N]), joint_velocities(z[N:]), strain_gauge_angles(z[:N])]
+    assert np.allclose(measurement_matrix() @ z, expect, rtol=0, atol=1e-15)
+
+
+def test_measurement_covariance_is_uniform_variance():
+    s = SensorSettings.from_toml()
+    V = np.diag(measurement_covariance(s))
+    assert V[0] == pytest.approx(np.radians(s.encoder_noise_deg) ** 2 / 3)
+    assert V[2] == pytest.approx(np.radians(s.tachometer_noise_deg_per_s) ** 2 / 3)
+    assert V[9] == pytest.approx(np.radians(s.strain_gauge_noise_deg) ** 2 / 3)
+
+
+def test_kalman_gain_matches_an_independent_dare_solution(model, rest, point):
+    """Doubling algorithm on the filter DARE (in balanced coordinates, any similarity is exact)."""
+    T = scaling_transform(model, rest)
+    Ti = np.linalg.inv(T)
+    Phi, C, W, V = Ti @ point.Phi @ T, measurement_matrix() @ T, Ti @ point.W @ Ti.T, measurement_covariance()
+    P = doubling_dare(Phi.T, C.T @ np.linalg.solve(V, C), W)
+    M = P @ C.T @ np.linalg.inv(C @ P @ C.T + V)
+    M_lib = Ti @ point.M
+    assert np.linalg.norm(M - M_lib) <= 1e-6 * np.linalg.norm(M)
+    P_lib = Ti @ point.P_prior @ Ti.T
+    assert np.linalg.norm(P - P_lib) <= 1e-6 * np.linalg.norm(P)
+    # and the filter is stable: the error dynamics (I − MC)Φ inside the unit circle
+    assert np.abs(np.linalg.eigvals((np.eye(N_STATE) - M @ C) @ Phi)).max() < 1.0
+
+
+def test_lqr_gains_stabilise_the_sampled_model(point):
+    for K in point.K:
+        assert np.abs(np.linalg.eigvals(point.Phi - point.Gamma @ K)).max() < 1.0
+
+
+@pytest.mark.parametrize("delay", [0, 1, 3])
+def test_delay_predictor_is_exact_for_the_linear_noise_free_loop(point, rest, delay):
+    """With the filter started on the true state and exact measurements, the prediction equals the state."""
+    design = one_point_design(point, rest)
+    ctrl = LqgController(resting_trajectory(rest), design, "gamma0.1", delay, saturation=(0.05, 0.02))
+    rng = np.random.default_rng(0)
+    x = np.zeros(N_STATE)
+    x[:N] = rng.normal(scale=2e-3, size=N)
+    state = ctrl.initial_state()
+    state.x_post = x.copy()
+    history, worst, lag_error = [x.copy()], 0.0, 0.0
+    saturated = 0
+    for k in range(300):
+        m = design.C @ (rest + history[max(k - delay, 0)])
+        _, x_now = ctrl.estimate(state, k, m)
+        worst = max(worst, np.abs(x_now - x).max() / np.abs(x).max())
+        if delay:
+            lag_error = max(lag_error, np.abs(history[max(k - delay, 0)] - x).max() / np.abs(x).max())
+        tau, state = ctrl.step(state, k, m)
+        saturated += int(np.any(np.abs(tau) >= np.array([0.05, 0.02])))
+        x = design.Phi[0] @ x + design.Gamma[0] @ tau
+        history.append(x.copy())
+    assert worst < 1e-9
+    assert saturated > 0  # the predictor uses the torques actually sent, saturated or not
+    if delay:
+        assert lag_error > 1e-3  # without the prediction the estimate would lag by this much
+
+
+def test_estimation_error_covariance_matches_the_design(point, rest):
+    """Noisy runs of the linear model with the design's process noise and the sensors' *uniform* noise.
+
+    The error covariance of a linear filter depends on the noise covariances only, not on their
+    distribution, so uniform noise of variance a²/3 must give the design's P⁺. Some filter modes
+    decay slowly (|λ| up to 0.9999: lightly observed bracket modes), so one long run has few
+    independent samples of them; instead 300 independent runs start with an error drawn from the
+    stationary N(0, P⁺) and run 60 samples, and we compare the ensemble covariance at the end:
+    300 independent samples estimate a variance to ±8 % (1σ), so we allow a factor 1.4 (5σ; the 22
+    entries of one seed spread over 0.80-1.22).
+    """
+    from flexarm.lqg import LqgState
+
+    design = one_point_design(point, rest)
+    ctrl = LqgController(resting_trajectory(rest, 100), design, "gamma0.1", 0, saturation=(1e3, 1e3))
+    rng = np.random.default_rng(11)
+    w_val, w_vec = np.linalg.eigh(point.W)
+    w_fac = w_vec * np.sqrt(np.clip(w_val, 0, None))
+    p_val, p_vec = np.linalg.eigh(point.P_post)
+    p_fac = p_vec * np.sqrt(np.clip(p_val, 0, None))
+    a = np.sqrt(3 * np.diag(design.V))
+    errors = []
+    for _ in range(300):
+        x_hat = np.zeros(N_STATE)
+        x = x_hat - p_fac @ rng.normal(size=N_STATE)  # the true state: error x̂ − x ~ N(0, P⁺)
+        state = LqgState(1, x_hat, np.zeros((1, 2)), np.zeros(2), True)  # posterior at 0, no torque sent at 0
+        x = design.Phi[0] @ x + w_fac @ rng.normal(size=N_STATE)
+        for k in range(1, 61):
+            m = design.C @ (rest + x) + rng.uniform(-a, a)
+            tau, state = ctrl.step(state, k, m)
+            x_post_err = state.x_post - x
+            x = design.Phi[0] @ x + design.Gamma[0] @ tau + w_fac @ rng.normal(size=N_STATE)
+        errors.append(x_post_err)
+    T = scaling_transform(ArmModel(), rest)  # compare in balanced coordinates: every entry the same scale
+    Ti = np.linalg.inv(T)
+    e = np.array(errors) @ Ti.T
+    sample = e.T @ e / len(e)
+    predicted = Ti @ point.P_post @ Ti.T
+    ratio = np.diag(sample) / np.diag(predicted)
+    assert np.all(ratio > 1 / 1.4) and np.all(ratio < 1.4), ratio
+    assert np.trace(sample) / np.trace(predicted) == pytest.approx(1.0, rel=0.2)
+
+
+def test_integral_action_freezes_while_saturated(point, rest):
+    design = one_point_design(point, rest)
+    ctrl = LqgController(resting_trajectory(rest), design, "gamma0.1", 0, integral_action=True,
+                         saturation=(1e-3, 1e-3))
+    state = ctrl.initial_state()
+    m = design.C @ (rest + np.r_[np.full(N, 0.01), np.zeros(N)])  # a large error: a torque saturates
+    for k in range(50):
+        tau, state = ctrl.step(state, k, m)
+        assert np.isclose(np.abs(tau[0]), 1e-3)
+    assert np.all(state.xi == 0.0)
+    free = LqgController(resting_trajectory(rest), design, "gamma0.1", 0, integral_action=True,
+                         saturation=(1e3, 1e3))
+    state = free.initial_state()
+    small = design.C @ (rest + np.r_[np.full(N, 1e-5), np.zeros(N)])
+    for k in range(50):
+        _, state = free.step(state, k, small)
+    assert np.all(np.abs(state.xi) > 0.0)
+
+
+def test_bad_settings_are_refused(point, rest):
+    design = one_point_design(point, rest)
+    traj = resting_trajectory(rest)
+    with pytest.raises(LqgError, match="loop_delay_samples"):
+        LqgController(traj, design, "gamma0.1", 11)
+    with pytest.raises(LqgError, match="loop_delay_samples"):
+        LqgController(traj, design, "gamma0.1", 1.5)
+    with pytest.raises(ValueError, match="gain_set"):
+        LqgController(traj, design, "gamma7")
+    ctrl = LqgController(traj, design, "gamma0.1")
+    with pytest.raises(LqgError, match="measurements"):
+        ctrl.step(ctrl.initial_state(), 0, np.zeros(9))
+    with pytest.raises(LqgError, match="sample 0"):
+        ctrl.step(ctrl.initial_state(), 3, np.zeros(10))
+
+
+def test_committed_design_files_load_and_stale_ones_are_refused(tmp_path):
+    if not (DEFAULT_LQG_DIR / "lqg_200ms.npz").exists():
+        pytest.skip("LQG design files not generated (python -m flexarm.lqr --write)")
+    d = LqgDesign.load("200ms")
+    assert d.K.shape[1:] == (4, 2, N_STATE) and d.M.shape[1:] == (N_STATE, 10)
+    for stem in ("lqg_200ms.npz", "lqg_200ms.json"):
+        shutil.copy(DEFAULT_LQG_DIR / stem, tmp_path / stem)
+    meta = (tmp_path / "lqg_200ms.json").read_text()
+    (tmp_path / "lqg_200ms.json").write_text(meta.replace(d.metadata["trajectory_sha256"], "0" * 64))
+    with pytest.raises(StaleDataError, match="trajectory file"):
+        LqgDesign.load("200ms", tmp_path)
