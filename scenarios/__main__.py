@@ -1,32 +1,53 @@
-"""Command line: ``python -m scenarios list | run NAME|PATH|all``."""
+"""Command line: ``python -m scenarios list | run NAME|PATH|all | sweep NAME|PATH | export-ssp NAME``.
+
+Exit codes (docs/outcomes.md): 0 every case or point finished, ok or unbounded (both are results);
+1 some case or point ended with an FMU error (recorded as such); 2 refused before anything ran (bad
+input, named field and allowed values); 3 the results folder cannot be used or written (busy, permission,
+disk full); 130 interrupted (Ctrl-C; nothing recorded as a result); 143 terminated (SIGTERM).
+"""
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import tomllib
 from pathlib import Path
 
 from .config import SCENARIO_DIR, ScenarioError, list_scenarios, load_scenario
 from .master import CoSimulationError
-from .runner import DEFAULT_FMU_DIR, REPO, desired_states, desired_trajectory, format_table, run_scenario
+from .outdir import OutputError, describe_os_error
+from .runner import DEFAULT_FMU_DIR, format_table, run_scenario
+
+EXIT_OK, EXIT_ERROR, EXIT_REFUSED, EXIT_OUTPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
+#: Default results folder: relative to the current directory, so it works with any install.
+DEFAULT_OUT = Path("results")
+
+
+def _terminate(signum, frame):
+    raise SystemExit(EXIT_TERMINATED)  # unwinds like Ctrl-C: temp files and unpacked FMUs are removed
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m scenarios", description="Run the paper's experiments on our FMUs.")
+    ap = argparse.ArgumentParser(prog="python -m scenarios", description="Run the paper's experiments on our FMUs.",
+                                 epilog="Exit codes: 0 ok or unbounded, 1 FMU error in a case, 2 refused input, "
+                                        "3 results folder unusable, 130 interrupted (see docs/outcomes.md).")
     sub = ap.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list the shipped scenarios")
     run = sub.add_parser("run", help="run scenarios: table1, table2, table3, all, or a path to a scenario file")
     run.add_argument("scenarios", nargs="+")
-    run.add_argument("--out", type=Path, default=REPO / "results", help="results folder (default: results/)")
+    run.add_argument("--out", type=Path, default=DEFAULT_OUT,
+                     help="results folder, relative to the current directory (default: ./results); "
+                          "a scenario writes OUT/<name>/, replacing an earlier run's folder when it completes")
     run.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
     run.add_argument("--controller", help="controller FMU to use instead of the scenario's (name or .fmu path)")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
     sweep = sub.add_parser("sweep", help="run a sweep / Monte Carlo on Dask: a name in scenarios/sweeps/ or a file")
     sweep.add_argument("sweep", help="a sweep name in scenarios/sweeps/ (robustness, schedule) or a sweep file")
-    sweep.add_argument("--out", type=Path, default=REPO / "results" / "sweeps",
-                       help="results folder (default: results/sweeps/; the sweep writes into OUT/<name>/)")
+    sweep.add_argument("--out", type=Path, default=DEFAULT_OUT / "sweeps",
+                       help="results folder, relative to the current directory (default: ./results/sweeps); "
+                            "the sweep writes into OUT/<name>/ and resumes from its journal there")
     sweep.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
     sweep.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://host:8786")
     sweep.add_argument("--workers", type=int, help="local cluster: worker processes (default: the cores)")
@@ -35,53 +56,74 @@ def main(argv=None) -> int:
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
     ssp = sub.add_parser("export-ssp", help="write a scenario as an SSP 1.0 package (.ssp) for other masters")
     ssp.add_argument("scenario", help="table1, table2, table3 or a path to a scenario file")
-    ssp.add_argument("--out", type=Path, default=REPO / "build" / "ssp",
-                     help="folder for <name>.ssp, or a .ssp path (default: build/ssp/)")
+    ssp.add_argument("--out", type=Path, default=Path("build") / "ssp",
+                     help="folder for <name>.ssp, or a .ssp path, relative to the current directory "
+                          "(default: ./build/ssp)")
     ssp.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
     args = ap.parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
     try:
-        if args.command == "sweep":
-            from .sweep import cli as sweep_cli
-
-            return sweep_cli(args)
-        if args.command == "export-ssp":
-            from .ssp import SSPExportError, export_ssp, parameter_sets
-
-            try:
-                path = export_ssp(load_scenario(args.scenario), args.out, args.fmu_dir)
-            except SSPExportError as exc:
-                print(f"error: {exc}", file=sys.stderr)
-                return 2
-            sets = parameter_sets(path)
-            print(f"{path}: cases (parameter sets) {', '.join(sets)}")
-            return 0
-        if args.command == "list":
-            for s in list_scenarios():
-                print(f"{s.name:16s} {len(s.cases)} cases  {s.description}")
-            return 0
-        names = [s.name for s in list_scenarios()] if args.scenarios == ["all"] else args.scenarios
-        paper = tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
-        for name in names:
-            sc = load_scenario(name)
-            results = run_scenario(sc, args.out, args.fmu_dir, args.controller, progress=not args.quiet)
-            print(f"\n== {sc.name}: {sc.description}")
-            print(format_table(results, paper.get(sc.paper_table) if sc.paper_table else None))
-            for r in results:
-                if r.status != "ok":
-                    print(f"   {r.key}: unbounded ({r.message})")
-            print("   wall time per case: " + ", ".join(f"{r.key} {r.wall_time_s:.2f} s" for r in results))
-            if not args.no_plots:
-                from .plots import plot_scenario
-
-                traj = desired_trajectory()
-                desired = desired_states(traj, len(results[0].series["time"]), sc.step_size)
-                pngs = plot_scenario(sc.name, results, desired, traj, "plant", "controller", args.out / sc.name)
-                print("   plots: " + ", ".join(str(p) for p in pngs))
-            print(f"   results: {args.out / sc.name}")
-        return 0
+        return _dispatch(args)
+    except KeyboardInterrupt:
+        print("interrupted: nothing of the interrupted run was recorded as a result", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except (ScenarioError, CoSimulationError) as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_REFUSED
+    except OutputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_OUTPUT
+    except OSError as exc:
+        print(f"error: cannot write results: {describe_os_error(exc)}", file=sys.stderr)
+        return EXIT_OUTPUT
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+def _dispatch(args) -> int:
+    if args.command == "sweep":
+        from .sweep import cli as sweep_cli
+
+        return sweep_cli(args)
+    if args.command == "export-ssp":
+        from .ssp import SSPExportError, export_ssp, parameter_sets
+
+        try:
+            path = export_ssp(load_scenario(args.scenario), args.out, args.fmu_dir)
+        except SSPExportError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return EXIT_REFUSED
+        sets = parameter_sets(path)
+        print(f"{path}: cases (parameter sets) {', '.join(sets)}")
+        return EXIT_OK
+    if args.command == "list":
+        for s in list_scenarios():
+            print(f"{s.name:16s} {len(s.cases)} cases  {s.description}")
+        return EXIT_OK
+    names = [s.name for s in list_scenarios()] if args.scenarios == ["all"] else args.scenarios
+    scenarios = [load_scenario(name) for name in names]  # every file refused before anything runs
+    paper = tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
+    code = EXIT_OK
+    for sc in scenarios:
+        results = run_scenario(sc, args.out, args.fmu_dir, args.controller, progress=not args.quiet,
+                               plots=not args.no_plots)
+        print(f"\n== {sc.name}: {sc.description}")
+        print(format_table(results, paper.get(sc.paper_table) if sc.paper_table else None))
+        for r in results:
+            if r.status != "ok":
+                print(f"   {r.key}: {r.status} ({r.message})")
+            if r.status == "error":
+                code = EXIT_ERROR
+        print("   wall time per case: " + ", ".join(f"{r.key} {r.wall_time_s:.2f} s" for r in results))
+        print(f"   results: {args.out / sc.name}")
+    return code
 
 
 if __name__ == "__main__":

@@ -25,6 +25,13 @@ in integer nanoseconds (t_k = k·h_ns / 1e9, step t_k+1 − t_k).
 
 A :class:`Master` loads its FMUs once and can run many times (``fmi2Reset``
 between runs), which is what sweeps do; :func:`run` is the one-shot form.
+
+A run ends with one typed :class:`Outcome` (see docs/outcomes.md): ``ok``;
+``unbounded`` (a recorded signal left the bounds: when and which);
+``error`` (an FMU returned fmi2Error/fmi2Fatal: which FMU, which function,
+the status and the FMU's own logged message, taken from the FMI status the
+logger callback receives); or ``interrupted`` (Ctrl-C: :meth:`Master.run`
+raises :class:`RunInterrupted` after the current step, never inside FMU code).
 Values move between FMUs through preallocated ctypes buffers: per step one
 ``fmi2GetReal`` per FMU (connections and records together) and one
 ``fmi2SetReal`` per connected pair of FMUs.
@@ -34,12 +41,13 @@ Everything the master loads is freed, also when a step fails.
 from __future__ import annotations
 
 import shutil
+import signal
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from fmpy import extract, read_model_description
 from fmpy.fmi1 import calloc, free
 from fmpy.fmi2 import (
     FMU2Slave,
@@ -51,12 +59,60 @@ from fmpy.fmi2 import (
     fmi2ValueReference,
 )
 
+from .fmu_files import read_description, unpack
+
 ALGORITHMS = ("gauss-seidel", "jacobi")
-_STATUS = {1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
+_STATUS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
+#: The outcomes of a run, in the order docs/outcomes.md explains them.
+OUTCOMES = ("ok", "unbounded", "error", "interrupted")
 
 
 class CoSimulationError(RuntimeError):
-    """An FMU returned an error, or the run left the bounds of the physically sensible."""
+    """The master cannot run this system (wiring, names, a closed master); raised before anything runs."""
+
+
+class FMUError(CoSimulationError):
+    """An FMU function returned fmi2Discard or worse.
+
+    Attributes: ``instance``, ``function`` (e.g. ``fmi2DoStep``), ``status`` (its name: discard, error,
+    fatal) and ``fmu_message`` (the last message that FMU logged with a status of discard or worse, as the
+    FMI logger callback received it; "" when it logged none).
+    """
+
+    def __init__(self, instance: str, function: str, status: int, fmu_message: str):
+        self.instance, self.function = instance, function
+        self.status = _STATUS.get(status, str(status))
+        self.fmu_message = fmu_message
+        super().__init__(f"{instance}: {function} returned {self.status}"
+                         + (f": {fmu_message}" if fmu_message else " (the FMU logged no message)"))
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C during a run: the run stopped after its current step and its values are no result."""
+
+
+@dataclass
+class Outcome:
+    """How a run ended (see the module docstring and docs/outcomes.md)."""
+
+    status: str  # one of OUTCOMES
+    message: str = ""
+    #: unbounded: the time (s) and the recorded signal ("fmu.var") that left the bounds first.
+    time: float | None = None
+    signal: str | None = None
+    #: error: the FMU instance, the FMI function, its status name and the FMU's logged message.
+    fmu: str | None = None
+    function: str | None = None
+    fmu_status: str | None = None
+    fmu_message: str | None = None
+
+    @classmethod
+    def from_error(cls, exc: FMUError, where: str) -> Outcome:
+        return cls("error", f"{where}: {exc}", fmu=exc.instance, function=exc.function, fmu_status=exc.status,
+                   fmu_message=exc.fmu_message)
+
+    def as_dict(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if v is not None}
 
 
 @dataclass
@@ -79,7 +135,8 @@ class System:
     parameters: dict[str, dict[str, float | int | bool | str]] = field(default_factory=dict)
     record: list[tuple[str, str]] = field(default_factory=list)
     step_size: float = 1e-3
-    n_steps: int = 2058
+    #: Communication steps; no default: the run length comes from the trajectory (scenarios.runner.run_length).
+    n_steps: int | None = None
     #: |value| above which a recorded signal counts as numerically unbounded.
     divergence_limit: float = 1e4
     #: "gauss-seidel" (the default, see the module docstring) or "jacobi".
@@ -103,17 +160,39 @@ class _Unit:
 
     def __init__(self, name: str, path: Path, messages: list[str]):
         self.name = name
-        self.md = read_model_description(str(path))
-        self.unzipdir = extract(str(path))
+        self.md = read_description(path)
         self.vars = {v.name: v for v in self.md.modelVariables}
         self.slave = None
+        #: The last message this FMU logged with status discard or worse (reset by :meth:`Master.run`).
+        self.last_error = ""
+        self.unzipdir = unpack(path)
 
         def logger(component, instance_name, status, category, message):
             text = message.decode(errors="replace") if isinstance(message, bytes) else str(message)
             messages.append(f"[{name}] {text}")
+            if status >= 2:  # fmi2Discard, fmi2Error, fmi2Fatal: kept by status, never by searching the text
+                self.last_error = text
 
         self._callbacks = logging_callbacks(logger)
-        self.instantiate()
+        try:
+            self.instantiate()
+        except BaseException:
+            shutil.rmtree(self.unzipdir, ignore_errors=True)
+            raise
+
+    def error(self, function: str, status: int) -> FMUError:
+        """The :class:`FMUError` for `function` returning `status`, with this FMU's logged message."""
+        return FMUError(self.name, function, status, self.last_error)
+
+    def call(self, function: str, fn, *args, **kwargs):
+        """Call one of fmpy's FMU2Slave methods; an fmi2 status of discard or worse becomes :class:`FMUError`."""
+        try:
+            return fn(*args, **kwargs)
+        except Exception as exc:  # fmpy raises FMICallException(function, status)
+            status = getattr(exc, "status", None)
+            if status is None:
+                raise
+            raise self.error(getattr(exc, "function", function), status) from exc
 
     def instantiate(self) -> None:
         self.slave = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzipdir,
@@ -178,7 +257,7 @@ class _Port:
     def read(self) -> None:
         status = self.unit.get_real(self.unit.slave.component, self.vrs, self.n, self.buffer)
         if status > 1:
-            raise CoSimulationError(f"{self.unit.name}: fmi2GetReal returned {_STATUS.get(status, status)}")
+            raise self.unit.error("fmi2GetReal", status)
 
 
 class _Link:
@@ -196,7 +275,7 @@ class _Link:
         self.values[:] = self.port.values[self.index]
         status = self.dst.set_real(self.dst.slave.component, self.dst_vrs, self.n, self.buffer)
         if status > 1:
-            raise CoSimulationError(f"{self.dst.name}: fmi2SetReal returned {_STATUS.get(status, status)}")
+            raise self.dst.error("fmi2SetReal", status)
 
 
 class Master:
@@ -233,19 +312,26 @@ class Master:
             for name in self.order:
                 self.units[name] = _Unit(name, fmus[name], self.messages)
             self._wire(connections)
-        except Exception as exc:
+        except BaseException as exc:  # free what was loaded on every path, Ctrl-C included
             self.close()
-            if isinstance(exc, CoSimulationError):
+            if isinstance(exc, CoSimulationError) or not isinstance(exc, Exception):
                 raise
             raise CoSimulationError(f"could not load the FMUs: {exc}; log: {self.messages[-5:]}") from exc
 
     def _wire(self, connections: list[Connection]) -> None:
         self.groups: dict[tuple[str, str], list[tuple[int, int]]] = {}
+        driver: dict[tuple[str, str], str] = {}
         for c in connections:
+            edge = f"{c.src_fmu}.{c.src_var} -> {c.dst_fmu}.{c.dst_var}"
             for inst in (c.src_fmu, c.dst_fmu):
                 if inst not in self.units:
-                    raise CoSimulationError(f"connection {c.src_fmu}.{c.src_var} -> {c.dst_fmu}.{c.dst_var}: "
-                                            f"no FMU instance '{inst}' (have: {sorted(self.units)})")
+                    raise CoSimulationError(f"connection {edge}: no FMU instance '{inst}' (have: {sorted(self.units)})")
+            other = driver.setdefault((c.dst_fmu, c.dst_var), f"{c.src_fmu}.{c.src_var}")
+            if other != f"{c.src_fmu}.{c.src_var}" or sum(
+                    (d.dst_fmu, d.dst_var, d.src_fmu, d.src_var) == (c.dst_fmu, c.dst_var, c.src_fmu, c.src_var)
+                    for d in connections) > 1:
+                raise CoSimulationError(f"connection {edge}: input {c.dst_fmu}.{c.dst_var} is already driven by "
+                                        f"{other}; one input takes one connection")
             src, dst = self.units[c.src_fmu], self.units[c.dst_fmu]
             self.groups.setdefault((c.src_fmu, c.dst_fmu), []).append((src.vr(c.src_var), dst.vr(c.dst_var)))
 
@@ -322,20 +408,28 @@ class Master:
     def close(self) -> None:
         """Terminate and free every FMU and delete the unpacked files."""
         units, self.units = self.units, {}
+        failures = []
         for unit in units.values():
-            unit.free()
+            try:
+                unit.free()
+            except Exception as exc:  # noqa: BLE001 - free the others all the same, then say so
+                failures.append(f"{unit.name}: {exc}")
+        if failures:
+            raise CoSimulationError("could not free every FMU: " + "; ".join(failures))
 
     def _initialise(self, parameters: dict[str, dict]) -> None:
+        """Reset (after a first run), set the parameters and initialise every FMU; :class:`FMUError` on refusal."""
         for name, unit in self.units.items():
+            unit.last_error = ""
             if self._used:
                 try:
                     unit.slave.reset()
                 except Exception:  # noqa: BLE001 - a failed FMU may refuse fmi2Reset; start it afresh
                     unit.reinstantiate()
-            unit.slave.setupExperiment(startTime=0.0)
+            unit.call("fmi2SetupExperiment", unit.slave.setupExperiment, startTime=0.0)
             for var, value in parameters.get(name, {}).items():
-                unit.set(var, value)
-            unit.slave.enterInitializationMode()
+                unit.call(f"fmi2Set ({var} = {value!r})", unit.set, var, value)
+            unit.call("fmi2EnterInitializationMode", unit.slave.enterInitializationMode)
         if self.algorithm == "jacobi":
             # As libcosim: one exchange round per FMU in initialisation mode, so that a
             # chain of feedthrough FMUs is consistent at the start time.
@@ -344,22 +438,24 @@ class Master:
                 for op in ops:
                     op()
         for unit in self.units.values():
-            unit.slave.exitInitializationMode()
+            unit.call("fmi2ExitInitializationMode", unit.slave.exitInitializationMode)
         self._used = True
 
-    def run(self, parameters: dict[str, dict] | None = None, record: list[tuple[str, str]] = (),
-            n_steps: int = 2058, step_size: float = 1e-3, divergence_limit: float = 1e4,
+    def run(self, parameters: dict[str, dict] | None, record: list[tuple[str, str]], n_steps: int,
+            step_size: float = 1e-3, divergence_limit: float = 1e4,
             progress: Callable[[int, int], None] | None = None) -> dict:
         """Initialise every FMU with `parameters` and step `n_steps` times.
 
         Parameters
         ----------
         parameters : dict
-            {instance: {variable: value}}, set before initialisation.
+            {instance: {variable: value}}, set before initialisation (values of the FMU variable's type:
+            see :func:`scenarios.values.check_parameters`).
         record : list of (instance, variable)
             Real variables to record at every communication point.
         n_steps : int
-            Number of communication steps; `n_steps` + 1 samples are recorded.
+            Number of communication steps; `n_steps` + 1 samples are recorded. No default: the run
+            length comes from the trajectory (:func:`scenarios.runner.run_length`).
         step_size : float
             Communication step, s.
         divergence_limit : float
@@ -370,10 +466,17 @@ class Master:
         Returns
         -------
         dict
-            ``time`` (n+1,), ``signals`` {"fmu.var": ndarray (n+1,)}, ``status``
-            ("ok" or "unbounded"), ``message``, the FMUs' ``log`` and
-            ``steps_done``. A run that diverges or meets an FMU error returns
-            what it recorded up to then, with status "unbounded".
+            ``time`` (n+1,), ``signals`` {"fmu.var": ndarray (n+1,)}, ``outcome`` (:class:`Outcome`),
+            its ``status`` and ``message``, the FMUs' ``log`` and ``steps_done``. An unbounded or
+            error run returns what it recorded up to then (NaN after).
+
+        Raises
+        ------
+        RunInterrupted
+            On Ctrl-C (SIGINT, when called from the main thread): after the current step, with the FMUs
+            left reusable; nothing of the run is returned.
+        CoSimulationError
+            Before anything runs: a closed master, an unknown record.
         """
         if not self.units:
             raise CoSimulationError("the master is closed")
@@ -385,13 +488,9 @@ class Master:
             time = np.arange(n + 1) * h
         steps = np.diff(time) if self.algorithm == "jacobi" else np.full(n, h)
         record = list(record)
+        names = [f"{f}.{v}" for f, v in record]
         data = np.full((n + 1, len(record)), np.nan)
-        try:
-            self._initialise(parameters or {})
-        except Exception as exc:
-            self._used = True
-            raise CoSimulationError(f"could not initialise the FMUs: {exc}; log: {self.messages[-5:]}") from exc
-        ops, sources = self._plan(record)
+        ops, sources = self._plan(record)  # names unknown records before anything runs
         # data[k] is gathered from the ports' buffers: one fancy-index per port.
         gathers = {}
         for col, (port, pos) in enumerate(sources):
@@ -399,33 +498,79 @@ class Master:
             gathers[id(port)][1].append(col)
             gathers[id(port)][2].append(pos)
         gathers = [(port, _as_index(cols), _as_index(pos)) for port, cols, pos in gathers.values()]
-        steppers = [(u.do_step, u.slave.component, u.name) for u in (self.units[name] for name in self.order)]
         every_pct = max(1, n // 100)
-        status, message, k = "ok", "", 0
-        try:
-            for k in range(n + 1):
-                for op in ops:
-                    op()
-                row = data[k]
-                for port, cols, pos in gathers:
-                    row[cols] = port.values[pos]
-                if not np.abs(row).max(initial=0.0) < divergence_limit:  # False for NaN and inf too
-                    status, message = "unbounded", f"signals left the bounds at t = {time[k]:.3f} s"
-                    break
-                if k == n:
-                    break
-                tk, hk = time[k], steps[k]
-                for do_step, component, name in steppers:
-                    st = do_step(component, tk, hk, 1)
-                    if st > 1:
-                        raise CoSimulationError(f"{name}: fmi2DoStep returned {_STATUS.get(st, st)}; "
-                                                f"log: {self.messages[-3:]}")
-                if progress is not None and ((k + 1) % every_pct == 0 or k + 1 == n):
-                    progress(k + 1, n)
-        except Exception as exc:  # noqa: BLE001 - an FMU error while stepping ends this run, not the table
-            status, message = "unbounded", f"step {k} (t = {k * h:.3f} s): {exc}"
-        return {"time": time, "signals": {f"{f}.{v}": data[:, i] for i, (f, v) in enumerate(record)},
-                "status": status, "message": message, "log": list(self.messages), "steps_done": k}
+        outcome, k = Outcome("ok"), 0
+        with _SigintFlag() as interrupted:
+            try:
+                self._initialise(parameters or {})
+            except FMUError as exc:
+                self._used = True
+                outcome = Outcome.from_error(exc, "initialisation (nothing ran)")
+                n = -1  # skip the loop
+            steppers = [(u.do_step, u.slave.component, u) for u in (self.units[name] for name in self.order)]
+            try:
+                for k in range(n + 1):
+                    for op in ops:
+                        op()
+                    row = data[k]
+                    for port, cols, pos in gathers:
+                        row[cols] = port.values[pos]
+                    if not np.abs(row).max(initial=0.0) < divergence_limit:  # False for NaN and inf too
+                        bad = names[int(np.argmax(~(np.abs(row) < divergence_limit)))]
+                        outcome = Outcome("unbounded", f"{bad} = {row[names.index(bad)]:.6g} left the bounds "
+                                          f"(|value| < {divergence_limit:g}) at t = {time[k]:.6g} s",
+                                          time=float(time[k]), signal=bad)
+                        break
+                    if interrupted.is_set() or k == n:
+                        break
+                    tk, hk = time[k], steps[k]
+                    for do_step, component, unit in steppers:
+                        st = do_step(component, tk, hk, 1)
+                        if st > 1:
+                            raise unit.error("fmi2DoStep", st)
+                    if progress is not None and ((k + 1) % every_pct == 0 or k + 1 == n):
+                        progress(k + 1, n)
+            except FMUError as exc:
+                data[k:] = np.nan  # a partly gathered row is no sample
+                outcome = Outcome.from_error(exc, f"step {k} (t = {time[k]:.6g} s)")
+            if interrupted.is_set():
+                raise RunInterrupted(f"interrupted at step {k} (t = {time[max(k, 0)]:.6g} s)")
+        return {"time": time, "signals": {name: data[:, i] for i, name in enumerate(names)},
+                "outcome": outcome, "status": outcome.status, "message": outcome.message,
+                "log": list(self.messages), "steps_done": max(k, 0)}
+
+    def probe(self, parameters: dict[str, dict] | None, step_size: float) -> Outcome:
+        """Initialise with `parameters` and take one communication step of `step_size`, recording nothing.
+
+        Tells, before a long run, whether the FMUs accept the parameters and the step (an FMU that
+        refuses a step returns fmi2Error from fmi2DoStep, with its reason in the log).
+        """
+        return self.run(parameters, [], 1, step_size)["outcome"]
+
+
+class _SigintFlag:
+    """While active (main thread only), Ctrl-C sets a flag instead of raising inside FMU code.
+
+    An FMU written in Python runs in this interpreter: a KeyboardInterrupt raised in its code would be
+    caught there and returned as fmi2Error, i.e. reported as the FMU failing. The flag is checked between
+    steps; a second Ctrl-C while the flag is set raises at once.
+    """
+
+    def __enter__(self) -> threading.Event:
+        self.flag = threading.Event()
+        self.previous = None
+        if threading.current_thread() is threading.main_thread():
+            def handler(signum, frame):
+                if self.flag.is_set():
+                    raise RunInterrupted("interrupted twice")
+                self.flag.set()
+
+            self.previous = signal.signal(signal.SIGINT, handler)
+        return self.flag
+
+    def __exit__(self, *exc) -> None:
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
 
 
 def _as_index(positions: list[int]) -> slice | np.ndarray:
@@ -437,6 +582,8 @@ def _as_index(positions: list[int]) -> slice | np.ndarray:
 
 def run(system: System, progress: Callable[[int, int], None] | None = None) -> dict:
     """Load the system's FMUs, run once, free everything (see :meth:`Master.run` for the result)."""
+    if system.n_steps is None:
+        raise CoSimulationError("System.n_steps: the number of communication steps (from the trajectory), got None")
     with Master(system.fmus, system.order, system.connections, system.algorithm) as m:
         return m.run(system.parameters, system.record, system.n_steps, system.step_size,
                      system.divergence_limit, progress)

@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .results import write_atomic  # noqa: E402
+from flexarm.provenance import write_atomic  # noqa: E402
 
 
 def _save(fig, path: Path) -> None:
@@ -30,7 +30,7 @@ def plot_scenario(name: str, results, desired: dict, traj, plant: str, driver: s
     for r in results:
         if f"{plant}.tip_x" in r.series:
             ax.plot(r.series[f"{plant}.tip_x"], r.series[f"{plant}.tip_y"], lw=1,
-                    label=f"{r.label}{' (unbounded)' if r.status != 'ok' else ''}")
+                    label=f"{r.label}{f' ({r.status})' if r.status != 'ok' else ''}")
     ax.set(xlabel="x, m", ylabel="y, m", title=f"{name}: tip path")
     ax.axis("equal")
     ax.legend(fontsize=8)

@@ -1,27 +1,46 @@
-"""Run a scenario's cases through the master, score them, write results."""
+"""Run a scenario's cases through the master, score them, write results.
+
+Before any case runs (:func:`run_scenario`): the data chain is verified (:func:`verify_data_chain`), every
+FMU is resolved and read (an unknown name or a file that is no FMU is refused), every case's values are
+checked against the FMUs' model descriptions (:mod:`scenarios.values`), the output folder is locked and
+checked writable (:mod:`scenarios.outdir`), and every case is initialised and stepped once with the
+scenario's communication step (:meth:`scenarios.master.Master.probe`), so a step or a value an FMU refuses
+is reported with the FMU's message before anything runs. Each case then ends with one outcome (see
+docs/outcomes.md); the results folder is published only when every case has finished.
+"""
 
 from __future__ import annotations
 
+import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from fmpy import read_model_description
 
 from flexarm.parameters import DEFAULT_PARAMETER_FILE
+from flexarm.provenance import git_commit, sha256_file, write_json
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
 from . import master
-from .config import Scenario
+from .config import Scenario, ScenarioError
+from .fmu_files import NotAnFmuError, read_description
 from .metrics import METRICS, UNITS, table_metrics
-from .results import git_commit, sha256_file, write_csv, write_json
+from .outdir import run_folder
+from .results import write_csv
+from .values import check_parameters
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_FMU_DIR = REPO / "build" / "fmus"
 N_EL = 11
 PLANT_STATE = [f"theta{i}" for i in range(1, N_EL + 1)] + [f"omega{i}" for i in range(1, N_EL + 1)]
+#: Bytes a case's CSV and JSON take per sample (about 50 columns of 20 characters), for the free-space check.
+BYTES_PER_SAMPLE = 1200
+
+
+class DataChainError(ScenarioError):
+    """A data file does not match the files it was made from (see :func:`verify_data_chain`)."""
 
 
 @dataclass
@@ -33,6 +52,21 @@ class CaseResult:
     metrics: dict[str, float] | None
     wall_time_s: float
     series: dict[str, np.ndarray]
+    outcome: master.Outcome = field(default_factory=lambda: master.Outcome("ok"))
+
+
+def known_fmu_names() -> list[str]:
+    """The FMU names this project builds (``build_fmus.FMUS``); [] when the build tooling is not importable."""
+    try:
+        import build_fmus
+    except ImportError:
+        if str(REPO) not in sys.path:  # build_fmus.py is not packaged yet (see issue 17)
+            sys.path.insert(0, str(REPO))
+        try:
+            import build_fmus
+        except ImportError:
+            return []
+    return sorted(build_fmus.FMUS)
 
 
 def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = None, build: bool = True,
@@ -40,37 +74,69 @@ def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = Non
     """FMU instance -> .fmu path; names are built into `fmu_dir` (rebuilt when older than their sources).
 
     `names` (instance -> FMU name or path) defaults to the scenario's ``[fmus]``;
-    `controller` replaces the ``controller`` instance's FMU.
+    `controller` replaces the ``controller`` instance's FMU. An unknown name is refused listing the
+    known ones; a path that is no FMU is refused naming the file (both :class:`ScenarioError`).
     """
     names = dict(scenario.fmus if names is None else names)
     if controller is not None:
         names["controller"] = controller
-    paths = {}
-    to_build = [n for n in names.values() if not n.endswith(".fmu")]
+    to_build = sorted({n for n in names.values() if not n.endswith(".fmu")})
+    known = known_fmu_names() if to_build else []
+    for inst, name in names.items():
+        if not name.endswith(".fmu") and known and name not in known:
+            raise ScenarioError(f"fmus.{inst}: an FMU name of this project {known} or a path to a .fmu file, "
+                                f"got {name!r}")
     built = {}
     if to_build and build:
-        sys.path.insert(0, str(REPO))
         import build_fmus
 
-        built = build_fmus.build_all(fmu_dir, only=sorted(set(to_build)))
+        built = build_fmus.build_all(fmu_dir, only=to_build)
+    paths = {}
     for inst, name in names.items():
         if name.endswith(".fmu"):
             p = Path(name) if Path(name).is_absolute() else (scenario.path.parent / name)
         else:
-            p = built.get(name, fmu_dir / f"{name}.fmu")
+            p = built.get(name, Path(fmu_dir) / f"{name}.fmu")
         if not p.is_file():
-            raise master.CoSimulationError(f"fmus.{inst}: no FMU at {p}")
+            raise ScenarioError(f"fmus.{inst}: no FMU at {p}")
         paths[inst] = p
     return paths
 
 
-def connect_by_name(paths: dict[str, Path], explicit=None) -> list[master.Connection]:
-    """Every input to the one output of the same name elsewhere (or the scenario's explicit list)."""
-    if explicit is not None:
-        return [master.Connection(*a.split("."), *b.split(".")) for a, b in explicit]
-    outputs, inputs = {}, []
+def read_descriptions(paths: dict[str, Path]) -> dict:
+    """Instance -> model description; a file that is no FMU is refused naming the instance and the file."""
+    out = {}
     for inst, p in paths.items():
-        for v in read_model_description(str(p)).modelVariables:
+        try:
+            out[inst] = read_description(p)
+        except NotAnFmuError as exc:
+            raise ScenarioError(f"fmus.{inst}: {exc}") from exc
+    return out
+
+
+def connect_by_name(paths: dict[str, Path], explicit=None, descriptions: dict | None = None) -> list[master.Connection]:
+    """Every input to the one output of the same name elsewhere (or the scenario's explicit list).
+
+    Explicit connections are checked: an output to an input, each input driven once.
+    """
+    mds = descriptions or read_descriptions(paths)
+    if explicit is not None:
+        conns = [master.Connection(*a.split("."), *b.split(".")) for a, b in explicit]
+        driven: dict[tuple[str, str], str] = {}
+        for c in conns:
+            edge = f"connections.explicit: {c.src_fmu}.{c.src_var} -> {c.dst_fmu}.{c.dst_var}"
+            for inst, var, causality in ((c.src_fmu, c.src_var, "output"), (c.dst_fmu, c.dst_var, "input")):
+                have = sorted(v.name for v in mds[inst].modelVariables if v.causality == causality)
+                if var not in have:
+                    raise ScenarioError(f"{edge}: {inst}.{var} must be an {causality} of {inst} ({have})")
+            before = driven.setdefault((c.dst_fmu, c.dst_var), f"{c.src_fmu}.{c.src_var}")
+            if before != f"{c.src_fmu}.{c.src_var}" or sum(d == c for d in conns) > 1:
+                raise ScenarioError(f"{edge}: input {c.dst_fmu}.{c.dst_var} is already driven by {before}; "
+                                    "one input takes one connection")
+        return conns
+    outputs, inputs = {}, []
+    for inst, md in mds.items():
+        for v in md.modelVariables:
             if v.causality == "output":
                 outputs.setdefault(v.name, []).append(inst)
             elif v.causality == "input":
@@ -79,18 +145,59 @@ def connect_by_name(paths: dict[str, Path], explicit=None) -> list[master.Connec
     for inst, var in inputs:
         src = [s for s in outputs.get(var, []) if s != inst]
         if len(src) > 1:
-            raise master.CoSimulationError(f"input {inst}.{var}: outputs of that name in {src}; "
-                                           "use [connections] explicit = [...]")
+            raise ScenarioError(f"input {inst}.{var}: outputs of that name in {src}; "
+                                "use [connections] explicit = [...]")
         if src:
             conns.append(master.Connection(src[0], var, inst, var))
     return conns
 
 
 def desired_trajectory():
-    """The optimiser's trajectory (1 ms samples) that the controller tracks."""
+    """The optimiser's trajectory (1 ms samples) that the controller tracks, through flexarm's loader."""
     from flexarm.trajectory import load_trajectory
 
     return load_trajectory()
+
+
+def verify_data_chain() -> dict[str, str]:
+    """Check parameters -> trajectory -> gains through flexarm's verifying loaders; refuse a mismatch.
+
+    The one function the runner and the sweep call before anything runs. The checks themselves live in
+    the loaders (``flexarm.trajectory.load_trajectory``: the trajectory against the parameter file it
+    records; ``flexarm.lqr.GainSchedule.load``: each gain file against its trajectory and parameters), so
+    there is one place for each fact.
+
+    Returns
+    -------
+    dict
+        File (relative to the repository) -> SHA-256, for the results' provenance.
+
+    Raises
+    ------
+    DataChainError
+        The loader's message: both files and the command that regenerates them.
+    """
+    from flexarm.lqr import DEFAULT_GAIN_DIR, GainError, GainSchedule
+    from flexarm.trajectory import TrajectoryError
+
+    gain_files = sorted(DEFAULT_GAIN_DIR.glob("*.npz"))
+    try:
+        desired_trajectory()
+        for npz in gain_files:
+            name, _, schedule = npz.stem.rpartition("_")
+            GainSchedule.load(name, schedule)
+    except (TrajectoryError, GainError) as exc:
+        raise DataChainError(f"data chain: {exc}") from exc
+    except (OSError, ValueError, KeyError) as exc:  # a file the loaders cannot even parse
+        raise DataChainError(f"data chain: cannot read the trajectory {DEFAULT_TRAJECTORY_FILE} or the gains in "
+                             f"{DEFAULT_GAIN_DIR}: {type(exc).__name__}: {exc}") from exc
+    files = [DEFAULT_PARAMETER_FILE, DEFAULT_TRAJECTORY_FILE, *gain_files]
+    return {_relative(f): sha256_file(f) for f in files}
+
+
+def _relative(path: Path) -> str:
+    path = Path(path)
+    return str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path)
 
 
 @dataclass
@@ -106,38 +213,43 @@ class Setup:
     n_steps: int
     desired: dict[str, np.ndarray]
     start: dict[str, float]
+    descriptions: dict = field(default_factory=dict, repr=False)
 
     def open_master(self, algorithm: str = "gauss-seidel") -> master.Master:
         """Load this set's FMUs once (reuse the master for every case that shares them)."""
         return master.Master(self.paths, self.scenario.order, self.connections, algorithm)
 
-    def case_parameters(self, case_parameters: dict[str, dict]) -> dict[str, dict]:
-        """The case's parameters, with the plant started on the trajectory unless the case says otherwise."""
-        params = {inst: dict(v) for inst, v in case_parameters.items()}
+    def case_parameters(self, case_parameters: dict[str, dict], where: str = "") -> dict[str, dict]:
+        """The case's parameters checked against the FMUs and converted (:func:`scenarios.values.check_parameters`),
+        with the plant started on the trajectory unless the case says otherwise."""
+        params = check_parameters(where or f"{self.scenario.path.name}: parameters", self.descriptions,
+                                  case_parameters)
         params[self.plant] = {**self.start, **params.get(self.plant, {})}
         return params
 
 
 def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
             names: dict[str, str] | None = None, build: bool = True) -> Setup:
-    """Resolve (and build) the FMUs, wire them, and precompute what the cases share."""
+    """Resolve (and build) the FMUs, read and wire them, and precompute what the cases share."""
     paths = resolve_fmus(scenario, fmu_dir, controller, build, names)
-    connections = connect_by_name(paths, scenario.connections)
+    descriptions = read_descriptions(paths)
+    connections = connect_by_name(paths, scenario.connections, descriptions)
     torque_edges = [c for c in connections if c.dst_var == "tau1"]
     if not torque_edges:
-        raise master.CoSimulationError("connections: nothing drives an input 'tau1' (the plant's torque)")
+        raise ScenarioError("connections: nothing drives an input 'tau1' (the plant's torque)")
     plant, driver = torque_edges[0].dst_fmu, torque_edges[0].src_fmu
     record = [(plant, v) for v in PLANT_STATE + ["tip_x", "tip_y"]] + [(driver, "tau1"), (driver, "tau2")]
     record += [tuple(s.split(".", 1)) for s in scenario.record if tuple(s.split(".", 1)) not in record]
     traj = desired_trajectory()
     n = run_length(scenario, traj)
     return Setup(scenario, paths, connections, plant, driver, record, n,
-                 desired_states(traj, n + 1, scenario.step_size), start_parameters(traj))
+                 desired_states(traj, np.arange(n + 1) * scenario.step_size), start_parameters(traj),
+                 descriptions)
 
 
 def simulate_case(setup: Setup, m: master.Master, parameters: dict[str, dict],
                   progress=None) -> tuple[dict, dict[str, float] | None]:
-    """One run on a loaded master: the master's result and the table metrics (None when unbounded)."""
+    """One run on a loaded master: the master's result and the table metrics (None unless the outcome is ok)."""
     out = m.run(setup.case_parameters(parameters), setup.record, setup.n_steps, setup.scenario.step_size,
                 progress=progress)
     if out["status"] != "ok":
@@ -146,59 +258,100 @@ def simulate_case(setup: Setup, m: master.Master, parameters: dict[str, dict],
     theta = np.column_stack([sig[f"{p}.theta{i}"] for i in range(1, N_EL + 1)])
     omega = np.column_stack([sig[f"{p}.omega{i}"] for i in range(1, N_EL + 1)])
     tau = np.column_stack([sig[f"{d}.tau1"], sig[f"{d}.tau2"]])
-    return out, table_metrics(tau, theta, omega, setup.desired["theta"], setup.desired["omega"])
+    desired = setup.desired
+    if len(desired["theta"]) != len(theta):  # a master that reports other time points
+        desired = desired_states(desired_trajectory(), out["time"])
+    return out, table_metrics(tau, theta, omega, desired["theta"], desired["omega"])
+
+
+class StepRefused(ScenarioError):
+    """An FMU refused a case's values or the communication step when probed, before anything ran."""
+
+
+def probe_cases(setup: Setup, m: master.Master, cases) -> None:
+    """Initialise and step once per case (:meth:`master.Master.probe`); :class:`StepRefused` with the FMU's message."""
+    for case in cases:
+        outcome = m.probe(setup.case_parameters(case.parameters), setup.scenario.step_size)
+        if outcome.status == "error":
+            raise StepRefused(f"{setup.scenario.path.name}: case {case.key}, communication step "
+                              f"{setup.scenario.step_size:g} s: refused by {outcome.fmu} ({outcome.function} "
+                              f"returned {outcome.fmu_status}): {outcome.fmu_message or outcome.message}")
 
 
 def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
-                 progress: bool = True, algorithm: str | None = None) -> list[CaseResult]:
-    """Run every case; write per-case CSV and JSON into out_dir/<scenario>/.
+                 progress: bool = True, algorithm: str | None = None, plots: bool = False) -> list[CaseResult]:
+    """Check everything, then run every case; publish per-case CSV and JSON (and PNGs) in out_dir/<scenario>/.
 
-    Cases with the same FMUs share one loaded master (reset between cases).
-    ``algorithm`` None: the scenario file's (``scenario.algorithm``, default Gauss-Seidel).
+    Cases with the same FMUs share one loaded master (reset between cases). ``algorithm`` None: the
+    scenario file's (``scenario.algorithm``, default Gauss-Seidel). Every refusal
+    (:class:`ScenarioError`, :class:`scenarios.outdir.OutputError`) comes before the first case runs; on
+    Ctrl-C (:class:`scenarios.master.RunInterrupted`) or a filesystem error nothing is published and the
+    previous results stay as they were.
     """
     algorithm = algorithm or scenario.algorithm
+    chain = verify_data_chain()
     groups: dict[tuple, list] = {}
     for case in scenario.cases:
         groups.setdefault(tuple(sorted(case.fmus.items())) if case.fmus else (), []).append(case)
-    by_key: dict[str, CaseResult] = {}
-    commit = git_commit()
-    traj_hash = sha256_file(DEFAULT_TRAJECTORY_FILE)
-    # The arm's parameter file the FMUs bundle (flexarm/data/sandia_arm.toml, the same file).
-    param_file = str(DEFAULT_PARAMETER_FILE.relative_to(REPO)) if DEFAULT_PARAMETER_FILE.is_relative_to(REPO) \
-        else str(DEFAULT_PARAMETER_FILE)
-    param_hash = sha256_file(DEFAULT_PARAMETER_FILE)
-    folder = out_dir / scenario.name
+    setups = []
     for names, cases in groups.items():
         setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None)
-        checksums = {inst: sha256_file(p) for inst, p in setup.paths.items()}
-        with setup.open_master(algorithm) as m:
-            for case in cases:
-                params = setup.case_parameters(case.parameters)
-                t0 = time.perf_counter()
-                bar = _bar(f"{scenario.name}:{case.key}") if progress else None
-                out, metrics = simulate_case(setup, m, case.parameters, progress=bar)
-                wall = time.perf_counter() - t0
-                series = {"time": out["time"], **out["signals"]}
-                by_key[case.key] = CaseResult(case.key, case.label, out["status"], out["message"], metrics, wall,
-                                              series)
-                write_csv(folder / f"{case.key}.csv", series)
-                write_json(folder / f"{case.key}.json", {
-                    "scenario": scenario.name, "scenario_file": str(scenario.path),
-                    "scenario_sha256": sha256_file(scenario.path), "case": case.key, "label": case.label,
-                    "status": out["status"], "message": out["message"], "metrics": metrics,
-                    "metric_units": dict(UNITS), "parameters": params, "samples": setup.n_steps,
-                    "algorithm": algorithm, "fmus": {k: str(v) for k, v in setup.paths.items()},
-                    "fmu_sha256": checksums, "commit": commit, "wall_time_s": wall,
-                    "steps_done": out["steps_done"], "trajectory_sha256": traj_hash,
-                    "parameter_file": param_file, "parameter_file_sha256": param_hash,
-                    "fmu_log_tail": out["log"][-20:],
-                })
-    return [by_key[c.key] for c in scenario.cases]
+        for case in cases:
+            setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")
+        setups.append((setup, cases))
+    need = sum(BYTES_PER_SAMPLE * (s.n_steps + 1) * len(c) for s, c in setups)
+    by_key: dict[str, CaseResult] = {}
+    commit = git_commit()
+    scenario_sha = sha256_file(scenario.path)
+    with run_folder(out_dir, scenario.name, need) as folder:
+        opened = []
+        try:
+            for setup, cases in setups:  # every case probed before the first one runs
+                opened.append(setup.open_master(algorithm))
+                probe_cases(setup, opened[-1], cases)
+            for (setup, cases), m in zip(setups, opened):
+                checksums = {inst: sha256_file(p) for inst, p in setup.paths.items()}
+                for case in cases:
+                    params = setup.case_parameters(case.parameters)
+                    t0 = time.perf_counter()
+                    bar = _bar(f"{scenario.name}:{case.key}") if progress else None
+                    out, metrics = simulate_case(setup, m, case.parameters, progress=bar)
+                    wall = time.perf_counter() - t0
+                    series = {"time": out["time"], **out["signals"]}
+                    by_key[case.key] = CaseResult(case.key, case.label, out["status"], out["message"], metrics,
+                                                  wall, series, out["outcome"])
+                    write_csv(folder / f"{case.key}.csv", series)
+                    write_json(folder / f"{case.key}.json", {
+                        "scenario": scenario.name, "scenario_file": str(scenario.path),
+                        "scenario_sha256": scenario_sha, "case": case.key, "label": case.label,
+                        "status": out["status"], "message": out["message"], "outcome": out["outcome"].as_dict(),
+                        "metrics": metrics, "metric_units": dict(UNITS), "parameters": params,
+                        "samples": setup.n_steps, "step_size_s": scenario.step_size, "algorithm": algorithm,
+                        "fmus": {k: str(v) for k, v in setup.paths.items()}, "fmu_sha256": checksums,
+                        "commit": commit, "wall_time_s": wall, "steps_done": out["steps_done"],
+                        "trajectory_sha256": chain[_relative(DEFAULT_TRAJECTORY_FILE)],
+                        "parameter_file": _relative(DEFAULT_PARAMETER_FILE),
+                        "parameter_file_sha256": chain[_relative(DEFAULT_PARAMETER_FILE)],
+                        "data_sha256": chain, "fmu_log_tail": out["log"][-20:],
+                    })
+        finally:
+            for m in opened:
+                m.close()
+        results = [by_key[c.key] for c in scenario.cases]
+        if plots:
+            from .plots import plot_scenario
+
+            traj = desired_trajectory()
+            setup = setups[0][0]
+            plot_scenario(scenario.name, results, setup.desired, traj, setup.plant, setup.driver, folder)
+    return results
 
 
 def run_length(scenario: Scenario, traj) -> int:
-    """Communication steps of a run: the scenario's, or the slew's length ("trajectory")."""
-    return traj.n_samples if scenario.samples == "trajectory" else int(scenario.samples)
+    """Communication steps of a run: the scenario's, or as many as cover the slew ("trajectory")."""
+    if scenario.samples == "trajectory":
+        return math.ceil(traj.t_f / scenario.step_size - 1e-9)
+    return int(scenario.samples)
 
 
 def start_parameters(traj) -> dict[str, float]:
@@ -209,11 +362,35 @@ def start_parameters(traj) -> dict[str, float]:
     return {"q1_0": float(q[0]), "q2_0": float(q[1])}
 
 
-def desired_states(traj, n_samples: int, dt: float) -> dict[str, np.ndarray]:
-    """Desired θ, θ̇ at samples 0..n_samples−1 (the final state held after the slew)."""
+def desired_states(traj, times, dt: float | None = None) -> dict[str, np.ndarray]:
+    """Desired θ, θ̇ at the given times, by time (not by sample index): the metrics hold for any step.
+
+    Parameters
+    ----------
+    traj : TrajectoryResult
+        Samples ``traj.t`` (s), ``traj.theta``, ``traj.omega`` (n, 11).
+    times : ndarray, shape (m,), or int
+        Times, s; or a number of samples `m` taken every `dt` seconds from 0.
+    dt : float, optional
+        With an int `times`: the communication step, s.
+
+    Returns
+    -------
+    dict
+        ``theta``, ``omega``: shape (m, 11). Linear interpolation between the trajectory's samples
+        (exact at them); after the slew the final state is held at rest (θ̇ = 0).
+    """
+    if np.isscalar(times):
+        if dt is None:
+            raise ValueError("desired_states: dt is required with a number of samples")
+        times = np.arange(int(times)) * float(dt)
+    t = np.asarray(traj.t, dtype=float)
+    times = np.asarray(times, dtype=float)
     theta, omega = np.asarray(traj.theta), np.asarray(traj.omega)
-    idx = np.minimum(np.arange(n_samples), len(theta) - 1)
-    return {"theta": theta[idx], "omega": omega[idx] * (np.arange(n_samples) < len(theta))[:, None]}
+    th = np.column_stack([np.interp(times, t, theta[:, j]) for j in range(theta.shape[1])])
+    om = np.column_stack([np.interp(times, t, omega[:, j]) for j in range(omega.shape[1])])
+    om[times > t[-1] + 1e-12] = 0.0
+    return {"theta": th, "omega": om}
 
 
 def _bar(label: str):
@@ -245,7 +422,7 @@ def format_table(results: list[CaseResult], paper: dict | None) -> str:
         for r in results:
             p = (paper or {}).get(r.key)
             pv = None if p is None or isinstance(p, dict) else p[i]
-            ours = "unbounded" if r.metrics is None else f"{r.metrics[m]:.3f}"
+            ours = r.status if r.metrics is None else f"{r.metrics[m]:.3f}"
             paper_s = "---" if isinstance(p, dict) else ("" if pv is None else f"{pv:.3f}")
             ratio = f"{r.metrics[m] / pv:.2f}" if r.metrics is not None and pv else ""
             row += f"{ours:>10s}{paper_s:>9s}{ratio:>9s}"

@@ -1,17 +1,21 @@
 """Sweeps on Dask: cluster table equals the serial one bit for bit, failures are recorded, resume, validation."""
 
 import json
+import os
 import shutil
+import sys
 import time
 
+import cloudpickle
 import pytest
+from distributed import Client, WorkerPlugin
 
 from scenarios.__main__ import main
 from scenarios.metrics import METRICS
-from scenarios.sweep import CRASH_ENV, SweepError, load_sweep, plan_sweep, read_table, run_sweep
+from scenarios.sweep import SweepError, load_sweep, local_cluster, plan_sweep, read_table, run_sweep
 
-# 2 payloads (random, reproducible) x 3 gain sets (one unknown: the controller FMU refuses it) x 2 seeds = 12
-# points of 200 steps each.
+# 2 payloads (random, reproducible) x 2 gain sets x 3 sensor sample periods (1.5 ms is not a whole fraction of
+# the 1 ms communication step: the sensors FMU refuses the first step, an error point) = 12 points of 200 steps.
 SMALL = """
 [sweep]
 name = "small"
@@ -21,11 +25,13 @@ samples = 200
 
 [axes]
 plant.payload_mass = { uniform = [0.0, 0.5], count = 2, seed = 7 }
-controller.gain_set = ["gamma0.1", "gamma1", "no_such_gains"]
+controller.gain_set = ["gamma0.1", "gamma1"]
+sensors.sample_period = [0.001, 0.0015]
 sensors.noise_seed = { range = [1, 2] }
 """
 #: Columns that must agree between two runs of the same points (not wall time, worker, dates).
-SAME = ["index", "key", "plant.payload_mass", "controller.gain_set", "sensors.noise_seed", "status", *METRICS]
+SAME = ["index", "key", "plant.payload_mass", "controller.gain_set", "sensors.sample_period", "sensors.noise_seed",
+        "status", *METRICS]
 
 
 def _write(folder, text, name="small.toml"):
@@ -50,14 +56,19 @@ def _same(table):
 def test_serial_table_and_provenance(small):
     path, res, _ = small
     rows = read_table(res.tables[0])
-    assert len(rows) == 12 and res.ran == 12
-    assert {r["status"] for r in rows if r["controller.gain_set"] != "no_such_gains"} == {"ok"}
-    failed = [r for r in rows if r["controller.gain_set"] == "no_such_gains"]
-    assert len(failed) == 4 and all(r["status"] == "failed" and "gain_set" in r["message"] for r in failed)
+    assert len(rows) == 16 and res.ran == 16
+    assert {r["status"] for r in rows if r["sensors.sample_period"] == "0.001"} == {"ok"}
+    failed = [r for r in rows if r["sensors.sample_period"] == "0.0015"]
+    assert len(failed) == 8 and all(r["status"] == "error" and "sensors: fmi2DoStep returned error" in r["message"]
+                                    for r in failed)
     assert all(r[m] == "" for r in failed for m in METRICS)
+    journal = [json.loads(x) for x in (res.folder / "journal.jsonl").read_text().splitlines()]
+    outcome = next(r["outcome"] for r in journal if r["status"] == "error")
+    assert outcome["fmu"] == "sensors" and outcome["function"] == "fmi2DoStep" and outcome["fmu_status"] == "error"
+    assert "sample_period" in outcome["fmu_message"]  # the FMU's own words, from the status it logged
     assert all(len(r["fmu_sha256.plant"]) == 64 and r["commit"] for r in rows)
     meta = json.loads((res.folder / "sweep.json").read_text())
-    assert meta["sweep_sha256"] and meta["points"] == 12 and meta["sweep_file"] == str(path)
+    assert meta["sweep_sha256"] and meta["points"] == 16 and meta["sweep_file"] == str(path)
     # random samples: reproducible from their seed, inside their range
     payloads = sorted({float(r["plant.payload_mass"]) for r in rows})
     assert payloads == sorted(load_sweep(path).axes[0].values) and all(0 <= p <= 0.5 for p in payloads)
@@ -66,21 +77,39 @@ def test_serial_table_and_provenance(small):
 def test_local_cluster_equals_serial_bit_for_bit(small, tmp_path):
     path, serial, _ = small
     res = run_sweep(path, tmp_path, workers=2, progress=False)
-    assert res.ran == 12
+    assert res.ran == 16
     assert _same(res.tables[0]) == _same(serial.tables[0])
     assert {p.name for p in res.plots} == {"metrics_vs_payload_mass.png", "rms_spread_over_seeds.png"}
     assert all(p.stat().st_size > 10_000 for p in res.plots)
 
 
-def test_worker_death_is_recorded_and_the_sweep_completes(small, tmp_path, monkeypatch):
+class KillOnPoint(WorkerPlugin):
+    """Test fixture: the worker that starts executing the named point exits at once (as a crash would)."""
+
+    def __init__(self, point_key):
+        self.point_key = point_key
+
+    def transition(self, key, start, finish, **kwargs):
+        if finish == "executing" and self.point_key in str(key):
+            os._exit(13)
+
+
+def test_worker_death_is_recorded_and_the_sweep_completes(small, tmp_path):
     path, serial, _ = small
-    victim = plan_sweep(load_sweep(path)).points[1]  # gamma0.1, ok in the serial run
-    monkeypatch.setenv(CRASH_ENV, victim.key)  # test-only hook: the worker given this point calls os._exit
-    res = run_sweep(path, tmp_path, workers=2, progress=False, plots=False, allowed_failures=0)
+    victim = plan_sweep(load_sweep(path)).points[1]  # ok in the serial run
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers cannot import this test module
+    cluster = local_cluster(2, allowed_failures=0)
+    try:
+        with Client(cluster) as client:
+            client.register_plugin(KillOnPoint(victim.key), name="kill-on-point")
+            res = run_sweep(path, tmp_path, scheduler=cluster.scheduler_address, progress=False, plots=False)
+    finally:
+        cluster.close()
+        cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
     rows = _same(res.tables[0])
-    assert len(rows) == 12
+    assert len(rows) == 16
     dead = rows[victim.index]
-    assert dead["status"] == "failed" and all(dead[m] == "" for m in METRICS)
+    assert dead["status"] == "error" and all(dead[m] == "" for m in METRICS)
     assert "KilledWorker" in read_table(res.tables[0])[victim.index]["message"]
     others = [r for r in rows if r["index"] != str(victim.index)]
     assert others == [r for r in _same(serial.tables[0]) if r["index"] != str(victim.index)]
@@ -90,9 +119,9 @@ def test_resume_skips_done_points(small, tmp_path, capsys):
     path, serial, _ = small
     folder = tmp_path / "small"
     shutil.copytree(serial.folder, folder)
-    # a rerun (through the CLI) skips the 8 done points and retries the 4 failed ones
-    assert main(["sweep", str(path), "--serial", "--quiet", "--no-plots", "--out", str(tmp_path)]) == 0
-    assert "(4 run now, 8 from the journal)" in capsys.readouterr().out
+    # a rerun (through the CLI) skips the 8 done points and retries the 8 error ones (exit code 1: errors)
+    assert main(["sweep", str(path), "--serial", "--quiet", "--no-plots", "--out", str(tmp_path)]) == 1
+    assert "(8 run now, 8 from the journal)" in capsys.readouterr().out
     # a crash lost the last two records, the one before was cut mid-line: those three run again
     journal = folder / "journal.jsonl"
     lines = journal.read_text().splitlines()
@@ -102,7 +131,7 @@ def test_resume_skips_done_points(small, tmp_path, capsys):
     text = "\n".join(x for i, x in enumerate(lines) if i not in cut) + "\n" + lines[cut[0]][:40]
     journal.write_text(text)
     res = run_sweep(path, tmp_path, serial=True, plots=False, progress=False)
-    assert res.ran == 3 + 4 and res.skipped == 5
+    assert res.ran == 3 + 8 and res.skipped == 5
     assert _same(res.tables[0]) == _same(serial.tables[0])
     assert journal.read_text().endswith("\n")  # the cut line was closed before appending
 
@@ -143,9 +172,9 @@ def test_sweep_file_errors_name_the_field(tmp_path, text, field, allowed):
 
 
 @pytest.mark.parametrize("axis, field, allowed", [
-    ("plant.payload_mass = [0.0, -1.0]", "axes.plant.payload_mass", "values in the FMU's range [0, 10] kg"),
-    ("plant.payload_mas = [0.0]", "axes.plant.payload_mas", "a parameter of FMU plant.fmu (['payload_mass'"),
-    ("controller.gain_set = [1, 2]", "axes.controller.gain_set", "strings (gain_set is String)"),
+    ("plant.payload_mass = [0.0, -1.0]", "axes.plant.payload_mass", "a value in the FMU's range [0, 10] kg"),
+    ("plant.payload_mas = [0.0]", "axes.plant.payload_mas", "a parameter of FMU plant.fmu ("),
+    ("sensors.noise_seed = [1, 1.5]", "axes.sensors.noise_seed", "an integer (noise_seed is Integer), got 1.5"),
     ("sensors.noise_enabled = { range = [0, 1] }", "axes.sensors.noise_enabled", "true or false"),
     ("fmus.controller = ['controller', 'controller_xyz']", "axes.fmus.controller", "controller_dlqr"),
 ])

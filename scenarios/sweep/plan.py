@@ -1,0 +1,167 @@
+"""A sweep's plan: the FMU sets (resolved, built, read once), every value checked against the FMUs'
+model descriptions, a probe of the base point, and the points with their keys."""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..config import ScenarioError
+from ..master import Master
+from ..runner import DEFAULT_FMU_DIR, known_fmu_names, prepare, read_descriptions, resolve_fmus
+from ..values import check_parameters, check_value, check_variable
+from .spec import Axis, Sweep, SweepError, _require, toml_content_sha256
+
+
+@dataclass
+class Point:
+    """One co-simulation of a sweep."""
+
+    index: int
+    key: str
+    values: dict  # axis field -> value
+    fmus: dict[str, str]  # instance -> FMU name or .fmu path
+    parameters: dict[str, dict]
+
+
+@dataclass
+class FmuSet:
+    """The FMU files of one combination of the FMU-swap axes, read once by the client."""
+
+    names: dict[str, str]
+    paths: dict[str, Path]
+    sha256: dict[str, str]
+    blobs: dict[str, bytes] = field(repr=False)
+
+    @property
+    def key(self) -> str:
+        return hashlib.sha256(json.dumps(self.sha256, sort_keys=True).encode()).hexdigest()[:16]
+
+
+@dataclass
+class Plan:
+    """Everything a sweep runs: points, FMU sets, and the tasks sent to the workers."""
+
+    sweep: Sweep
+    points: list[Point]
+    fmu_sets: dict[str, FmuSet]  # FmuSet.key -> set
+    point_set: dict[str, str]  # point key -> FmuSet.key
+    scenario_sha256: str
+
+    def task(self, point: Point) -> dict:
+        """The picklable description of one point that :func:`run_point` runs."""
+        fs = self.fmu_sets[self.point_set[point.key]]
+        return {"key": point.key, "index": point.index, "scenario": self.sweep.scenario, "fmu_names": fs.names,
+                "fmu_sha256": fs.sha256, "parameters": point.parameters,
+                "setup_key": f"{self.scenario_sha256[:16]}-{self.sweep.scenario.samples}-{fs.key}"}
+
+
+def _check_axis(sweep: Sweep, axis: Axis, md, fmu_path: Path) -> None:
+    """The axis names a parameter of the FMU and every value fits its type, range or enumeration items."""
+    where = f"{sweep.path.name}: axes.{axis.field}"
+    v = check_variable(where, md, axis.instance, axis.variable, fmu_path.name, SweepError)
+    axis.unit = getattr(v, "unit", None) or ""
+    if axis.kind == "uniform":
+        _require(v.type == "Real", where, f"uniform samples only for a Real parameter ({axis.variable} is {v.type})",
+                 axis.kind)
+    for x in axis.values:
+        check_value(where, v, x, SweepError)
+
+
+def point_key(scenario_sha: str, samples, fmus: dict, parameters: dict) -> str:
+    """A point's key: what defines its run (the scenario's parsed content, the run length, the FMU names and
+    the parameters), not the sweep file's bytes: a comment, or a new value on an axis, reruns nothing."""
+    blob = json.dumps({"scenario_content_sha256": scenario_sha, "samples": samples, "fmus": fmus,
+                       "parameters": parameters}, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True, probe: bool = True) -> Plan:
+    """Resolve (and build) the FMUs of every FMU set, check every value against them, list the points.
+
+    Parameters
+    ----------
+    sweep : Sweep
+        From :func:`load_sweep`.
+    fmu_dir : Path
+        Where built FMUs live (``build/fmus``); FMU names are built there when stale.
+    build : bool
+        Build stale FMUs (False: use the files as they are).
+    probe : bool
+        Initialise each FMU set with the base point and take one communication step, so that a step or a
+        value the FMUs refuse is reported (with the FMU's message) before any point runs.
+
+    Returns
+    -------
+    Plan
+        The points in product order, each FMU set's bytes and SHA-256.
+
+    Raises
+    ------
+    SweepError
+        Naming the field and its allowed values (or the FMU's message for a refused probe).
+    """
+    scenario, case = sweep.scenario, sweep.case
+    scenario_sha = toml_content_sha256(scenario.path)
+    fmu_axes = [a for a in sweep.axes if a.is_fmu]
+    fmu_sets: dict[str, FmuSet] = {}
+    by_combo: dict[tuple, str] = {}
+    known = known_fmu_names()
+    for a in fmu_axes:
+        for v in a.values:
+            where = f"{sweep.path.name}: axes.{a.field}"
+            if v.endswith(".fmu"):
+                _require(Path(v).is_file(), where, "paths to existing .fmu files", v)
+            elif known:
+                _require(v in known, where, f"FMU names of this project {known} or paths to .fmu files", v)
+    for combo in itertools.product(*(a.values for a in fmu_axes)):
+        names = {**case.fmus, **{a.instance: v for a, v in zip(fmu_axes, combo)}}
+        try:
+            paths = resolve_fmus(scenario, fmu_dir, None, build, names)
+            descriptions = read_descriptions(paths)
+            check_parameters(f"{scenario.path.name}: cases[{case.key}].parameters", descriptions, case.parameters)
+        except ScenarioError as exc:
+            raise SweepError(f"{sweep.path.name}: FMUs {names}: {exc}") from exc
+        except Exception as exc:  # noqa: BLE001 - a failed build is named with the FMU set
+            raise SweepError(f"{sweep.path.name}: FMUs {names}: could not resolve or build them: {exc}") from exc
+        for axis in sweep.axes:
+            if not axis.is_fmu:
+                _check_axis(sweep, axis, descriptions[axis.instance], paths[axis.instance])
+        blobs = {inst: p.read_bytes() for inst, p in paths.items()}
+        shas = {inst: hashlib.sha256(b).hexdigest() for inst, b in blobs.items()}
+        fs = FmuSet(names, paths, shas, blobs)
+        if probe and fs.key not in fmu_sets:
+            _probe(sweep, fs)
+        fmu_sets.setdefault(fs.key, fs)
+        by_combo[combo] = fs.key
+    points, point_set = [], {}
+    for index, combo in enumerate(itertools.product(*(a.values for a in sweep.axes))):
+        values = {a.field: v for a, v in zip(sweep.axes, combo)}
+        params = copy.deepcopy(case.parameters)
+        for a, v in zip(sweep.axes, combo):
+            if not a.is_fmu:
+                params.setdefault(a.instance, {})[a.variable] = v
+        fs_key = by_combo[tuple(values[a.field] for a in fmu_axes)]
+        names = fmu_sets[fs_key].names
+        key = point_key(scenario_sha, scenario.samples, names, params)
+        points.append(Point(index, key, values, names, params))
+        point_set[key] = fs_key
+    return Plan(sweep, points, fmu_sets, point_set, scenario_sha)
+
+
+def _probe(sweep: Sweep, fs: FmuSet) -> None:
+    """Initialise the base point on this FMU set and step once; a refusal is a :class:`SweepError`."""
+    setup = prepare(sweep.scenario, names={k: str(v) for k, v in fs.paths.items()}, build=False)
+    with Master(setup.paths, sweep.scenario.order, setup.connections) as m:
+        outcome = m.probe(setup.case_parameters(sweep.case.parameters), sweep.scenario.step_size)
+    if outcome.status == "error":
+        raise SweepError(f"{sweep.path.name}: base point (case {sweep.case.key}, communication step "
+                         f"{sweep.scenario.step_size:g} s) refused by {outcome.fmu} ({outcome.function} returned "
+                         f"{outcome.fmu_status}): {outcome.fmu_message or outcome.message}")
+
+
+__all__ = ["FmuSet", "Plan", "Point", "plan_sweep", "point_key"]

@@ -1,0 +1,232 @@
+"""Running sweep points: on Dask workers or in-process.
+
+The client reads the FMU files once and a worker plugin (:class:`ShipFmus`) writes their bytes into a
+content-addressed folder on every worker (also on workers that join or restart later); each process keeps
+one loaded :class:`~scenarios.master.Master` per FMU set (reset between runs by ``fmi2Reset``).
+A point's record carries the run's typed outcome (:class:`scenarios.master.Outcome`): its status is
+``ok``, ``unbounded`` or ``error``, decided from the FMI status the master received, never from log text.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import socket
+import tempfile
+import time
+from collections import OrderedDict
+from collections.abc import Iterator
+from pathlib import Path
+
+from distributed import WorkerPlugin
+
+from flexarm.provenance import sha256_file, write_atomic
+
+from ..master import CoSimulationError
+from ..runner import prepare, simulate_case
+from .plan import Plan, Point
+
+#: Per process: setup key -> (Setup, open Master), least recently used first.
+_LOADED: OrderedDict[str, tuple] = OrderedDict()
+#: How many FMU sets a process keeps loaded.
+CACHE_SIZE = 4
+_TRAJECTORY_SHA: list[str] = []
+
+
+def _fmu_cache_dir() -> Path:
+    return Path(os.environ.get("FLEXARM_SWEEP_FMU_CACHE", Path(tempfile.gettempdir()) / "flexarm-sweep-fmus"))
+
+
+def _fmu_file(name: str, sha: str) -> Path:
+    """Where the FMU with this SHA-256 lives in this machine's content-addressed cache."""
+    return _fmu_cache_dir() / sha[:32] / f"{Path(name).stem}.fmu"
+
+
+def store_fmus(names: dict[str, str], blobs: dict[str, bytes]) -> dict[str, str]:
+    """Write FMU bytes into the content-addressed cache (once); instance -> SHA-256."""
+    shas = {}
+    for inst, data in blobs.items():
+        sha = hashlib.sha256(data).hexdigest()
+        p = _fmu_file(names[inst], sha)
+        if not (p.is_file() and p.stat().st_size == len(data)):
+            write_atomic(p, data)
+        shas[inst] = sha
+    return shas
+
+
+class ShipFmus(WorkerPlugin):
+    """Dask worker plugin: writes one FMU set's files into every worker's cache, also on workers that
+    join or restart later (registered with ``Client.register_plugin``)."""
+
+    idempotent = True
+
+    def __init__(self, names: dict[str, str], blobs: dict[str, bytes]):
+        self.names, self.blobs = names, blobs
+
+    def setup(self, worker=None) -> None:
+        store_fmus(self.names, self.blobs)
+
+    def teardown(self, worker=None) -> None:
+        pass
+
+
+def _loaded(task: dict):
+    key = task["setup_key"]
+    if key in _LOADED:
+        _LOADED.move_to_end(key)
+        return _LOADED[key]
+    while len(_LOADED) >= CACHE_SIZE:
+        _, (_, old) = _LOADED.popitem(last=False)
+        old.close()
+    paths = {}
+    for inst, sha in task["fmu_sha256"].items():
+        p = _fmu_file(task["fmu_names"][inst], sha)
+        if not p.is_file():
+            raise CoSimulationError(f"fmus.{inst}: {p} missing on this worker (the client ships FMUs with a "
+                                    "worker plugin: was the sweep started through scenarios.sweep?)")
+        paths[inst] = str(p)
+    setup = prepare(task["scenario"], names=paths, build=False)
+    m = setup.open_master()
+    _LOADED[key] = (setup, m)
+    return setup, m
+
+
+def close_loaded() -> int:
+    """Close every FMU set this process keeps loaded; returns how many."""
+    n = len(_LOADED)
+    while _LOADED:
+        _, (_, m) = _LOADED.popitem(last=False)
+        m.close()
+    return n
+
+
+def run_point(task: dict) -> dict:
+    """Run one point (on a worker or in-process) and return its journal record; never raises.
+
+    Parameters
+    ----------
+    task : dict
+        From :meth:`Plan.task`. The FMU files must be in this machine's cache
+        (:func:`store_fmus`, done on Dask workers by :class:`ShipFmus`).
+
+    Returns
+    -------
+    dict
+        ``key``, ``index``, ``status`` (ok, unbounded or error), ``message``, ``outcome`` (the details:
+        when and which signal diverged; which FMU, function, FMI status and FMU message),
+        ``metrics`` (None unless ok), ``wall_time_s`` (the run), ``setup_time_s``
+        (loading the FMUs, 0 when they were loaded), ``steps_done``, ``worker``
+        (host:pid), ``fmu_sha256``, ``trajectory_sha256``.
+    """
+    t0 = time.perf_counter()
+    rec = {"key": task["key"], "index": task["index"], "status": "error", "message": "", "metrics": None,
+           "wall_time_s": 0.0, "setup_time_s": 0.0, "steps_done": 0, "worker": f"{socket.gethostname()}:{os.getpid()}",
+           "fmu_sha256": task["fmu_sha256"]}
+    try:
+        fresh = task["setup_key"] not in _LOADED
+        setup, m = _loaded(task)
+        t1 = time.perf_counter()
+        rec["setup_time_s"] = t1 - t0 if fresh else 0.0
+        if not _TRAJECTORY_SHA:
+            from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
+
+            _TRAJECTORY_SHA.append(sha256_file(DEFAULT_TRAJECTORY_FILE))
+        out, metrics = simulate_case(setup, m, task["parameters"])
+        rec["wall_time_s"] = time.perf_counter() - t1
+        outcome = out["outcome"]
+        rec.update(status=outcome.status, message=outcome.message, outcome=outcome.as_dict(), metrics=metrics,
+                   steps_done=out["steps_done"])
+    except Exception as exc:  # noqa: BLE001 - recorded against the point, never fatal to the sweep
+        rec.update(status="error", message=f"{type(exc).__name__}: {exc}", wall_time_s=time.perf_counter() - t0)
+        if not isinstance(exc, CoSimulationError) and task["setup_key"] in _LOADED:
+            _LOADED.pop(task["setup_key"])[1].close()
+    rec["trajectory_sha256"] = _TRAJECTORY_SHA[0] if _TRAJECTORY_SHA else None
+    return rec
+
+
+def iter_serial(plan: Plan, points: list[Point]) -> Iterator[dict]:
+    """Run `points` one after the other in this process (FMUs loaded once per FMU set)."""
+    for k in {plan.point_set[p.key] for p in points}:
+        store_fmus(plan.fmu_sets[k].names, plan.fmu_sets[k].blobs)
+    for p in points:
+        yield run_point(plan.task(p))
+
+
+def local_cluster(n_workers: int | None = None, allowed_failures: int = 1):
+    """A :class:`distributed.LocalCluster` for sweeps: processes, one thread each.
+
+    Parameters
+    ----------
+    n_workers : int, optional
+        Worker processes (default: the machine's cores).
+    allowed_failures : int
+        How often the scheduler retries a point whose worker died before it
+        marks it lost (recorded as ``error``, naming KilledWorker).
+
+    Notes
+    -----
+    ``worker-saturation`` 1.0 keeps exactly one point per worker in flight,
+    so a worker that dies takes only its own point with it; the workers'
+    statistical profiler is off (it interrupts the co-simulation's thread).
+    """
+    import dask
+    from distributed import LocalCluster
+
+    with dask.config.set({"distributed.scheduler.allowed-failures": allowed_failures,
+                          "distributed.scheduler.worker-saturation": 1.0,
+                          # the statistical profiler takes the GIL every 10 ms from the running co-simulation
+                          "distributed.worker.profile.enabled": False}):
+        return LocalCluster(n_workers=n_workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                            dashboard_address=None)
+
+
+def iter_dask(client, plan: Plan, points: list[Point]) -> Iterator[dict]:
+    """Submit `points` to a Dask cluster and yield their records as they complete.
+
+    The FMU files go to every worker through a worker plugin (:class:`ShipFmus`),
+    so the tasks carry no data and the scheduler queues them (one point in
+    flight per worker thread on our local cluster: a worker that dies takes
+    only its own point with it). A point whose worker died, or any other
+    error outside :func:`run_point`, comes back as an ``error`` record naming it.
+    """
+    from distributed import as_completed
+
+    needed = sorted({plan.point_set[p.key] for p in points})
+    plugins = []
+    for k in needed:
+        name = f"flexarm-sweep-fmus-{k}"
+        client.register_plugin(ShipFmus(plan.fmu_sets[k].names, plan.fmu_sets[k].blobs), name=name)
+        plugins.append(name)
+    # Points of one FMU set together (Dask runs earlier tasks first): workers rarely switch FMU sets.
+    order = sorted(points, key=lambda p: (plan.point_set[p.key], p.index))
+    stamp = time.time_ns()
+    # One batch (client.map): the scheduler sees the whole group and queues it instead of spreading it.
+    futures = client.map(run_point, [plan.task(p) for p in order], pure=False,
+                         key=[f"sweep-point-{p.key}-{stamp}" for p in order])
+    point_of = {fut.key: p for fut, p in zip(futures, order)}
+    try:
+        for fut in as_completed(futures):
+            p = point_of[fut.key]
+            if fut.status == "finished":
+                rec = fut.result()
+            else:
+                try:
+                    exc = fut.exception()
+                except Exception as e:  # noqa: BLE001 - e.g. cancelled
+                    exc = e
+                rec = {"key": p.key, "index": p.index, "status": "error",
+                       "message": f"{type(exc).__name__}: {exc}", "metrics": None, "wall_time_s": 0.0,
+                       "setup_time_s": 0.0, "steps_done": 0, "worker": None,
+                       "fmu_sha256": plan.fmu_sets[plan.point_set[p.key]].sha256, "trajectory_sha256": None}
+            fut.release()
+            yield rec
+    finally:
+        pending = [f for f in futures if not f.done()]
+        if pending:
+            client.cancel(pending, force=True)
+        for name in plugins:
+            try:
+                client.unregister_worker_plugin(name)
+            except Exception:  # noqa: BLE001 - the cluster may be gone
+                pass
+

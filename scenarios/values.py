@@ -1,0 +1,124 @@
+"""Parameter values checked against an FMU's model description: type, range, enumeration items.
+
+Scenario and sweep files write values as TOML gives them (numbers, booleans, strings). Before anything
+runs, each value is checked against the variable the FMU declares and converted to what the master sets:
+
+======================  =========================================  ===============
+FMU variable type       allowed in a file                          set as
+======================  =========================================  ===============
+Real                    a finite number, inside [min, max]         float
+Integer                 an integer (not 1.7, not true), in range   int
+Boolean                 true or false (not "false", not 0)         bool
+String                  a string                                   str
+Enumeration             one of the type's item names ("gamma0.1")  the item's int
+======================  =========================================  ===============
+
+An error names the field, the allowed values and what was given.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .config import ScenarioError
+
+#: Causalities a scenario or sweep may set.
+SETTABLE = ("parameter",)
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def settable(md) -> dict:
+    """Variable name -> fmpy ModelVariable of the variables a scenario may set (the parameters)."""
+    return {v.name: v for v in md.modelVariables if v.causality in SETTABLE}
+
+
+def enumeration_items(variable) -> dict[str, int]:
+    """Item name -> integer value of an Enumeration variable's declared type ({} for other types)."""
+    declared = getattr(variable, "declaredType", None)
+    if variable.type != "Enumeration" or declared is None:
+        return {}
+    return {item.name: int(item.value) for item in declared.items}
+
+
+def check_value(where: str, variable, value, error: type[Exception] = ScenarioError):
+    """`value` converted to what the master sets for `variable`, or `error` naming `where` and the allowed values.
+
+    Parameters
+    ----------
+    where : str
+        The field, e.g. ``"table2.toml: parameters.sensors.noise_enabled"``.
+    variable : fmpy.model_description.ModelVariable
+    value : bool, int, float or str
+        As read from the file.
+    """
+    name, kind = variable.name, variable.type
+    unit = f" {variable.unit}" if getattr(variable, "unit", None) else ""
+    if kind == "Real":
+        ok, allowed = _is_number(value), f"a finite number ({name} is Real{unit})"
+    elif kind == "Integer":
+        ok, allowed = _is_int(value), f"an integer ({name} is Integer)"
+    elif kind == "Boolean":
+        ok, allowed = isinstance(value, bool), f"true or false ({name} is Boolean)"
+    elif kind == "String":
+        ok, allowed = isinstance(value, str), f"a string ({name} is String)"
+    elif kind == "Enumeration":
+        items = enumeration_items(variable)
+        type_name = getattr(variable.declaredType, "name", "") if variable.declaredType is not None else ""
+        if not (isinstance(value, str) and value in items):
+            raise error(f"{where}: one of {sorted(items, key=items.get)} ({name} is Enumeration {type_name}), "
+                        f"got {value!r}")
+        return items[value]
+    else:
+        raise error(f"{where}: {name} has type {kind}, which scenarios cannot set")
+    if not ok:
+        raise error(f"{where}: {allowed}, got {value!r}")
+    if kind in ("Real", "Integer"):
+        lo = None if variable.min in (None, "") else float(variable.min)
+        hi = None if variable.max in (None, "") else float(variable.max)
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            bounds = f"[{'-inf' if lo is None else variable.min}, {'inf' if hi is None else variable.max}]"
+            raise error(f"{where}: a value in the FMU's range {bounds}{unit}, got {value!r}")
+        return float(value) if kind == "Real" else int(value)
+    return value
+
+
+def check_variable(where: str, md, instance: str, var: str, fmu_name: str = "",
+                   error: type[Exception] = ScenarioError):
+    """The settable ModelVariable `var` of `md`, or `error` listing the FMU's settable variables."""
+    params = settable(md)
+    if var not in params:
+        fmu = f" of FMU {fmu_name}" if fmu_name else ""
+        raise error(f"{where}: a parameter{fmu} ({sorted(params)}), got {var!r}")
+    return params[var]
+
+
+def check_parameters(where: str, descriptions: dict, parameters: dict[str, dict],
+                     error: type[Exception] = ScenarioError) -> dict[str, dict]:
+    """Every {instance: {variable: value}} checked and converted (see the module docstring).
+
+    Parameters
+    ----------
+    where : str
+        The file and table the values come from, e.g. ``"table2.toml: cases[noise].parameters"``.
+    descriptions : dict
+        Instance -> fmpy ModelDescription.
+    parameters : dict
+        As read from the file.
+    """
+    out: dict[str, dict] = {}
+    for inst, values in parameters.items():
+        if inst not in descriptions:
+            raise error(f"{where}.{inst}: an FMU instance from {sorted(descriptions)}, got {inst!r}")
+        md = descriptions[inst]
+        for var, value in values.items():
+            field = f"{where}.{inst}.{var}"
+            variable = check_variable(field, md, inst, var, md.modelName, error)
+            out.setdefault(inst, {})[var] = check_value(field, variable, value, error)
+    return out
