@@ -26,7 +26,17 @@
  * 3 an FMI call returned fmi2Error or worse (or --check-errors found a problem).
  */
 #define _GNU_SOURCE
+#ifdef _WIN32 /* the win64 build (tests/test_native_platforms.py runs it under wine) */
+#include <windows.h>
+#define dlopen(path, flags) ((void *)LoadLibraryA(path))
+#define dlsym(h, name) ((void *)GetProcAddress((HMODULE)(h), name))
+#define dlerror() "LoadLibrary failed"
+#define realpath(path, resolved) _fullpath(NULL, path, 0)
+#define PLATFORM_BINARY "binaries/win64/%s.dll"
+#else
 #include <dlfcn.h>
+#define PLATFORM_BINARY "binaries/linux64/%s.so"
+#endif
 #include <limits.h>
 #include <math.h>
 #include <stdarg.h>
@@ -214,9 +224,10 @@ static char *file_uri(const char *folder)
     char *real = realpath(folder, NULL);
     if (!real) die(2, "no such folder: %s", folder);
     char *uri = malloc(strlen(real) * 3 + 16), *o = uri;
-    o += sprintf(o, "file://");
+    o += sprintf(o, real[0] == '/' ? "file://" : "file:///"); /* Windows: file:///C:/dir */
     for (const char *p = real; *p; p++) {
         unsigned char ch = (unsigned char)*p;
+        if (ch == '\\') ch = '/';
         if ((ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') || (ch >= '0' && ch <= '9') || strchr("/-._~", ch))
             *o++ = (char)ch;
         else
@@ -297,7 +308,7 @@ int main(int argc, char **argv)
     char *xml = read_file(path);
     if (!xml) die(2, "cannot read %s", path);
     parse_model_description(xml, guid, model_id);
-    snprintf(path, sizeof path, "%s/binaries/linux64/%s.so", dir, model_id);
+    snprintf(path, sizeof path, "%s/" PLATFORM_BINARY, dir, model_id);
     Api api;
     load(&api, path);
     snprintf(path, sizeof path, "%s/resources", dir);

@@ -1,0 +1,93 @@
+/*
+ * FMI 2.0 co-simulation glue shared by every native FMU of flexarm-fmi.
+ *
+ * The glue owns the FMI side: the state machine (a table of the states in which
+ * each call is allowed, as in the Modelica Reference-FMUs), value storage with
+ * type, range and causality checks, logging, resource loading with SHA-256
+ * checks, FMU state copies and (de)serialisation. A model supplies a table of
+ * its variables (generated from the Python FMU's modelDescription.xml) and the
+ * callbacks of ModelInfo; it never sees an FMI call directly.
+ *
+ * Values live in one double per variable (Integer, Enumeration and Boolean as
+ * whole numbers), indexed by the variable's position in the table.
+ */
+#ifndef FLEXARM_FMI2_GLUE_H
+#define FLEXARM_FMI2_GLUE_H
+
+#include <stddef.h>
+
+#include "fmi2Functions.h"
+
+typedef enum { VT_REAL, VT_INTEGER, VT_BOOLEAN, VT_ENUMERATION } VarType;
+typedef enum { CA_PARAMETER, CA_INPUT, CA_OUTPUT } Causality;
+
+typedef struct {
+    const char *name;
+    fmi2ValueReference vr;
+    VarType type;
+    Causality causality;
+    double start, min, max; /* min/max: -/+HUGE_VAL where unbounded */
+    const char *unit;       /* "" when none */
+} VarInfo;
+
+typedef struct {
+    const char *file;   /* name inside resources/ */
+    const char *sha256; /* recorded at build time, lower-case hex */
+} ResourceInfo;
+
+struct Instance;
+
+typedef struct {
+    const char *model_identifier;
+    const char *guid;
+    const VarInfo *vars;
+    size_t n_vars;
+    const ResourceInfo *resources;
+    size_t n_resources;
+    size_t state_size; /* bytes of the model's dynamic state (flat: no pointers), copied by get/set FMU state */
+    /* Parse the resource files (already SHA-256 checked) into inst->data; 0 on success (after logging why not). */
+    int (*load)(struct Instance *inst, char *const *contents, const size_t *sizes);
+    void (*unload)(struct Instance *inst);
+    /* From the parameters and inputs: set the state at the start time and the outputs. fmi2Error names the
+       parameter (the FMU stays in initialisation mode). Called for reads in initialisation mode and at exit. */
+    fmi2Status (*initialize)(struct Instance *inst);
+    /* Direct-feedthrough models: compute the outputs of the current sample from the committed state and the
+       inputs (without committing). NULL: the outputs do not depend on the inputs. */
+    fmi2Status (*sample)(struct Instance *inst);
+    /* Advance from t to t + h (inputs held); the outputs at t + h. Must leave the state unchanged on error. */
+    fmi2Status (*do_step)(struct Instance *inst, double t, double h);
+} ModelInfo;
+
+typedef struct Instance {
+    unsigned magic;
+    int fmi_state;
+    char *name;
+    fmi2CallbackLogger logger;
+    fmi2ComponentEnvironment env;
+    int logging_on;
+    double time;
+    double *values;         /* one per variable */
+    unsigned char *invalid; /* 1 while a rejected value is pending for an input (doStep refuses) */
+    int outputs_stale;      /* feedthrough: inputs changed since the last sample */
+    void *state;            /* model state, ModelInfo.state_size bytes */
+    void *data;             /* model constants from the resources (not part of the FMU state) */
+} Instance;
+
+extern const ModelInfo MODEL_INFO;
+
+/* Log a message (printf format) as the instance; errors always reach the host, OK only with logging on. */
+void glue_log(const Instance *inst, fmi2Status status, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 3, 4)))
+#endif
+    ;
+
+/* Value of variable `index` (position in MODEL_INFO.vars). */
+#define VALUE(inst, index) ((inst)->values[(index)])
+
+/* Parse whitespace-separated 16-digit hex IEEE-754 doubles after the label `name` in a resource text.
+   Returns 0 and fills out[0..n-1], or -1 after logging what is wrong. */
+int glue_read_doubles(const Instance *inst, const char *file, const char *text, const char *name, double *out,
+                      size_t n);
+
+#endif
