@@ -1,4 +1,4 @@
-"""Command line: ``python -m scenarios list | run NAME|PATH|all | sweep NAME|PATH | export-ssp NAME``.
+"""Command line: ``python -m scenarios list | run NAME|PATH|all | sweep NAME|PATH | export-ssp NAME | results-page``.
 
 Exit codes (docs/outcomes.md): 0 every case or point finished, ok or unbounded (both are results);
 1 some case or point ended with an FMU error (recorded as such); 2 refused before anything ran (bad
@@ -60,6 +60,10 @@ def main(argv=None) -> int:
                      help="folder for <name>.ssp, or a .ssp path, relative to the current directory "
                           "(default: ./build/ssp)")
     ssp.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
+    page = sub.add_parser("results-page", help="rewrite docs/results.md and the README's table from fresh runs")
+    page.add_argument("--check", action="store_true",
+                      help="do not write: exit 1 with a diff if the committed files differ from a fresh run")
+    page.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
     args = ap.parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
     try:
@@ -103,6 +107,14 @@ def _dispatch(args) -> int:
         sets = parameter_sets(path)
         print(f"{path}: cases (parameter sets) {', '.join(sets)}")
         return EXIT_OK
+    if args.command == "results-page":
+        from . import results_page
+
+        try:
+            return _results_page(results_page, args)
+        except results_page.ResultsPageError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return EXIT_ERROR
     if args.command == "list":
         for s in list_scenarios():
             print(f"{s.name:16s} {len(s.cases)} cases  {s.description}")
@@ -124,6 +136,19 @@ def _dispatch(args) -> int:
         print("   wall time per case: " + ", ".join(f"{r.key} {r.wall_time_s:.2f} s" for r in results))
         print(f"   results: {args.out / sc.name}")
     return code
+
+
+def _results_page(results_page, args) -> int:
+    if args.check:
+        diffs = results_page.check(args.fmu_dir, progress=True)
+        for d in diffs:
+            print(d)
+        print("results page: " + ("differs from a fresh run (rerun python -m scenarios results-page)"
+                                  if diffs else "matches a fresh run"))
+        return EXIT_ERROR if diffs else EXIT_OK
+    for path in results_page.write(args.fmu_dir):
+        print(f"wrote {path}")
+    return EXIT_OK
 
 
 if __name__ == "__main__":
