@@ -26,11 +26,13 @@ from .config import ScenarioError
 SETTABLE = ("parameter",)
 
 
-def _is_int(v) -> bool:
+def is_int(v) -> bool:
+    """An integer, not a boolean (TOML's true is no 1)."""
     return isinstance(v, int) and not isinstance(v, bool)
 
 
-def _is_number(v) -> bool:
+def is_number(v) -> bool:
+    """A finite int or float, not a boolean."""
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
@@ -61,9 +63,9 @@ def check_value(where: str, variable, value, error: type[Exception] = ScenarioEr
     name, kind = variable.name, variable.type
     unit = f" {variable.unit}" if getattr(variable, "unit", None) else ""
     if kind == "Real":
-        ok, allowed = _is_number(value), f"a finite number ({name} is Real{unit})"
+        ok, allowed = is_number(value), f"a finite number ({name} is Real{unit})"
     elif kind == "Integer":
-        ok, allowed = _is_int(value), f"an integer ({name} is Integer)"
+        ok, allowed = is_int(value), f"an integer ({name} is Integer)"
     elif kind == "Boolean":
         ok, allowed = isinstance(value, bool), f"true or false ({name} is Boolean)"
     elif kind == "String":

@@ -9,7 +9,6 @@ A point's record carries the run's typed outcome (:class:`scenarios.master.Outco
 
 from __future__ import annotations
 
-import hashlib
 import os
 import socket
 import tempfile
@@ -20,7 +19,7 @@ from pathlib import Path
 
 from distributed import WorkerPlugin
 
-from flexarm.provenance import sha256_file, write_atomic
+from flexarm.provenance import sha256_bytes, sha256_file, write_atomic
 
 from ..master import CoSimulationError
 from ..runner import prepare, simulate_case
@@ -46,7 +45,7 @@ def store_fmus(names: dict[str, str], blobs: dict[str, bytes]) -> dict[str, str]
     """Write FMU bytes into the content-addressed cache (once); instance -> SHA-256."""
     shas = {}
     for inst, data in blobs.items():
-        sha = hashlib.sha256(data).hexdigest()
+        sha = sha256_bytes(data)
         p = _fmu_file(names[inst], sha)
         if not (p.is_file() and p.stat().st_size == len(data)):
             write_atomic(p, data)
