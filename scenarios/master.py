@@ -308,15 +308,21 @@ class Master:
         self.messages: list[str] = []
         self.units: dict[str, _Unit] = {}
         self._used = False
-        try:
-            for name in self.order:
-                self.units[name] = _Unit(name, fmus[name], self.messages)
-            self._wire(connections)
-        except BaseException as exc:  # free what was loaded on every path, Ctrl-C included
-            self.close()
-            if isinstance(exc, CoSimulationError) or not isinstance(exc, Exception):
-                raise
-            raise CoSimulationError(f"could not load the FMUs: {exc}; log: {self.messages[-5:]}") from exc
+        with _SigintFlag() as interrupted:  # FMU code runs while loading: Ctrl-C is acted on afterwards
+            try:
+                for name in self.order:
+                    self.units[name] = _Unit(name, fmus[name], self.messages)
+                    if interrupted.is_set():
+                        break
+                self._wire(connections)
+            except BaseException as exc:  # free what was loaded on every path, Ctrl-C included
+                self.close()
+                if isinstance(exc, CoSimulationError) or not isinstance(exc, Exception):
+                    raise
+                raise CoSimulationError(f"could not load the FMUs: {exc}; log: {self.messages[-5:]}") from exc
+            if interrupted.is_set():
+                self.close()
+                raise RunInterrupted("interrupted while loading the FMUs")
 
     def _wire(self, connections: list[Connection]) -> None:
         self.groups: dict[tuple[str, str], list[tuple[int, int]]] = {}
@@ -409,11 +415,14 @@ class Master:
         """Terminate and free every FMU and delete the unpacked files."""
         units, self.units = self.units, {}
         failures = []
-        for unit in units.values():
-            try:
-                unit.free()
-            except Exception as exc:  # noqa: BLE001 - free the others all the same, then say so
-                failures.append(f"{unit.name}: {exc}")
+        with _SigintFlag() as interrupted:  # fmi2Terminate/fmi2FreeInstance run FMU code: never cut them short
+            for unit in units.values():
+                try:
+                    unit.free()
+                except Exception as exc:  # noqa: BLE001 - free the others all the same, then say so
+                    failures.append(f"{unit.name}: {exc}")
+        if interrupted.is_set():
+            raise RunInterrupted("interrupted while freeing the FMUs (they were freed)")
         if failures:
             raise CoSimulationError("could not free every FMU: " + "; ".join(failures))
 
