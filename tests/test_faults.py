@@ -23,6 +23,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from flexarm.provenance import sha256_bytes
 from scenarios import fmu_files, runner
 from scenarios.__main__ import main
 from scenarios.config import SCENARIO_DIR, load_scenario
@@ -251,6 +252,13 @@ def test_enumeration_choice_names_map_to_their_integers():
         check_value("f.toml: gain_set", var, "gamma2")
     with pytest.raises(ScenarioError, match="got 2"):
         check_value("f.toml: gain_set", var, 2)  # files write names; the integer is the FMU's business
+    # the same for an Integer that lists its choices in its description (libcosim cannot set Enumerations)
+    choice = SimpleNamespace(name="omega7_estimate", type="Integer", unit=None, min="1", max="2", declaredType=None,
+                             description="how the error is formed; choices: 1 = tachometer, 2 = rigid")
+    assert check_value("f", choice, "rigid") == 2
+    with pytest.raises(ScenarioError, match=r"one of \['tachometer', 'rigid'\] \(omega7_estimate is Integer "
+                                            r"choice\), got 'tacho'"):
+        check_value("f", choice, "tacho")
 
 
 def test_two_connections_into_one_input_are_refused(tmp_path, capsys):
@@ -436,3 +444,19 @@ def test_journal_close_is_idempotent_after_a_failure(tmp_path):
     with pytest.raises(OSError):
         j.close()
     j.close()  # the handle was dropped: a second close (e.g. in a finally) does nothing
+
+
+def test_stale_tmp_files_in_the_sweep_fmu_cache_are_removed(tmp_path, monkeypatch):
+    from scenarios.sweep import store_fmus
+
+    monkeypatch.setenv("FLEXARM_SWEEP_FMU_CACHE", str(tmp_path))
+    data = b"fmu bytes"
+    folder = tmp_path / sha256_bytes(data)[:32]
+    folder.mkdir()
+    old, fresh = folder / ".plant.fmu.dead.tmp", folder / ".plant.fmu.busy.tmp"
+    old.write_bytes(b"half")
+    fresh.write_bytes(b"being written")
+    os.utime(old, (time.time() - 3600, time.time() - 3600))
+    store_fmus({"plant": "plant"}, {"plant": data})
+    assert (folder / "plant.fmu").read_bytes() == data
+    assert not old.exists() and fresh.exists()  # a concurrent writer's file is left alone

@@ -48,9 +48,27 @@ def store_fmus(names: dict[str, str], blobs: dict[str, bytes]) -> dict[str, str]
         sha = sha256_bytes(data)
         p = _fmu_file(names[inst], sha)
         if not (p.is_file() and p.stat().st_size == len(data)):
+            _remove_stale_tmp(p.parent)
             write_atomic(p, data)
         shas[inst] = sha
     return shas
+
+
+#: A temporary file older than this in the FMU cache was left by a killed writer (a write takes < 1 s).
+STALE_TMP_S = 600.0
+
+
+def _remove_stale_tmp(folder: Path) -> None:
+    """Remove ``.*.tmp`` files a killed process left in `folder` (not a concurrent writer's: by age)."""
+    if not folder.is_dir():
+        return
+    now = time.time()
+    for tmp in folder.glob(".*.tmp"):
+        try:
+            if now - tmp.stat().st_mtime > STALE_TMP_S:
+                tmp.unlink()
+        except FileNotFoundError:
+            pass
 
 
 class ShipFmus(WorkerPlugin):
