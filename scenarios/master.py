@@ -308,7 +308,7 @@ class Master:
         self.messages: list[str] = []
         self.units: dict[str, _Unit] = {}
         self._used = False
-        with _SigintFlag() as interrupted:  # FMU code runs while loading: Ctrl-C is acted on afterwards
+        with _DeferSignals() as interrupted:  # FMU code runs while loading: Ctrl-C is acted on afterwards
             try:
                 for name in self.order:
                     self.units[name] = _Unit(name, fmus[name], self.messages)
@@ -322,7 +322,7 @@ class Master:
                 raise CoSimulationError(f"could not load the FMUs: {exc}; log: {self.messages[-5:]}") from exc
             if interrupted.is_set():
                 self.close()
-                raise RunInterrupted("interrupted while loading the FMUs")
+                interrupted.raise_pending("while loading the FMUs")
 
     def _wire(self, connections: list[Connection]) -> None:
         self.groups: dict[tuple[str, str], list[tuple[int, int]]] = {}
@@ -415,14 +415,13 @@ class Master:
         """Terminate and free every FMU and delete the unpacked files."""
         units, self.units = self.units, {}
         failures = []
-        with _SigintFlag() as interrupted:  # fmi2Terminate/fmi2FreeInstance run FMU code: never cut them short
+        with _DeferSignals() as interrupted:  # fmi2Terminate/fmi2FreeInstance run FMU code: never cut them short
             for unit in units.values():
                 try:
                     unit.free()
                 except Exception as exc:  # noqa: BLE001 - free the others all the same, then say so
                     failures.append(f"{unit.name}: {exc}")
-        if interrupted.is_set():
-            raise RunInterrupted("interrupted while freeing the FMUs (they were freed)")
+        interrupted.raise_pending("while freeing the FMUs (they were freed)")
         if failures:
             raise CoSimulationError("could not free every FMU: " + "; ".join(failures))
 
@@ -509,7 +508,7 @@ class Master:
         gathers = [(port, _as_index(cols), _as_index(pos)) for port, cols, pos in gathers.values()]
         every_pct = max(1, n // 100)
         outcome, k = Outcome("ok"), 0
-        with _SigintFlag() as interrupted:
+        with _DeferSignals() as interrupted:
             try:
                 self._initialise(parameters or {})
             except FMUError as exc:
@@ -542,8 +541,7 @@ class Master:
             except FMUError as exc:
                 data[k:] = np.nan  # a partly gathered row is no sample
                 outcome = Outcome.from_error(exc, f"step {k} (t = {time[k]:.6g} s)")
-            if interrupted.is_set():
-                raise RunInterrupted(f"interrupted at step {k} (t = {time[max(k, 0)]:.6g} s)")
+            interrupted.raise_pending(f"at step {k} (t = {time[max(k, 0)]:.6g} s)")
         return {"time": time, "signals": {name: data[:, i] for i, name in enumerate(names)},
                 "outcome": outcome, "status": outcome.status, "message": outcome.message,
                 "log": list(self.messages), "steps_done": max(k, 0)}
@@ -557,29 +555,46 @@ class Master:
         return self.run(parameters, [], 1, step_size)["outcome"]
 
 
-class _SigintFlag:
-    """While active (main thread only), Ctrl-C sets a flag instead of raising inside FMU code.
+class _DeferSignals:
+    """While active (main thread only), Ctrl-C (and SIGTERM, when Python handles it) sets a flag instead of
+    raising inside FMU code.
 
-    An FMU written in Python runs in this interpreter: a KeyboardInterrupt raised in its code would be
-    caught there and returned as fmi2Error, i.e. reported as the FMU failing. The flag is checked between
-    steps; a second Ctrl-C while the flag is set raises at once.
+    An FMU written in Python runs in this interpreter: a KeyboardInterrupt or SystemExit raised in its code
+    would be caught there and returned as fmi2Error, i.e. reported as the FMU failing. The flag is checked
+    between steps (:meth:`raise_pending`); a second signal while the flag is set raises at once.
     """
 
-    def __enter__(self) -> threading.Event:
-        self.flag = threading.Event()
-        self.previous = None
+    def __enter__(self) -> _DeferSignals:
+        self.signum = None
+        self.previous = {}
         if threading.current_thread() is threading.main_thread():
             def handler(signum, frame):
-                if self.flag.is_set():
-                    raise RunInterrupted("interrupted twice")
-                self.flag.set()
+                if self.signum is not None:
+                    self._raise(signum, "twice")
+                self.signum = signum
 
-            self.previous = signal.signal(signal.SIGINT, handler)
-        return self.flag
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                if sig == signal.SIGINT or callable(signal.getsignal(sig)):  # never replace SIGTERM's default kill
+                    self.previous[sig] = signal.signal(sig, handler)
+        return self
+
+    def is_set(self) -> bool:
+        return self.signum is not None
+
+    def raise_pending(self, where: str) -> None:
+        """Raise what the deferred signal would have raised (RunInterrupted for Ctrl-C), if one came."""
+        if self.signum is not None:
+            self._raise(self.signum, where)
+
+    def _raise(self, signum: int, where: str) -> None:
+        previous = self.previous.get(signum)
+        if signum != signal.SIGINT and callable(previous):
+            previous(signum, None)  # e.g. the command line's SIGTERM handler: SystemExit(143)
+        raise RunInterrupted(f"interrupted {where}")
 
     def __exit__(self, *exc) -> None:
-        if self.previous is not None:
-            signal.signal(signal.SIGINT, self.previous)
+        for sig, handler in self.previous.items():
+            signal.signal(sig, handler)
 
 
 def _as_index(positions: list[int]) -> slice | np.ndarray:
