@@ -507,7 +507,7 @@ class Master:
             gathers[id(port)][2].append(pos)
         gathers = [(port, _as_index(cols), _as_index(pos)) for port, cols, pos in gathers.values()]
         every_pct = max(1, n // 100)
-        outcome, k = Outcome("ok"), 0
+        outcome, k, gathered = Outcome("ok"), 0, -1
         with _DeferSignals() as interrupted:
             try:
                 self._initialise(parameters or {})
@@ -523,6 +523,7 @@ class Master:
                     row = data[k]
                     for port, cols, pos in gathers:
                         row[cols] = port.values[pos]
+                    gathered = k
                     if not np.abs(row).max(initial=0.0) < divergence_limit:  # False for NaN and inf too
                         bad = names[int(np.argmax(~(np.abs(row) < divergence_limit)))]
                         outcome = Outcome("unbounded", f"{bad} = {row[names.index(bad)]:.6g} left the bounds "
@@ -539,7 +540,7 @@ class Master:
                     if progress is not None and ((k + 1) % every_pct == 0 or k + 1 == n):
                         progress(k + 1, n)
             except FMUError as exc:
-                data[k:] = np.nan  # a partly gathered row is no sample
+                data[gathered + 1:] = np.nan  # a partly gathered row is no sample
                 outcome = Outcome.from_error(exc, f"step {k} (t = {time[k]:.6g} s)")
             interrupted.raise_pending(f"at step {k} (t = {time[max(k, 0)]:.6g} s)")
         return {"time": time, "signals": {name: data[:, i] for i, name in enumerate(names)},

@@ -27,7 +27,7 @@ from . import master
 from .config import Scenario, ScenarioError
 from .fmu_files import NotAnFmuError, read_description
 from .metrics import METRICS, UNITS, table_metrics
-from .outdir import run_folder
+from .outdir import check_writable, run_folder
 from .results import write_csv
 from .values import check_parameters
 
@@ -288,20 +288,20 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     previous results stay as they were.
     """
     chain = verify_data_chain()
-    groups: dict[tuple, list] = {}
-    for case in scenario.cases:
-        groups.setdefault(tuple(sorted(case.fmus.items())) if case.fmus else (), []).append(case)
-    setups = []
-    for names, cases in groups.items():
-        setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None)
-        for case in cases:
-            setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")
-        setups.append((setup, cases))
-    need = sum(BYTES_PER_SAMPLE * (s.n_steps + 1) * len(c) for s, c in setups)
     by_key: dict[str, CaseResult] = {}
     commit = git_commit()
     scenario_sha = sha256_file(scenario.path)
-    with run_folder(out_dir, scenario.name, need) as folder:
+    with run_folder(out_dir, scenario.name) as folder:  # locked and writable before FMUs are built
+        groups: dict[tuple, list] = {}
+        for case in scenario.cases:
+            groups.setdefault(tuple(sorted(case.fmus.items())) if case.fmus else (), []).append(case)
+        setups = []
+        for names, cases in groups.items():
+            setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None)
+            for case in cases:
+                setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")
+            setups.append((setup, cases))
+        check_writable(folder, sum(BYTES_PER_SAMPLE * (s.n_steps + 1) * len(c) for s, c in setups))
         opened = []
         try:
             for setup, cases in setups:  # every case probed before the first one runs

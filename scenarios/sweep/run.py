@@ -98,6 +98,7 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
             old.unlink()
         journal = Journal(folder / "journal.jsonl")
         records = journal.read()
+        before = dict(records)
         done = {p.key for p in plan.points if records.get(p.key, {}).get("status") in DONE}
         todo = [p for p in plan.points if p.key not in done]
         commit = git_commit()
@@ -160,6 +161,10 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
                 finally:
                     if hasattr(results, "close"):
                         results.close()  # a generator's finally cancels the pending futures
+        if interrupted is not None:  # a Ctrl-C may fall between a record's append and its bookkeeping
+            now = journal.read()
+            ran = sum(now.get(p.key) is not None and now.get(p.key) != before.get(p.key) for p in todo)
+            records = now
         rows = table_rows(plan, records)
         tables = write_table(folder / f"{sweep.name}.csv", table_columns(plan), rows)
         write_json(folder / "sweep.json", {**meta, "finished_at": _now(), "run_now": ran, "from_journal": len(done),
