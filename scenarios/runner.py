@@ -185,7 +185,7 @@ def verify_data_chain() -> dict[str, str]:
         desired_trajectory()
         for npz in gain_files:
             name, _, schedule = npz.stem.rpartition("_")
-            GainSchedule.load(name, schedule)
+            GainSchedule.load(name, schedule, directory=DEFAULT_GAIN_DIR)
     except (TrajectoryError, GainError) as exc:
         raise DataChainError(f"data chain: {exc}") from exc
     except (OSError, ValueError, KeyError) as exc:  # a file the loaders cannot even parse

@@ -291,6 +291,51 @@ def test_a_broken_trajectory_is_refused_through_the_loader(tmp_path, capsys, mon
     assert not (tmp_path / "out").exists()
 
 
+def _has(module: str, name: str) -> bool:
+    import importlib
+
+    try:
+        return hasattr(importlib.import_module(module), name)
+    except ImportError:
+        return False
+
+
+@pytest.mark.skipif(not _has("flexarm.trajectory", "StaleTrajectoryError"),
+                    reason="needs the verifying trajectory loader (helper C, issue 16 item 4)")
+def test_a_trajectory_made_from_other_parameters_is_refused(tmp_path, capsys, monkeypatch):
+    import shutil
+
+    from flexarm.parameters import DEFAULT_PARAMETER_FILE
+    from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
+
+    params, traj = tmp_path / DEFAULT_PARAMETER_FILE.name, tmp_path / DEFAULT_TRAJECTORY_FILE.name
+    shutil.copyfile(DEFAULT_PARAMETER_FILE, params)
+    shutil.copyfile(DEFAULT_TRAJECTORY_FILE, traj)
+    params.write_text(params.read_text().replace("\n", "\n# edited\n", 1))
+    monkeypatch.setattr(runner, "desired_trajectory", lambda: load_trajectory(traj))
+    assert main(["run", "table2", "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
+    err = stderr_line(capsys)
+    assert err.startswith("error: data chain:") and str(traj) in err and str(params) in err
+
+
+@pytest.mark.skipif(not _has("flexarm.lqr", "StaleDataError"),
+                    reason="needs the verifying gain loader (helper D, issue 16 item 4)")
+def test_gains_made_from_another_trajectory_are_refused(tmp_path, capsys, monkeypatch):
+    import shutil
+
+    import flexarm.lqr
+
+    gains = tmp_path / "gains"
+    shutil.copytree(flexarm.lqr.DEFAULT_GAIN_DIR, gains)
+    meta = json.loads((gains / "gamma0.1_200ms.json").read_text())
+    meta["trajectory_sha256"] = "0" * 64  # as if the trajectory had changed since the design
+    (gains / "gamma0.1_200ms.json").write_text(json.dumps(meta))
+    monkeypatch.setattr(flexarm.lqr, "DEFAULT_GAIN_DIR", gains)
+    assert main(["run", "table2", "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
+    err = stderr_line(capsys)
+    assert err.startswith("error: data chain:") and "gamma0.1_200ms" in err and "trajectory" in err
+
+
 def test_the_data_chain_is_recorded(tmp_path):
     chain = runner.verify_data_chain()
     assert {"flexarm/data/sandia_arm.toml", "flexarm/data/trajectory.npz"} <= set(chain)
