@@ -359,6 +359,22 @@ def test_a_second_run_into_a_locked_folder_is_refused(tmp_path, capsys):
     assert "another run (pid 4242) is writing into it" in err and err.count("\n") == 0
 
 
+def test_a_second_sweep_into_a_locked_folder_is_refused(tmp_path):
+    from scenarios.outdir import FolderBusy
+
+    sweep = tmp_path / "busy.toml"
+    sweep.write_text("[sweep]\nname='busy'\nscenario='table2'\nsamples=20\n[axes]\nplant.payload_mass=[0.0]\n")
+    (tmp_path / "out").mkdir()
+    fd = os.open(tmp_path / "out" / ".busy.lock", os.O_CREAT | os.O_RDWR)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        with pytest.raises(FolderBusy, match="another run"):
+            run_sweep(sweep, tmp_path / "out", serial=True, plots=False, progress=False)
+    finally:
+        os.close(fd)
+    assert not (tmp_path / "out" / "busy" / "journal.jsonl").exists()
+
+
 def test_an_unwritable_folder_is_refused_before_any_case_runs(tmp_path, capsys):
     (tmp_path / "a_file").write_text("")
     t0 = time.perf_counter()
