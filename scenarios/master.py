@@ -169,7 +169,8 @@ class _Unit:
 
         def logger(component, instance_name, status, category, message):
             text = message.decode(errors="replace") if isinstance(message, bytes) else str(message)
-            messages.append(f"[{name}] {text}")
+            label = _STATUS.get(status, str(status))
+            messages.append(f"[{name}] {text}" if status == 0 else f"[{name}] {label}: {text}")
             if status >= 2:  # fmi2Discard, fmi2Error, fmi2Fatal: kept by status, never by searching the text
                 self.last_error = text
 

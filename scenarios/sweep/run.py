@@ -119,6 +119,11 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
         if progress and done:
             sys.stderr.write(f"{sweep.name}: {len(done)} of {len(plan.points)} points done in {journal.path}, "
                              f"{len(todo)} to run\n")
+        unmatched = len(set(records) - {p.key for p in plan.points})
+        if unmatched:  # say why points run again rather than rerun them silently
+            sys.stderr.write(f"{sweep.name}: {unmatched} journal record(s) match no point of this sweep (other "
+                             "parameters, scenario content, run length or FMU names, or an older key scheme); "
+                             "they are kept but not reused\n")
         if journal.bad_lines:
             sys.stderr.write(f"{sweep.name}: skipped {journal.bad_lines} unreadable journal line(s)\n")
         other_build = sum(records[k].get("fmu_sha256") != plan.fmu_sets[plan.point_set[k]].sha256 for k in done)
