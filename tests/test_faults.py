@@ -486,13 +486,17 @@ def test_a_garbage_fmu_is_refused(tmp_path, capsys):
     assert code == 2 and f"fmus.controller: {junk}: not an FMU (not a zip archive" in err
 
 
-def test_a_comment_in_the_sweep_file_reruns_nothing(tmp_path):
+def test_a_comment_in_the_sweep_file_reruns_nothing(tmp_path, capsys):
     sweep = tmp_path / "c.toml"
     sweep.write_text("[sweep]\nname='c'\nscenario='table2'\nsamples=20\n[axes]\nplant.payload_mass=[0.0, 0.1]\n")
     first = run_sweep(sweep, tmp_path / "out", serial=True, plots=False, progress=False)
     sweep.write_text("# a comment\n" + sweep.read_text().replace("[0.0, 0.1]", "[0.0, 0.1, 0.2]  # one more"))
     second = run_sweep(sweep, tmp_path / "out", serial=True, plots=False, progress=False)
     assert first.ran == 2 and second.ran == 1 and second.skipped == 2  # only the new value runs
+    assert "match no point" not in capsys.readouterr().err
+    sweep.write_text(sweep.read_text().replace("samples=20", "samples=21"))  # every point is another run now
+    third = run_sweep(sweep, tmp_path / "out", serial=True, plots=False, progress=False)
+    assert third.ran == 3 and "c: 3 journal record(s) match no point of this sweep" in capsys.readouterr().err
 
 
 def test_journal_close_is_idempotent_after_a_failure(tmp_path):
