@@ -63,6 +63,8 @@ def remove_stale(root: Path | None = None, min_age_s: float = 60.0) -> list[Path
             continue
         try:
             fd = os.open(folder / _LOCK, os.O_RDWR)
+        except PermissionError:
+            continue  # another user's: not ours to judge
         except FileNotFoundError:
             try:
                 old = time.time() - folder.stat().st_mtime > min_age_s

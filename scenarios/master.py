@@ -169,7 +169,8 @@ class _Unit:
 
         def logger(component, instance_name, status, category, message):
             text = message.decode(errors="replace") if isinstance(message, bytes) else str(message)
-            messages.append(f"[{name}] {text}")
+            label = _STATUS.get(status, str(status))
+            messages.append(f"[{name}] {text}" if status == 0 else f"[{name}] {label}: {text}")
             if status >= 2:  # fmi2Discard, fmi2Error, fmi2Fatal: kept by status, never by searching the text
                 self.last_error = text
 
@@ -308,15 +309,21 @@ class Master:
         self.messages: list[str] = []
         self.units: dict[str, _Unit] = {}
         self._used = False
-        try:
-            for name in self.order:
-                self.units[name] = _Unit(name, fmus[name], self.messages)
-            self._wire(connections)
-        except BaseException as exc:  # free what was loaded on every path, Ctrl-C included
-            self.close()
-            if isinstance(exc, CoSimulationError) or not isinstance(exc, Exception):
-                raise
-            raise CoSimulationError(f"could not load the FMUs: {exc}; log: {self.messages[-5:]}") from exc
+        with _DeferSignals() as interrupted:  # FMU code runs while loading: Ctrl-C is acted on afterwards
+            try:
+                for name in self.order:
+                    self.units[name] = _Unit(name, fmus[name], self.messages)
+                    if interrupted.is_set():
+                        break
+                self._wire(connections)
+            except BaseException as exc:  # free what was loaded on every path, Ctrl-C included
+                self.close()
+                if isinstance(exc, CoSimulationError) or not isinstance(exc, Exception):
+                    raise
+                raise CoSimulationError(f"could not load the FMUs: {exc}; log: {self.messages[-5:]}") from exc
+            if interrupted.is_set():
+                self.close()
+                interrupted.raise_pending("while loading the FMUs")
 
     def _wire(self, connections: list[Connection]) -> None:
         self.groups: dict[tuple[str, str], list[tuple[int, int]]] = {}
@@ -409,11 +416,13 @@ class Master:
         """Terminate and free every FMU and delete the unpacked files."""
         units, self.units = self.units, {}
         failures = []
-        for unit in units.values():
-            try:
-                unit.free()
-            except Exception as exc:  # noqa: BLE001 - free the others all the same, then say so
-                failures.append(f"{unit.name}: {exc}")
+        with _DeferSignals() as interrupted:  # fmi2Terminate/fmi2FreeInstance run FMU code: never cut them short
+            for unit in units.values():
+                try:
+                    unit.free()
+                except Exception as exc:  # noqa: BLE001 - free the others all the same, then say so
+                    failures.append(f"{unit.name}: {exc}")
+        interrupted.raise_pending("while freeing the FMUs (they were freed)")
         if failures:
             raise CoSimulationError("could not free every FMU: " + "; ".join(failures))
 
@@ -499,8 +508,8 @@ class Master:
             gathers[id(port)][2].append(pos)
         gathers = [(port, _as_index(cols), _as_index(pos)) for port, cols, pos in gathers.values()]
         every_pct = max(1, n // 100)
-        outcome, k = Outcome("ok"), 0
-        with _SigintFlag() as interrupted:
+        outcome, k, gathered = Outcome("ok"), 0, -1
+        with _DeferSignals() as interrupted:
             try:
                 self._initialise(parameters or {})
             except FMUError as exc:
@@ -515,6 +524,7 @@ class Master:
                     row = data[k]
                     for port, cols, pos in gathers:
                         row[cols] = port.values[pos]
+                    gathered = k
                     if not np.abs(row).max(initial=0.0) < divergence_limit:  # False for NaN and inf too
                         bad = names[int(np.argmax(~(np.abs(row) < divergence_limit)))]
                         outcome = Outcome("unbounded", f"{bad} = {row[names.index(bad)]:.6g} left the bounds "
@@ -531,10 +541,9 @@ class Master:
                     if progress is not None and ((k + 1) % every_pct == 0 or k + 1 == n):
                         progress(k + 1, n)
             except FMUError as exc:
-                data[k:] = np.nan  # a partly gathered row is no sample
+                data[gathered + 1:] = np.nan  # a partly gathered row is no sample
                 outcome = Outcome.from_error(exc, f"step {k} (t = {time[k]:.6g} s)")
-            if interrupted.is_set():
-                raise RunInterrupted(f"interrupted at step {k} (t = {time[max(k, 0)]:.6g} s)")
+            interrupted.raise_pending(f"at step {k} (t = {time[max(k, 0)]:.6g} s)")
         return {"time": time, "signals": {name: data[:, i] for i, name in enumerate(names)},
                 "outcome": outcome, "status": outcome.status, "message": outcome.message,
                 "log": list(self.messages), "steps_done": max(k, 0)}
@@ -548,29 +557,46 @@ class Master:
         return self.run(parameters, [], 1, step_size)["outcome"]
 
 
-class _SigintFlag:
-    """While active (main thread only), Ctrl-C sets a flag instead of raising inside FMU code.
+class _DeferSignals:
+    """While active (main thread only), Ctrl-C (and SIGTERM, when Python handles it) sets a flag instead of
+    raising inside FMU code.
 
-    An FMU written in Python runs in this interpreter: a KeyboardInterrupt raised in its code would be
-    caught there and returned as fmi2Error, i.e. reported as the FMU failing. The flag is checked between
-    steps; a second Ctrl-C while the flag is set raises at once.
+    An FMU written in Python runs in this interpreter: a KeyboardInterrupt or SystemExit raised in its code
+    would be caught there and returned as fmi2Error, i.e. reported as the FMU failing. The flag is checked
+    between steps (:meth:`raise_pending`); a second signal while the flag is set raises at once.
     """
 
-    def __enter__(self) -> threading.Event:
-        self.flag = threading.Event()
-        self.previous = None
+    def __enter__(self) -> _DeferSignals:
+        self.signum = None
+        self.previous = {}
         if threading.current_thread() is threading.main_thread():
             def handler(signum, frame):
-                if self.flag.is_set():
-                    raise RunInterrupted("interrupted twice")
-                self.flag.set()
+                if self.signum is not None:
+                    self._raise(signum, "twice")
+                self.signum = signum
 
-            self.previous = signal.signal(signal.SIGINT, handler)
-        return self.flag
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                if sig == signal.SIGINT or callable(signal.getsignal(sig)):  # never replace SIGTERM's default kill
+                    self.previous[sig] = signal.signal(sig, handler)
+        return self
+
+    def is_set(self) -> bool:
+        return self.signum is not None
+
+    def raise_pending(self, where: str) -> None:
+        """Raise what the deferred signal would have raised (RunInterrupted for Ctrl-C), if one came."""
+        if self.signum is not None:
+            self._raise(self.signum, where)
+
+    def _raise(self, signum: int, where: str) -> None:
+        previous = self.previous.get(signum)
+        if signum != signal.SIGINT and callable(previous):
+            previous(signum, None)  # e.g. the command line's SIGTERM handler: SystemExit(143)
+        raise RunInterrupted(f"interrupted {where}")
 
     def __exit__(self, *exc) -> None:
-        if self.previous is not None:
-            signal.signal(signal.SIGINT, self.previous)
+        for sig, handler in self.previous.items():
+            signal.signal(sig, handler)
 
 
 def _as_index(positions: list[int]) -> slice | np.ndarray:

@@ -27,7 +27,7 @@ from . import master
 from .config import Scenario, ScenarioError
 from .fmu_files import NotAnFmuError, read_description
 from .metrics import METRICS, UNITS, table_metrics
-from .outdir import run_folder
+from .outdir import check_writable, run_folder
 from .results import write_csv
 from .values import check_parameters
 
@@ -55,8 +55,8 @@ class CaseResult:
     outcome: master.Outcome = field(default_factory=lambda: master.Outcome("ok"))
 
 
-def known_fmu_names() -> list[str]:
-    """The FMU names this project builds (``build_fmus.FMUS``); [] when the build tooling is not importable."""
+def _build_tool():
+    """The ``build_fmus`` module, or None where it is not installed (a non-editable install)."""
     try:
         import build_fmus
     except ImportError:
@@ -65,8 +65,14 @@ def known_fmu_names() -> list[str]:
         try:
             import build_fmus
         except ImportError:
-            return []
-    return sorted(build_fmus.FMUS)
+            return None
+    return build_fmus
+
+
+def known_fmu_names() -> list[str]:
+    """The FMU names this project builds (``build_fmus.FMUS``); [] when the build tooling is not importable."""
+    tool = _build_tool()
+    return sorted(tool.FMUS) if tool is not None else []
 
 
 def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = None, build: bool = True,
@@ -76,21 +82,25 @@ def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = Non
     `names` (instance -> FMU name or path) defaults to the scenario's ``[fmus]``;
     `controller` replaces the ``controller`` instance's FMU. An unknown name is refused listing the
     known ones; a path that is no FMU is refused naming the file (both :class:`ScenarioError`).
+    Without the build tooling (a non-editable install) names are taken from `fmu_dir` as they are.
     """
     names = dict(scenario.fmus if names is None else names)
     if controller is not None:
         names["controller"] = controller
     to_build = sorted({n for n in names.values() if not n.endswith(".fmu")})
-    known = known_fmu_names() if to_build else []
+    tool = _build_tool() if to_build else None
+    known = sorted(tool.FMUS) if tool is not None else []
     for inst, name in names.items():
         if not name.endswith(".fmu") and known and name not in known:
             raise ScenarioError(f"fmus.{inst}: an FMU name of this project {known} or a path to a .fmu file, "
                                 f"got {name!r}")
     built = {}
-    if to_build and build:
-        import build_fmus
-
-        built = build_fmus.build_all(fmu_dir, only=to_build)
+    if to_build and build and tool is not None:
+        try:
+            built = tool.build_all(fmu_dir, only=to_build)
+        except Exception as exc:  # noqa: BLE001 - one line naming what failed, not a traceback
+            raise ScenarioError(f"building the FMUs {to_build} into {fmu_dir} failed: {type(exc).__name__}: "
+                                f"{exc}") from exc
     paths = {}
     for inst, name in names.items():
         if name.endswith(".fmu"):
@@ -98,7 +108,10 @@ def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = Non
         else:
             p = built.get(name, Path(fmu_dir) / f"{name}.fmu")
         if not p.is_file():
-            raise ScenarioError(f"fmus.{inst}: no FMU at {p}")
+            hint = "" if tool is not None or name.endswith(".fmu") else (
+                " (the build tooling build_fmus.py is not installed here: build the FMUs in a checkout and pass "
+                "--fmu-dir)")
+            raise ScenarioError(f"fmus.{inst}: no FMU at {p}{hint}")
         paths[inst] = p
     return paths
 
@@ -185,7 +198,7 @@ def verify_data_chain() -> dict[str, str]:
         desired_trajectory()
         for npz in gain_files:
             name, _, schedule = npz.stem.rpartition("_")
-            GainSchedule.load(name, schedule)
+            GainSchedule.load(name, schedule, directory=DEFAULT_GAIN_DIR)
     except (TrajectoryError, GainError) as exc:
         raise DataChainError(f"data chain: {exc}") from exc
     except (OSError, ValueError, KeyError) as exc:  # a file the loaders cannot even parse
@@ -290,20 +303,20 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     """
     algorithm = algorithm or scenario.algorithm
     chain = verify_data_chain()
-    groups: dict[tuple, list] = {}
-    for case in scenario.cases:
-        groups.setdefault(tuple(sorted(case.fmus.items())) if case.fmus else (), []).append(case)
-    setups = []
-    for names, cases in groups.items():
-        setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None)
-        for case in cases:
-            setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")
-        setups.append((setup, cases))
-    need = sum(BYTES_PER_SAMPLE * (s.n_steps + 1) * len(c) for s, c in setups)
     by_key: dict[str, CaseResult] = {}
     commit = git_commit()
     scenario_sha = sha256_file(scenario.path)
-    with run_folder(out_dir, scenario.name, need) as folder:
+    with run_folder(out_dir, scenario.name) as folder:  # locked and writable before FMUs are built
+        groups: dict[tuple, list] = {}
+        for case in scenario.cases:
+            groups.setdefault(tuple(sorted(case.fmus.items())) if case.fmus else (), []).append(case)
+        setups = []
+        for names, cases in groups.items():
+            setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None)
+            for case in cases:
+                setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")
+            setups.append((setup, cases))
+        check_writable(folder, sum(BYTES_PER_SAMPLE * (s.n_steps + 1) * len(c) for s, c in setups))
         opened = []
         try:
             for setup, cases in setups:  # every case probed before the first one runs

@@ -11,7 +11,12 @@ Integer                 an integer (not 1.7, not true), in range   int
 Boolean                 true or false (not "false", not 0)         bool
 String                  a string                                   str
 Enumeration             one of the type's item names ("gamma0.1")  the item's int
+Integer with choices    one of the names its description lists     the choice's int
 ======================  =========================================  ===============
+
+Choice names come from the model description only: an Enumeration's items, or (as libcosim cannot set
+an Enumeration, docs/fmu-interface.md "Choice parameters") an Integer whose description ends with
+``choices: 1 = gamma1, 2 = gamma0.1``. Files write the names; an integer is refused, listing them.
 
 An error names the field, the allowed values and what was given.
 """
@@ -26,11 +31,13 @@ from .config import ScenarioError
 SETTABLE = ("parameter",)
 
 
-def _is_int(v) -> bool:
+def is_int(v) -> bool:
+    """An integer, not a boolean (TOML's true is no 1)."""
     return isinstance(v, int) and not isinstance(v, bool)
 
 
-def _is_number(v) -> bool:
+def is_number(v) -> bool:
+    """A finite int or float, not a boolean."""
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
@@ -39,12 +46,24 @@ def settable(md) -> dict:
     return {v.name: v for v in md.modelVariables if v.causality in SETTABLE}
 
 
-def enumeration_items(variable) -> dict[str, int]:
-    """Item name -> integer value of an Enumeration variable's declared type ({} for other types)."""
+#: How an Integer choice parameter lists its options at the end of its description (docs/fmu-interface.md).
+CHOICES_MARK = "choices: "
+
+
+def choice_items(variable) -> dict[str, int]:
+    """Choice name -> integer of an Enumeration (its declared type's items) or of an Integer whose description
+    ends with ``choices: 1 = name1, 2 = name2``; {} for any other variable."""
     declared = getattr(variable, "declaredType", None)
-    if variable.type != "Enumeration" or declared is None:
+    if variable.type == "Enumeration" and declared is not None:
+        return {item.name: int(item.value) for item in declared.items}
+    description = getattr(variable, "description", None) or ""
+    if variable.type != "Integer" or CHOICES_MARK not in description:
         return {}
-    return {item.name: int(item.value) for item in declared.items}
+    items = {}
+    for part in description.rsplit(CHOICES_MARK, 1)[1].split(", "):
+        value, _, name = part.partition(" = ")
+        items[name.strip()] = int(value)
+    return items
 
 
 def check_value(where: str, variable, value, error: type[Exception] = ScenarioError):
@@ -60,21 +79,21 @@ def check_value(where: str, variable, value, error: type[Exception] = ScenarioEr
     """
     name, kind = variable.name, variable.type
     unit = f" {variable.unit}" if getattr(variable, "unit", None) else ""
+    items = choice_items(variable)
+    if items:
+        declared = getattr(variable, "declaredType", None)
+        what = f"Enumeration {getattr(declared, 'name', '')}".rstrip() if kind == "Enumeration" else "Integer choice"
+        if not (isinstance(value, str) and value in items):
+            raise error(f"{where}: one of {sorted(items, key=items.get)} ({name} is {what}), got {value!r}")
+        return items[value]
     if kind == "Real":
-        ok, allowed = _is_number(value), f"a finite number ({name} is Real{unit})"
+        ok, allowed = is_number(value), f"a finite number ({name} is Real{unit})"
     elif kind == "Integer":
-        ok, allowed = _is_int(value), f"an integer ({name} is Integer)"
+        ok, allowed = is_int(value), f"an integer ({name} is Integer)"
     elif kind == "Boolean":
         ok, allowed = isinstance(value, bool), f"true or false ({name} is Boolean)"
     elif kind == "String":
         ok, allowed = isinstance(value, str), f"a string ({name} is String)"
-    elif kind == "Enumeration":
-        items = enumeration_items(variable)
-        type_name = getattr(variable.declaredType, "name", "") if variable.declaredType is not None else ""
-        if not (isinstance(value, str) and value in items):
-            raise error(f"{where}: one of {sorted(items, key=items.get)} ({name} is Enumeration {type_name}), "
-                        f"got {value!r}")
-        return items[value]
     else:
         raise error(f"{where}: {name} has type {kind}, which scenarios cannot set")
     if not ok:

@@ -23,6 +23,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from flexarm.provenance import sha256_bytes
 from scenarios import fmu_files, runner
 from scenarios.__main__ import main
 from scenarios.config import SCENARIO_DIR, load_scenario
@@ -92,7 +93,8 @@ def test_fmu_error_carries_the_fmi_status_and_the_fmus_message(table2_setup):
     o = out["outcome"]
     assert (o.status, o.fmu, o.function, o.fmu_status) == ("error", "sensors", "fmi2DoStep", "error")
     assert "sample_period" in o.fmu_message and o.fmu_message in out["message"]
-    assert out["steps_done"] == 0 and np.isnan(out["signals"]["plant.theta1"]).all()
+    theta1 = out["signals"]["plant.theta1"]
+    assert out["steps_done"] == 0 and np.isfinite(theta1[0]) and np.isnan(theta1[1:]).all()  # t_0 was read
 
 
 def _wait_for(predicate, proc, timeout=300.0):
@@ -103,7 +105,8 @@ def _wait_for(predicate, proc, timeout=300.0):
         time.sleep(0.05)
 
 
-def test_ctrl_c_in_a_case_records_nothing_and_exits_130(tmp_path):
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_ctrl_c_in_a_case_records_nothing_and_exits_130(tmp_path, sig, code):
     path = scenario_file(tmp_path, "longrun", samples="200000")
     out, unpack = tmp_path / "out", tmp_path / "unpack"
     (out / "longrun").mkdir(parents=True)
@@ -117,12 +120,13 @@ def test_ctrl_c_in_a_case_records_nothing_and_exits_130(tmp_path):
     reader.start()
     try:
         _wait_for(lambda: b"longrun:none" in err, proc)  # the case's progress bar: it is running
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         rc = proc.wait(timeout=120)
     finally:
         proc.kill()
     reader.join(timeout=10)
-    assert rc == 130 and b"interrupted" in err and b"Traceback" not in err
+    assert rc == code and b"Traceback" not in err and b"error" not in err
+    assert b"interrupted" in err or sig == signal.SIGTERM
     assert json.loads((out / "longrun" / "none.json").read_text()) == {"earlier": True}
     assert sorted(p.name for p in out.iterdir()) == [".longrun.lock", "longrun"]  # no partial folder left
     assert list((unpack / "flexarm-fmus").iterdir()) == []  # unpacked FMUs removed
@@ -148,6 +152,27 @@ def test_ctrl_c_in_a_serial_sweep_then_resume(tmp_path):
     res = run_sweep(sweep, tmp_path / "out", serial=True, plots=False, progress=False)
     assert res.ran == 3 - len(records) and res.skipped == len(records)
     assert [r["status"] for r in res.rows] == ["ok"] * 3
+
+
+def test_ctrl_c_in_a_dask_sweep_closes_the_cluster_and_exits_130(tmp_path):
+    sweep = tmp_path / "dask.toml"
+    sweep.write_text("[sweep]\nname = 'dask'\nscenario = 'table2'\ncase = 'none'\nsamples = 6000\n"
+                     "[axes]\nplant.payload_mass = [0.0, 0.05, 0.1, 0.15, 0.2, 0.25]\n")
+    journal = tmp_path / "out" / "dask" / "journal.jsonl"
+    proc = subprocess.Popen([sys.executable, "-m", "scenarios", "sweep", str(sweep), "--workers", "2", "--quiet",
+                             "--no-plots", "--out", str(tmp_path / "out")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        _wait_for(lambda: journal.is_file() and journal.read_text().count("\n") >= 1, proc)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)  # the cluster is closed: the process ends
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and "interrupted" in err and "Traceback" not in err
+    records = [json.loads(x) for x in journal.read_text().splitlines()]
+    assert 1 <= len(records) < 6 and {r["status"] for r in records} == {"ok"}
+    meta = json.loads((tmp_path / "out" / "dask" / "sweep.json").read_text())
+    assert meta["interrupted"] is True and meta["run_now"] == len(records)
 
 
 # ---------------------------------------------------------------------------------------- 2. steps
@@ -230,6 +255,13 @@ def test_enumeration_choice_names_map_to_their_integers():
         check_value("f.toml: gain_set", var, "gamma2")
     with pytest.raises(ScenarioError, match="got 2"):
         check_value("f.toml: gain_set", var, 2)  # files write names; the integer is the FMU's business
+    # the same for an Integer that lists its choices in its description (libcosim cannot set Enumerations)
+    choice = SimpleNamespace(name="omega7_estimate", type="Integer", unit=None, min="1", max="2", declaredType=None,
+                             description="how the error is formed; choices: 1 = tachometer, 2 = rigid")
+    assert check_value("f", choice, "rigid") == 2
+    with pytest.raises(ScenarioError, match=r"one of \['tachometer', 'rigid'\] \(omega7_estimate is Integer "
+                                            r"choice\), got 'tacho'"):
+        check_value("f", choice, "tacho")
 
 
 def test_two_connections_into_one_input_are_refused(tmp_path, capsys):
@@ -259,6 +291,51 @@ def test_a_broken_trajectory_is_refused_through_the_loader(tmp_path, capsys, mon
     assert not (tmp_path / "out").exists()
 
 
+def _has(module: str, name: str) -> bool:
+    import importlib
+
+    try:
+        return hasattr(importlib.import_module(module), name)
+    except ImportError:
+        return False
+
+
+@pytest.mark.skipif(not _has("flexarm.trajectory", "StaleTrajectoryError"),
+                    reason="needs the verifying trajectory loader (helper C, issue 16 item 4)")
+def test_a_trajectory_made_from_other_parameters_is_refused(tmp_path, capsys, monkeypatch):
+    import shutil
+
+    from flexarm.parameters import DEFAULT_PARAMETER_FILE
+    from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
+
+    params, traj = tmp_path / DEFAULT_PARAMETER_FILE.name, tmp_path / DEFAULT_TRAJECTORY_FILE.name
+    shutil.copyfile(DEFAULT_PARAMETER_FILE, params)
+    shutil.copyfile(DEFAULT_TRAJECTORY_FILE, traj)
+    params.write_text(params.read_text().replace("\n", "\n# edited\n", 1))
+    monkeypatch.setattr(runner, "desired_trajectory", lambda: load_trajectory(traj))
+    assert main(["run", "table2", "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
+    err = stderr_line(capsys)
+    assert err.startswith("error: data chain:") and str(traj) in err and str(params) in err
+
+
+@pytest.mark.skipif(not _has("flexarm.lqr", "StaleDataError"),
+                    reason="needs the verifying gain loader (helper D, issue 16 item 4)")
+def test_gains_made_from_another_trajectory_are_refused(tmp_path, capsys, monkeypatch):
+    import shutil
+
+    import flexarm.lqr
+
+    gains = tmp_path / "gains"
+    shutil.copytree(flexarm.lqr.DEFAULT_GAIN_DIR, gains)
+    meta = json.loads((gains / "gamma0.1_200ms.json").read_text())
+    meta["trajectory_sha256"] = "0" * 64  # as if the trajectory had changed since the design
+    (gains / "gamma0.1_200ms.json").write_text(json.dumps(meta))
+    monkeypatch.setattr(flexarm.lqr, "DEFAULT_GAIN_DIR", gains)
+    assert main(["run", "table2", "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
+    err = stderr_line(capsys)
+    assert err.startswith("error: data chain:") and "gamma0.1_200ms" in err and "trajectory" in err
+
+
 def test_the_data_chain_is_recorded(tmp_path):
     chain = runner.verify_data_chain()
     assert {"flexarm/data/sandia_arm.toml", "flexarm/data/trajectory.npz"} <= set(chain)
@@ -280,6 +357,22 @@ def test_a_second_run_into_a_locked_folder_is_refused(tmp_path, capsys):
         os.close(fd)
     err = stderr_line(capsys)
     assert "another run (pid 4242) is writing into it" in err and err.count("\n") == 0
+
+
+def test_a_second_sweep_into_a_locked_folder_is_refused(tmp_path):
+    from scenarios.outdir import FolderBusy
+
+    sweep = tmp_path / "busy.toml"
+    sweep.write_text("[sweep]\nname='busy'\nscenario='table2'\nsamples=20\n[axes]\nplant.payload_mass=[0.0]\n")
+    (tmp_path / "out").mkdir()
+    fd = os.open(tmp_path / "out" / ".busy.lock", os.O_CREAT | os.O_RDWR)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        with pytest.raises(FolderBusy, match="another run"):
+            run_sweep(sweep, tmp_path / "out", serial=True, plots=False, progress=False)
+    finally:
+        os.close(fd)
+    assert not (tmp_path / "out" / "busy" / "journal.jsonl").exists()
 
 
 def test_an_unwritable_folder_is_refused_before_any_case_runs(tmp_path, capsys):
@@ -393,13 +486,17 @@ def test_a_garbage_fmu_is_refused(tmp_path, capsys):
     assert code == 2 and f"fmus.controller: {junk}: not an FMU (not a zip archive" in err
 
 
-def test_a_comment_in_the_sweep_file_reruns_nothing(tmp_path):
+def test_a_comment_in_the_sweep_file_reruns_nothing(tmp_path, capsys):
     sweep = tmp_path / "c.toml"
     sweep.write_text("[sweep]\nname='c'\nscenario='table2'\nsamples=20\n[axes]\nplant.payload_mass=[0.0, 0.1]\n")
     first = run_sweep(sweep, tmp_path / "out", serial=True, plots=False, progress=False)
     sweep.write_text("# a comment\n" + sweep.read_text().replace("[0.0, 0.1]", "[0.0, 0.1, 0.2]  # one more"))
     second = run_sweep(sweep, tmp_path / "out", serial=True, plots=False, progress=False)
     assert first.ran == 2 and second.ran == 1 and second.skipped == 2  # only the new value runs
+    assert "match no point" not in capsys.readouterr().err
+    sweep.write_text(sweep.read_text().replace("samples=20", "samples=21"))  # every point is another run now
+    third = run_sweep(sweep, tmp_path / "out", serial=True, plots=False, progress=False)
+    assert third.ran == 3 and "c: 3 journal record(s) match no point of this sweep" in capsys.readouterr().err
 
 
 def test_journal_close_is_idempotent_after_a_failure(tmp_path):
@@ -415,3 +512,19 @@ def test_journal_close_is_idempotent_after_a_failure(tmp_path):
     with pytest.raises(OSError):
         j.close()
     j.close()  # the handle was dropped: a second close (e.g. in a finally) does nothing
+
+
+def test_stale_tmp_files_in_the_sweep_fmu_cache_are_removed(tmp_path, monkeypatch):
+    from scenarios.sweep import store_fmus
+
+    monkeypatch.setenv("FLEXARM_SWEEP_FMU_CACHE", str(tmp_path))
+    data = b"fmu bytes"
+    folder = tmp_path / sha256_bytes(data)[:32]
+    folder.mkdir()
+    old, fresh = folder / ".plant.fmu.dead.tmp", folder / ".plant.fmu.busy.tmp"
+    old.write_bytes(b"half")
+    fresh.write_bytes(b"being written")
+    os.utime(old, (time.time() - 3600, time.time() - 3600))
+    store_fmus({"plant": "plant"}, {"plant": data})
+    assert (folder / "plant.fmu").read_bytes() == data
+    assert not old.exists() and fresh.exists()  # a concurrent writer's file is left alone

@@ -2,8 +2,8 @@
 
 import pytest
 
+from flexarm.provenance import write_atomic
 from scenarios.config import ScenarioError, list_scenarios, load_scenario
-from scenarios.results import write_atomic
 
 GOOD = """
 [scenario]

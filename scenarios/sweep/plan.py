@@ -4,11 +4,12 @@ model descriptions, a probe of the base point, and the points with their keys.""
 from __future__ import annotations
 
 import copy
-import hashlib
 import itertools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from flexarm.provenance import sha256_bytes
 
 from ..config import ScenarioError
 from ..master import Master
@@ -39,7 +40,7 @@ class FmuSet:
 
     @property
     def key(self) -> str:
-        return hashlib.sha256(json.dumps(self.sha256, sort_keys=True).encode()).hexdigest()[:16]
+        return sha256_bytes(json.dumps(self.sha256, sort_keys=True).encode())[:16]
 
 
 @dataclass
@@ -77,7 +78,7 @@ def point_key(scenario_sha: str, samples, fmus: dict, parameters: dict) -> str:
     the parameters), not the sweep file's bytes: a comment, or a new value on an axis, reruns nothing."""
     blob = json.dumps({"scenario_content_sha256": scenario_sha, "samples": samples, "fmus": fmus,
                        "parameters": parameters}, sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+    return sha256_bytes(blob.encode())[:16]
 
 
 def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True, probe: bool = True) -> Plan:
@@ -132,7 +133,7 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
             if not axis.is_fmu:
                 _check_axis(sweep, axis, descriptions[axis.instance], paths[axis.instance])
         blobs = {inst: p.read_bytes() for inst, p in paths.items()}
-        shas = {inst: hashlib.sha256(b).hexdigest() for inst, b in blobs.items()}
+        shas = {inst: sha256_bytes(b) for inst, b in blobs.items()}
         fs = FmuSet(names, paths, shas, blobs)
         if probe and fs.key not in fmu_sets:
             _probe(sweep, fs)

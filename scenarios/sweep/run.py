@@ -98,6 +98,7 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
             old.unlink()
         journal = Journal(folder / "journal.jsonl")
         records = journal.read()
+        before = dict(records)
         done = {p.key for p in plan.points if records.get(p.key, {}).get("status") in DONE}
         todo = [p for p in plan.points if p.key not in done]
         commit = git_commit()
@@ -118,6 +119,11 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
         if progress and done:
             sys.stderr.write(f"{sweep.name}: {len(done)} of {len(plan.points)} points done in {journal.path}, "
                              f"{len(todo)} to run\n")
+        unmatched = len(set(records) - {p.key for p in plan.points})
+        if unmatched:  # say why points run again rather than rerun them silently
+            sys.stderr.write(f"{sweep.name}: {unmatched} journal record(s) match no point of this sweep (other "
+                             "parameters, scenario content, run length or FMU names, or an older key scheme); "
+                             "they are kept but not reused\n")
         if journal.bad_lines:
             sys.stderr.write(f"{sweep.name}: skipped {journal.bad_lines} unreadable journal line(s)\n")
         other_build = sum(records[k].get("fmu_sha256") != plan.fmu_sets[plan.point_set[k]].sha256 for k in done)
@@ -160,6 +166,10 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
                 finally:
                     if hasattr(results, "close"):
                         results.close()  # a generator's finally cancels the pending futures
+        if interrupted is not None:  # a Ctrl-C may fall between a record's append and its bookkeeping
+            now = journal.read()
+            ran = sum(now.get(p.key) is not None and now.get(p.key) != before.get(p.key) for p in todo)
+            records = now
         rows = table_rows(plan, records)
         tables = write_table(folder / f"{sweep.name}.csv", table_columns(plan), rows)
         write_json(folder / "sweep.json", {**meta, "finished_at": _now(), "run_now": ran, "from_journal": len(done),

@@ -6,7 +6,6 @@ base point, and the axes to vary; see :mod:`scenarios.sweep` for the format.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import tomllib
@@ -15,7 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+from flexarm.provenance import sha256_bytes
+
 from ..config import SCENARIO_DIR, Case, Scenario, ScenarioError, load_scenario
+from ..values import is_int as _is_int
+from ..values import is_number as _is_number
 
 SWEEP_DIR = SCENARIO_DIR / "sweeps"
 MAX_POINTS = 1_000_000
@@ -77,14 +80,6 @@ def _require(cond: bool, where: str, allowed: str, got) -> None:
 
 def _is_scalar(v) -> bool:
     return isinstance(v, (bool, int, float, str)) and not (isinstance(v, float) and not math.isfinite(v))
-
-
-def _is_int(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _axis_values(where: str, spec) -> tuple[str, list]:
@@ -226,7 +221,7 @@ def load_sweep(name_or_path: str | Path) -> Sweep:
             axes.append(Axis(f"{inst}.{var}", inst, var, kind, values))
     fields = [a.field for a in axes]
     _require(len(set(fields)) == len(fields), f"{p.name}: [axes]", "each parameter at most once", fields)
-    sweep = Sweep(name, sw.get("description", ""), p, hashlib.sha256(raw).hexdigest(), scenario, case, axes,
+    sweep = Sweep(name, sw.get("description", ""), p, sha256_bytes(raw), scenario, case, axes,
                   content_sha256(doc))
     _require(sweep.n_points <= MAX_POINTS, f"{p.name}: [axes]", f"at most {MAX_POINTS} points in all",
              sweep.n_points)
@@ -235,7 +230,7 @@ def load_sweep(name_or_path: str | Path) -> Sweep:
 
 def content_sha256(doc) -> str:
     """SHA-256 of a parsed TOML document (canonical JSON): equal for files that differ only in comments or layout."""
-    return hashlib.sha256(json.dumps(doc, sort_keys=True, separators=(",", ":"), default=str).encode()).hexdigest()
+    return sha256_bytes(json.dumps(doc, sort_keys=True, separators=(",", ":"), default=str).encode())
 
 
 def toml_content_sha256(path: Path) -> str:

@@ -9,7 +9,6 @@ A point's record carries the run's typed outcome (:class:`scenarios.master.Outco
 
 from __future__ import annotations
 
-import hashlib
 import os
 import socket
 import tempfile
@@ -20,7 +19,7 @@ from pathlib import Path
 
 from distributed import WorkerPlugin
 
-from flexarm.provenance import sha256_file, write_atomic
+from flexarm.provenance import sha256_bytes, sha256_file, write_atomic
 
 from ..master import CoSimulationError
 from ..runner import prepare, simulate_case
@@ -46,12 +45,30 @@ def store_fmus(names: dict[str, str], blobs: dict[str, bytes]) -> dict[str, str]
     """Write FMU bytes into the content-addressed cache (once); instance -> SHA-256."""
     shas = {}
     for inst, data in blobs.items():
-        sha = hashlib.sha256(data).hexdigest()
+        sha = sha256_bytes(data)
         p = _fmu_file(names[inst], sha)
         if not (p.is_file() and p.stat().st_size == len(data)):
+            _remove_stale_tmp(p.parent)
             write_atomic(p, data)
         shas[inst] = sha
     return shas
+
+
+#: A temporary file older than this in the FMU cache was left by a killed writer (a write takes < 1 s).
+STALE_TMP_S = 600.0
+
+
+def _remove_stale_tmp(folder: Path) -> None:
+    """Remove ``.*.tmp`` files a killed process left in `folder` (not a concurrent writer's: by age)."""
+    if not folder.is_dir():
+        return
+    now = time.time()
+    for tmp in folder.glob(".*.tmp"):
+        try:
+            if now - tmp.stat().st_mtime > STALE_TMP_S:
+                tmp.unlink()
+        except FileNotFoundError:
+            pass
 
 
 class ShipFmus(WorkerPlugin):
