@@ -264,3 +264,46 @@ def simulate_lqg(model, controller: LqgController, n_steps: int | None = None, p
         torques.append(tau)
         states.append(plant.z.copy())
     return np.array(states), np.array(torques).reshape(-1, 2)
+
+
+#: Master stepping algorithms (the names of :mod:`scenarios.master`).
+STEPPINGS = ("gauss-seidel", "jacobi")
+
+
+def required_loop_delay(stepping: str, feedthrough_fmus: int = 2) -> int:
+    """The ``loop_delay_samples`` a master's stepping puts into the loop.
+
+    Parameters
+    ----------
+    stepping : {"gauss-seidel", "jacobi"}
+        Gauss-Seidel (our master's default: each FMU reads its inputs after
+        the FMUs before it updated) adds no delay. Jacobi (libcosim's fixed-step
+        algorithm, fmpy's ``simulate_ssp``: all outputs read, then all inputs
+        set) adds one sample per direct-feedthrough FMU the signal crosses.
+    feedthrough_fmus : int
+        Direct-feedthrough FMUs from the plant's outputs to its torque inputs,
+        the controller included: 2 with a separate sensors FMU, 1 when the
+        controller reads the plant directly.
+
+    Returns
+    -------
+    int
+        Samples (0..:data:`MAX_DELAY_SAMPLES`).
+    """
+    if stepping not in STEPPINGS:
+        raise LqgError(f"stepping: {stepping!r} is not one of {STEPPINGS}")
+    if isinstance(feedthrough_fmus, bool) or not isinstance(feedthrough_fmus, int) \
+            or not 1 <= feedthrough_fmus <= MAX_DELAY_SAMPLES:
+        raise LqgError(f"feedthrough_fmus: an integer in 1..{MAX_DELAY_SAMPLES}, got {feedthrough_fmus!r}")
+    return 0 if stepping == "gauss-seidel" else feedthrough_fmus
+
+
+def with_loop_delay(parameters: dict, stepping: str, feedthrough_fmus: int = 2) -> dict:
+    """A controller's parameters for a target master: ``loop_delay_samples`` set to :func:`required_loop_delay`.
+
+    For exports (SSP) to masters that step differently from the scenario's own:
+    the returned copy has ``loop_delay_samples`` replaced; other keys are kept.
+    """
+    out = dict(parameters)
+    out["loop_delay_samples"] = required_loop_delay(stepping, feedthrough_fmus)
+    return out
