@@ -4,9 +4,10 @@ Prints, for the Numba kernels (this process) and the NumPy-only path
 (a subprocess with FLEXARM_NO_NUMBA=1), the median cost per step in µs
 after a warm-up, and the real-time factor (1 ms divided by that cost):
 
-* library: ``flexarm.integrator.advance`` with the default substeps;
+* library: ``flexarm.integrator.advance`` with the default substeps, for
+  each integration scheme (``rodas4``, ``exponential``);
 * FMU: ``FMU2Slave.doStep`` plus ``getReal`` of all 40 outputs, the work a
-  master does per communication step.
+  master does per communication step, for each scheme (``integrator`` 1, 2).
 
 Usage: ``python benchmarks/bench_plant_step.py`` (a few seconds, plus a
 one-off Numba compile of about 20 s if the cache is cold; builds
@@ -47,47 +48,54 @@ def measure(fmu_path: Path, n_lib: int, n_fmu: int) -> dict:
 
     from flexarm import ArmModel, rigid_configuration
     from flexarm._kernels import HAVE_NUMBA
-    from flexarm.integrator import DEFAULT_SUBSTEPS, advance
+    from flexarm.integrator import DEFAULT_SUBSTEPS, INTEGRATORS, advance
     from flexarm.model import N
 
     model = ArmModel()
     tau = np.array([1.0, 0.3])
     state = {"z": np.concatenate([rigid_configuration(0.0, np.pi / 2), np.zeros(N)])}
 
-    def lib_step():
-        state["z"], _ = advance(model, state["z"], tau, DT, DEFAULT_SUBSTEPS)
-
-    lib_us = _median_us(lib_step, max(50, n_lib // 10), n_lib)
-
     md = read_model_description(str(fmu_path))
     vr = {v.name: v.valueReference for v in md.modelVariables}
     out_vrs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu_path)),
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
-    fmu.setReal([vr["tau1"], vr["tau2"]], tau.tolist())
-    clock = {"t": 0.0}
+    unzipped = extract(str(fmu_path))
+    result = {"backend": "Numba" if HAVE_NUMBA else "NumPy", "n_outputs": len(out_vrs)}
+    for code, integrator in enumerate(INTEGRATORS, start=1):
+        z0 = state["z"].copy()
 
-    def fmu_step():
-        fmu.doStep(clock["t"], DT)
-        fmu.getReal(out_vrs)
-        clock["t"] += DT
+        def lib_step(integrator=integrator):
+            state["z"], _ = advance(model, state["z"], tau, DT, DEFAULT_SUBSTEPS, integrator)
 
-    fmu_us = _median_us(fmu_step, max(50, n_fmu // 10), n_fmu)
-    fmu.terminate()
-    fmu.freeInstance()
-    return {"backend": "Numba" if HAVE_NUMBA else "NumPy", "library_us": lib_us, "fmu_us": fmu_us,
-            "n_outputs": len(out_vrs)}
+        result[f"library_us/{integrator}"] = _median_us(lib_step, max(50, n_lib // 10), n_lib)
+        state["z"] = z0
+        fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
+                        instanceName=f"bench-{integrator}")
+        fmu.instantiate()
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.setInteger([vr["integrator"]], [code])
+        fmu.exitInitializationMode()
+        fmu.setReal([vr["tau1"], vr["tau2"]], tau.tolist())
+        clock = {"t": 0.0}
+
+        def fmu_step(fmu=fmu, clock=clock):
+            fmu.doStep(clock["t"], DT)
+            fmu.getReal(out_vrs)
+            clock["t"] += DT
+
+        result[f"fmu_us/{integrator}"] = _median_us(fmu_step, max(50, n_fmu // 10), n_fmu)
+        fmu.terminate()
+        fmu.freeInstance()
+    return result
 
 
 def _print(result: dict) -> None:
-    for label, key in (("library advance()", "library_us"),
-                       (f"FMU doStep + getReal({result['n_outputs']} outputs)", "fmu_us")):
+    for key in sorted(k for k in result if "/" in k):
+        kind, integrator = key.split("/")
+        label = ("library advance()" if kind == "library_us"
+                 else f"FMU doStep + getReal({result['n_outputs']} outputs)") + f" [{integrator}]"
         us = result[key]
-        print(f"  {result['backend']:5s}  {label:36s} {us:9.1f} µs/step   real-time factor {1e3 / us:7.1f}x")
+        print(f"  {result['backend']:5s}  {label:50s} {us:9.1f} µs/step   real-time factor {1e3 / us:7.1f}x")
 
 
 def main() -> int:

@@ -47,6 +47,9 @@ class ArmModel:
     ----------
     params : ArmParameters, optional
         Defaults to the committed Sandia arm (no payload).
+    damping_ratio : float
+        Modal structural damping ratio ζ ≥ 0 of every flexible mode (default 0: the paper's
+        undamped model); see :func:`modal_damping_matrix`.
 
     Notes
     -----
@@ -54,12 +57,19 @@ class ArmModel:
     ("it only requires one evaluation of the mass and stiffness elements").
     """
 
-    def __init__(self, params: ArmParameters | None = None):
+    def __init__(self, params: ArmParameters | None = None, damping_ratio: float = 0.0):
         self.params = params if params is not None else load_parameters()
         self.mass_coefficients = self.params.mass_coefficients()
         self.stiffness = self.params.stiffness_matrix()
         self.length = self.params.length.copy()
         self.j2p, self.j2d = JOINT2_PAIR
+        ratio = float(damping_ratio)
+        if not (ratio >= 0.0 and np.isfinite(ratio)):
+            raise ValueError(f"damping_ratio: must be a finite modal damping ratio >= 0, got {damping_ratio!r}")
+        self.damping_ratio = ratio
+        self.damping = np.zeros((N, N))
+        if ratio > 0.0:
+            self.damping = modal_damping_matrix(self, ratio)
 
     # -- dynamics ------------------------------------------------------------
     def mass_matrix(self, theta) -> np.ndarray:
@@ -88,11 +98,12 @@ class ArmModel:
     def acceleration(self, theta, omega, tau) -> np.ndarray:
         """θ̈ (rad/s²), shape (11,), eq. 5."""
         return kern.acceleration(_f(theta), _f(omega), _f(tau), self.mass_coefficients, self.stiffness,
-                                 self.j2p, self.j2d)
+                                 self.j2p, self.j2d, self.damping)
 
     def state_derivative(self, z, tau) -> np.ndarray:
         """ż = f(z) + g(z)τ, shape (22,), eq. 7."""
-        return kern.state_derivative(_f(z), _f(tau), self.mass_coefficients, self.stiffness, self.j2p, self.j2d)
+        return kern.state_derivative(_f(z), _f(tau), self.mass_coefficients, self.stiffness, self.j2p, self.j2d,
+                                     self.damping)
 
     def drift_and_input(self, z) -> tuple[np.ndarray, np.ndarray]:
         """f(z), shape (22,), and g(z), shape (22, 2), of eq. 7."""
@@ -106,7 +117,7 @@ class ArmModel:
         """Exact ∂ż/∂z at (z, τ), shape (22, 22)."""
         z = _f(z)
         a_th, a_om, _ = kern.acceleration_jacobian(z[:N], z[N:], _f(tau), self.mass_coefficients,
-                                                   self.stiffness, self.j2p, self.j2d)
+                                                   self.stiffness, self.j2p, self.j2d, self.damping)
         jac = np.zeros((N_STATE, N_STATE))
         jac[:N, N:] = np.eye(N)
         jac[N:, :N] = a_th
@@ -244,6 +255,36 @@ class ArmModel:
         for row, p in enumerate((LINK1_TIP_ELEMENT, LINK2_TIP_ELEMENT)):
             out[row] = -np.sin(theta[p]) * acc[row, 0] + np.cos(theta[p]) * acc[row, 1]
         return out
+
+
+#: Joint angles (rad) at which the modal damping matrix is built: the calibration configuration.
+DAMPING_CONFIGURATION = (0.0, np.pi / 2)
+
+
+def modal_damping_matrix(model: ArmModel, ratio: float, q=DAMPING_CONFIGURATION) -> np.ndarray:
+    """Damping matrix C_d (N·m·s/rad, shape (11, 11)) giving every flexible mode the ratio ζ.
+
+    Built once at the undeformed configuration with joint angles `q` (rad):
+    C_d = M Φ diag(2ζω_k) Φᵀ M over the nine flexible modes (Φ mass-normalised, ω_k rad/s), so
+    mode k decays as exp(−ζω_k t) there. C_d θ̇ vanishes for the two rigid-body motions (all
+    elements turning together; link 2 turning about the elbow), which are the same vectors at
+    every configuration, so damping never resists the slew itself. The flexible modes barely
+    depend on the configuration (paper; :mod:`flexarm.modes`), so ζ holds approximately elsewhere.
+    """
+    import scipy.linalg
+
+    theta = rigid_configuration(*q)
+    zero = np.zeros(N)
+    mass = model.mass_matrix(theta)
+    a_th, _, _ = kern.acceleration_jacobian(theta, zero, np.zeros(2), model.mass_coefficients, model.stiffness,
+                                            model.j2p, model.j2d, np.zeros((N, N)))
+    k_t = -mass @ a_th
+    eigval, vec = scipy.linalg.eigh(0.5 * (k_t + k_t.T), mass)
+    order = np.argsort(eigval)[2:]  # drop the two rigid-body modes (free joints)
+    omega = np.sqrt(np.maximum(eigval[order], 0.0))
+    mphi = mass @ vec[:, order]
+    damping = mphi @ np.diag(2.0 * ratio * omega) @ mphi.T
+    return 0.5 * (damping + damping.T)
 
 
 # -- functions of the angles alone --------------------------------------------

@@ -106,3 +106,15 @@ def test_failure_raises_and_writes_nothing(params, tmp_path):
     with pytest.raises(TrajectoryError, match="IPOPT failed"):
         solve_minimum_time(params, n_intervals=20, verbose=False, max_iter=3)
     assert not any(tmp_path.iterdir())
+
+
+def test_reading_a_trajectory_does_not_import_casadi():
+    """The file module is CasADi-free: a reader (controller FMU, scenarios) loads no optimiser."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom flexarm.trajectory import load_trajectory, TrajectoryResult\n"
+            "r = load_trajectory()\nassert isinstance(r, TrajectoryResult)\n"
+            "print('casadi' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

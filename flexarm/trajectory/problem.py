@@ -1,0 +1,534 @@
+"""The collocation NLP of the minimum-time straight-line slew (paper section 2, eq. 3).
+
+Problem
+-------
+minimise t_f subject to the finite-element model M(θ)θ̈ + C(θ)θ̇² + K(θ)1 = B̄τ,
+|τ_i| ≤ 0.8·peak_i, start at rest and undeformed with the tip at the line's
+start, the tip on the line throughout, the tip at the line's end at t_f, zero
+final kinetic and strain energy and zero final joint accelerations.
+
+Method (continuation in the model, then in the end time)
+--------------------------------------------------------
+1. Rigid two-link problem (2 angles): gives a bang-bang guess in a second.
+2. Flexible problem with rigid brackets (8 angles: θ_2 = θ_1, θ_6 = θ_5,
+   θ_8 = θ_7), free t_f, warm-started from step 1. The bracket springs
+   (2e6 N·m/rad, modes near 5.6, 13 and 21 kHz) deflect by ~3e-6 rad under
+   full torque; keeping them would force a time step of microseconds, while
+   the 8-angle model keeps every other mode (8, 20, 26, 65, 66, 190 Hz, the
+   same as the 11-element model's to 1e-4). Merging an element into its
+   neighbour is the linear map θ = Tθ_r with T a 0/1 grouping matrix, and
+   because merged elements share one angle the reduced model has exactly
+   the form of eq. 1 with M_r = TᵀM T, K_r = TᵀK T, B̄_r = TᵀB̄.
+3. The same problem with t_f fixed to the optimum rounded *up* to a whole
+   millisecond (the controller needs a whole number of 1 ms samples),
+   minimising only the torque-rate regulariser.
+
+Discretisation: Radau IIA collocation (degree 5, stiffly accurate, order 9)
+on N = 200 equal intervals (≈10.5 ms) in normalised time s = t/t_f;
+accelerations are decision variables and the dynamics are the implicit
+equalities M(θ)a = rhs at every collocation point (never M⁻¹). The torque is
+piecewise linear and continuous (linear within each interval), so
+τ(t_f) = 0 is what zero final joint accelerations mean for an arm at rest
+and undeformed. The end state is imposed by bounds: rest and the undeformed
+configuration whose tip is the line's end (equivalent to final tip position,
+zero kinetic and zero strain energy on the chosen elbow branch).
+
+Choices that make the discrete problem well posed and the plant agree:
+
+* Tip on the line within ±0.1 mm (LINE_TOLERANCE) at every collocation
+  point, not as an equality. The tip of a flexible chain is a
+  non-minimum-phase output: holding it exactly on the line makes the
+  internal (zero) dynamics unstable with time constants of milliseconds, and
+  with an exact equality at every node IPOPT does not converge (tested);
+  a 0.1 mm band removes the ill-posedness and is 20 times inside the 2 mm
+  acceptance.
+* Torque slew rate |dτ/dt| ≤ 50 τ_limit/s (TORQUE_RATE_LIMIT: a full
+  reversal takes 40 ms). Sharper switches excite the 65 Hz and 190 Hz modes,
+  which 10 ms intervals cannot resolve; the plant would keep their energy
+  after t_f. Cost: about 8 ms of t_f (2.101 s without it at rate 100/s).
+* A torque-rate regulariser 1e-4·Σ|Δu|² (s) picks one solution on singular
+  arcs.
+* MUMPS pivot tolerance 1e-3: with the default, the badly scaled KKT
+  systems (stiff springs, small segment inertias) give inaccurate steps and
+  IPOPT stalls.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from ..model import ArmModel, rigid_configuration
+from ..parameters import JOINT2_PAIR, N_ELEMENTS, ArmParameters
+from .geometry import inverse_kinematics
+from .io import SAMPLE_TIME, TrajectoryError
+
+#: Element groups (0-based element -> reduced angle) of the two optimiser models.
+RIGID_GROUPS = (0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1)
+FLEX_GROUPS = (0, 0, 1, 2, 3, 3, 4, 4, 5, 6, 7)  # brackets merged: θ2=θ1, θ6=θ5, θ8=θ7
+#: Weight of the torque-rate regulariser Σ(Δu)², u = τ/τ_limit (s); see solve_minimum_time.
+DEFAULT_REGULARISATION = 1e-4
+#: Half-width of the band about the line that the tip must stay in at every collocation point, m.
+LINE_TOLERANCE = 1e-4
+#: Largest torque slew rate, in torque limits per second (a full reversal takes 2/rate s).
+TORQUE_RATE_LIMIT = 50.0
+ACCEPTED_STATUS = ("Solve_Succeeded",)
+
+
+# -- reduced models -------------------------------------------------------------
+@dataclass(frozen=True)
+class ReducedModel:
+    """Eq. 1 for the elements merged into groups (θ = Tθ_r).
+
+    Attributes
+    ----------
+    groups : tuple of int, length 11
+        Reduced angle of each element.
+    T : ndarray, shape (11, n)
+        0/1 grouping matrix.
+    mass_coefficients : ndarray, shape (n, n)
+        TᵀM_jk T, kg·m².
+    stiffness : ndarray, shape (n, n)
+        TᵀK T, N·m/rad (springs inside a group drop out).
+    input_matrix : ndarray, shape (n, 2)
+        TᵀB̄.
+    """
+
+    groups: tuple
+    T: np.ndarray
+    mass_coefficients: np.ndarray
+    stiffness: np.ndarray
+    input_matrix: np.ndarray
+    length: np.ndarray
+    joint_rows: np.ndarray = field(default_factory=lambda: np.zeros((2, 1)))
+
+    @classmethod
+    def build(cls, params: ArmParameters, groups) -> ReducedModel:
+        groups = tuple(int(g) for g in groups)
+        n = max(groups) + 1
+        T = np.zeros((N_ELEMENTS, n))
+        T[np.arange(N_ELEMENTS), groups] = 1.0
+        full = ArmModel(params)
+        sel = np.zeros((2, N_ELEMENTS))  # joint angles q = S θ
+        sel[0, 0] = 1.0
+        sel[1, JOINT2_PAIR[1]], sel[1, JOINT2_PAIR[0]] = 1.0, -1.0
+        return cls(groups, T, T.T @ full.mass_coefficients @ T, T.T @ full.stiffness @ T,
+                   T.T @ full.input_matrix(), params.length.copy(), sel @ T)
+
+    @property
+    def n(self) -> int:
+        return self.T.shape[1]
+
+    def reduce(self, theta_full) -> np.ndarray:
+        """Reduced angles (the first element of each group), shape (..., n)."""
+        first = [self.groups.index(g) for g in range(self.n)]
+        return np.asarray(theta_full)[..., first]
+
+    def coefficient_vector(self) -> np.ndarray:
+        """Model constants in the order of :func:`_residual_function`'s `coeff` input."""
+        pattern = self.stiffness_pattern()
+        return np.concatenate([self.mass_coefficients.ravel(), self.stiffness[pattern], self.input_matrix.ravel()])
+
+    def stiffness_pattern(self) -> np.ndarray:
+        """Off-diagonal entries of TᵀKT that are springs (structure of the problem)."""
+        pattern = self.stiffness != 0.0
+        np.fill_diagonal(pattern, False)
+        return pattern
+
+
+def _residual_function(n: int, pattern: np.ndarray) -> ca.Function:
+    """CasADi f(θ, ω, a, τ, coeff) = M(θ)a + C(θ)ω² + K(θ)1 − B̄τ, N·m (SX).
+
+    The constants (M_jk, spring stiffnesses, B̄) are an input so one NLP serves
+    every parameter set with the same structure (payload changes, sensitivity).
+    """
+    th, om, a = ca.SX.sym("th", n), ca.SX.sym("om", n), ca.SX.sym("a", n)
+    tau = ca.SX.sym("tau", 2)
+    n_k = int(pattern.sum())
+    coeff = ca.SX.sym("coeff", n * n + n_k + 2 * n)
+    Mc = ca.reshape(coeff[: n * n], n, n).T  # row-major as numpy's ravel
+    kvals = {}
+    for idx, (i, j) in enumerate(zip(*np.nonzero(pattern))):
+        kvals[(int(i), int(j))] = coeff[n * n + idx]
+    B = ca.reshape(coeff[n * n + n_k:], 2, n).T
+    terms = []
+    for i in range(n):
+        t = -(B[i, 0] * tau[0] + B[i, 1] * tau[1]) + Mc[i, i] * a[i]
+        for j in range(n):
+            if i == j:
+                continue
+            dth = th[i] - th[j]
+            c, sn = ca.cos(dth), ca.sin(dth)
+            t += Mc[i, j] * (c * a[j] + sn * om[j] ** 2)
+            if (i, j) in kvals:
+                t += -kvals[(i, j)] * sn
+        terms.append(t)
+    return ca.Function("dyn", [th, om, a, tau, coeff], [ca.vertcat(*terms)])
+
+
+# -- collocation ----------------------------------------------------------------
+def _radau(degree: int) -> tuple[np.ndarray, np.ndarray]:
+    """Radau IIA points (with 0 first) and derivative matrix D[r, j] = L_r'(τ_j), j ≥ 1."""
+    tau = np.array([0.0] + ca.collocation_points(degree, "radau"))
+    D = np.zeros((degree + 1, degree))
+    for r in range(degree + 1):
+        coeff = np.poly1d([1.0])
+        for m in range(degree + 1):
+            if m != r:
+                coeff *= np.poly1d([1.0, -tau[m]]) / (tau[r] - tau[m])
+        der = np.polyder(coeff)
+        D[r] = der(tau[1:])
+    return tau, D
+
+
+def _lagrange_basis(tau: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Lagrange basis on points tau evaluated at x: shape (len(x), len(tau))."""
+    out = np.ones((len(x), len(tau)))
+    for r in range(len(tau)):
+        for m in range(len(tau)):
+            if m != r:
+                out[:, r] *= (x - tau[m]) / (tau[r] - tau[m])
+    return out
+
+
+@dataclass
+class CollocationSolution:
+    """Raw optimiser result on its grid (full 11-element angles, for warm starts).
+
+    Attributes
+    ----------
+    groups : tuple of int
+        Element grouping of the optimiser model.
+    n_intervals, degree : int
+    t_f : float
+        End time, s.
+    s : ndarray, shape (N·(d+1)... )
+        Normalised times in [0, 1] of the rows below (node 0, then every
+        collocation point in order; the last point of each interval is a node).
+    theta, omega, alpha : ndarray, shape (len(s), 11)
+        Angles (rad), rates (rad/s), accelerations (rad/s²).
+    u : ndarray, shape (N + 1, 2)
+        Torque at the nodes divided by the torque limit.
+    x, lam_x, lam_g : ndarray
+        IPOPT primal and dual vectors (for a warm start of the same problem).
+    stats : dict
+        Status, iterations, wall time, objective.
+    """
+
+    groups: tuple
+    n_intervals: int
+    degree: int
+    t_f: float
+    s: np.ndarray
+    theta: np.ndarray
+    omega: np.ndarray
+    alpha: np.ndarray
+    u: np.ndarray
+    x: np.ndarray
+    lam_x: np.ndarray
+    lam_g: np.ndarray
+    stats: dict
+
+    def interpolate(self, s_new: np.ndarray) -> dict:
+        """Piecewise-linear interpolation of every variable at normalised times s_new."""
+        s_nodes = np.linspace(0.0, 1.0, self.n_intervals + 1)
+        return {
+            "theta": _interp_rows(s_new, self.s, self.theta),
+            "omega": _interp_rows(s_new, self.s, self.omega),
+            "alpha": _interp_rows(s_new, self.s, self.alpha),
+            "u": _interp_rows(s_new, s_nodes, self.u),
+        }
+
+    def sample(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Collocation polynomials of θ, θ̇ (11 elements) at times (s) in [0, t_f]."""
+        N, d = self.n_intervals, self.degree
+        tau, _ = _radau(d)
+        sn = np.clip(np.asarray(times, dtype=float) / self.t_f, 0.0, 1.0)
+        k = np.minimum((sn * N).astype(int), N - 1)
+        loc = sn * N - k
+        basis = _lagrange_basis(tau, loc)  # (m, d+1)
+        # rows of self.s: 0 is node 0; interval k has rows 1 + k·d .. (k+1)·d; its start is row k·d.
+        rows = np.stack([k * d + r for r in range(d + 1)], axis=1)
+        th = np.einsum("mr,mre->me", basis, self.theta[rows])
+        om = np.einsum("mr,mre->me", basis, self.omega[rows])
+        return th, om
+
+    def torque_samples(self, torque_limit, n_samples: int, dt: float = SAMPLE_TIME) -> np.ndarray:
+        """Mean of the piecewise-linear torque over each step [k dt, (k+1) dt), N·m, shape (n, 2)."""
+        tau_nodes = self.u * np.asarray(torque_limit)
+        h = self.t_f / self.n_intervals
+        t_nodes = np.arange(self.n_intervals + 1) * h
+        cum = np.concatenate([[np.zeros(2)], np.cumsum(0.5 * h * (tau_nodes[1:] + tau_nodes[:-1]), axis=0)])
+
+        def integral(t):
+            t = np.clip(t, 0.0, self.t_f)
+            k = np.minimum((t / h).astype(int), self.n_intervals - 1)
+            r = (t - t_nodes[k])[:, None]
+            slope = (tau_nodes[k + 1] - tau_nodes[k]) / h
+            return cum[k] + tau_nodes[k] * r + 0.5 * slope * r**2
+
+        edges = np.arange(n_samples + 1) * dt
+        F = integral(edges)
+        return (F[1:] - F[:-1]) / dt
+
+
+def _interp_rows(x_new, x, y) -> np.ndarray:
+    x, idx = np.unique(np.asarray(x), return_index=True)
+    y = np.asarray(y)[idx]
+    return np.stack([np.interp(x_new, x, y[:, c]) for c in range(y.shape[1])], axis=1)
+
+
+def _ipopt_options(verbose: bool, max_iter: int, print_every: int, extra: dict | None = None) -> dict:
+    opts = {
+        "expand": True,
+        "print_time": False,
+        "ipopt": {
+            "linear_solver": "mumps",
+            "max_iter": int(max_iter),
+            "tol": 1e-8,
+            "acceptable_iter": 0,  # never stop at "acceptable": converge or fail
+            "print_level": 5 if verbose else 0,
+            "print_frequency_iter": int(print_every),
+            "sb": "yes",
+            # The KKT matrices are badly scaled (stiff springs, tiny segment inertias): with
+            # MUMPS's default pivot tolerance (1e-6) the steps are inaccurate and IPOPT stalls.
+            "mumps_pivtol": 1e-3,
+            "mumps_pivtolmax": 0.5,
+            "mumps_mem_percent": 5000,
+        },
+    }
+    opts["ipopt"].update(extra or {})
+    return opts
+
+
+def solve_collocation(params: ArmParameters, groups, n_intervals: int, degree: int = 3,
+                      t_fixed: float | None = None, guess: CollocationSolution | None = None,
+                      elbow: int = 1, regularisation: float = DEFAULT_REGULARISATION,
+                      verbose: bool = True, max_iter: int = 1000, print_every: int = 10,
+                      line_tolerance: float = LINE_TOLERANCE,
+                      torque_rate_limit: float | None = TORQUE_RATE_LIMIT, label: str = "",
+                      ipopt: dict | None = None) -> CollocationSolution:
+    """One direct-collocation solve of the straight-line minimum-time problem.
+
+    Parameters
+    ----------
+    params : ArmParameters
+    groups : sequence of int, length 11
+        Element grouping of the optimiser model (:data:`RIGID_GROUPS`,
+        :data:`FLEX_GROUPS`, or ``range(11)`` for the full model).
+    n_intervals : int
+        Collocation intervals N (equal length t_f/N).
+    degree : int
+        Radau collocation points per interval.
+    t_fixed : float, optional
+        Fix the end time (s) and minimise only the regulariser.
+    guess : CollocationSolution, optional
+        Initial guess (any grouping and grid: it is interpolated). When it
+        has the same grouping, grid and mode, IPOPT is warm-started with its
+        multipliers too.
+    elbow : {1, -1}
+        Sign of the elbow angle at the start and end.
+    regularisation : float
+        Weight (s) of Σ_k |u_{k+1} − u_k|² added to t_f; u = τ/τ_limit.
+    verbose : bool
+        Print IPOPT's iterations (every `print_every`).
+    max_iter : int
+        IPOPT iteration limit; reaching it raises :class:`TrajectoryError`.
+
+    Returns
+    -------
+    CollocationSolution
+
+    Raises
+    ------
+    TrajectoryError
+        IPOPT did not report ``Solve_Succeeded``.
+    """
+    red = ReducedModel.build(params, groups)
+    n, N, d = red.n, int(n_intervals), int(degree)
+    if N < 2 or d < 1:
+        raise ValueError("n_intervals must be >= 2 and degree >= 1")
+    tau_c, _ = _radau(d)
+    M = N * d
+    nx_state = n * M
+    n_x = 3 * nx_state + 2 * (N + 1) + 1
+    lim = params.torque_limit
+    th0 = red.reduce(rigid_configuration(*inverse_kinematics(params, params.line_start, elbow)))
+    thf = red.reduce(rigid_configuration(*inverse_kinematics(params, params.line_end, elbow)))
+    same = (guess is not None and guess.groups == red.groups and guess.n_intervals == N and guess.degree == d
+            and guess.lam_g is not None and guess.lam_x is not None and len(guess.x) == n_x)
+    opts = _ipopt_options(verbose, max_iter, print_every, ipopt)
+    if same:
+        # Same structure: start from the previous primal-dual point (valid for a fixed t_f too:
+        # t_f's own multiplier absorbs the objective's dt_f term).
+        opts["ipopt"].update(warm_start_init_point="yes", warm_start_bound_push=1e-9,
+                             warm_start_mult_bound_push=1e-9, mu_init=1e-5)
+    key = (red.groups, N, d, float(regularisation), torque_rate_limit,
+           tuple(map(tuple, red.stiffness_pattern())), json.dumps(opts, sort_keys=True))
+    if key not in _NLP_CACHE:
+        if len(_NLP_CACHE) >= 3:  # they are large: keep the latest few (cold and warm variants)
+            _NLP_CACHE.pop(next(iter(_NLP_CACHE)))
+        _NLP_CACHE[key] = _build_nlp(red, N, d, regularisation, torque_rate_limit, opts)
+    solver, n_eq, n_line, n_rate, n_g = _NLP_CACHE[key]
+    dvec = (params.line_end - params.line_start) / np.linalg.norm(params.line_end - params.line_start)
+    lengths = red.T.T @ red.length
+    p = np.concatenate([[0.0 if t_fixed is not None else 1.0], red.coefficient_vector(), lim, th0, lengths,
+                        params.line_start, [-dvec[1], dvec[0]]])
+
+    # bounds: final state fixed (rest, undeformed, tip at the end: the rigid
+    # configuration of the end point), torque limits, t_f
+    lbx = np.full(n_x, -np.inf)
+    ubx = np.full(n_x, np.inf)
+    i_th_f = slice(n * (M - 1), n * M)
+    lbx[i_th_f] = ubx[i_th_f] = thf
+    i_om_f = slice(nx_state + n * (M - 1), nx_state + n * M)
+    lbx[i_om_f] = ubx[i_om_f] = 0.0
+    i_u = slice(3 * nx_state, 3 * nx_state + 2 * (N + 1))
+    lbx[i_u], ubx[i_u] = -1.0, 1.0
+    if t_fixed is not None:
+        lbx[-1] = ubx[-1] = float(t_fixed)
+    else:
+        lbx[-1], ubx[-1] = 0.05, 60.0
+    lbg = np.zeros(n_g)
+    ubg = np.zeros(n_g)
+    lbg[n_eq:n_eq + n_line], ubg[n_eq:n_eq + n_line] = -line_tolerance, line_tolerance
+    i_rate = n_eq + n_line + 2
+    lbg[i_rate:i_rate + n_rate] = -np.inf
+
+    # initial guess
+    s_cols = (np.repeat(np.arange(N), d) + np.tile(tau_c[1:], N)) / N
+    if guess is None:
+        x0 = _straight_guess(params, red, elbow, s_cols, N)
+    else:
+        gi = guess.interpolate(np.concatenate([s_cols, np.linspace(0, 1, N + 1)]))
+        t_new = t_fixed if t_fixed is not None else guess.t_f
+        rate = guess.t_f / t_new  # the guess is stretched in time to t_new
+        th_g = red.reduce(gi["theta"][:M]).T
+        om_g = red.reduce(gi["omega"][:M]).T * rate
+        ac_g = red.reduce(gi["alpha"][:M]).T * rate**2
+        u_g = guess.interpolate(np.linspace(0, 1, N + 1))["u"].T
+        x0 = np.concatenate([th_g.ravel("F"), om_g.ravel("F"), ac_g.ravel("F"), u_g.ravel("F"), [t_new]])
+    x0 = np.clip(x0, lbx, ubx)
+    args = {"x0": x0, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg, "p": p}
+    if same:
+        args.update(x0=np.clip(guess.x, lbx, ubx), lam_x0=guess.lam_x, lam_g0=guess.lam_g)
+    if verbose:
+        mode = f"t_f fixed at {t_fixed:.4f} s" if t_fixed is not None else "t_f free"
+        print(f"[trajectory] {label or 'solve'}: {n} angles, N={N}, Radau degree {d}, "
+              f"{n_x} variables, {n_g} constraints, {mode}", flush=True)
+    t0 = time.perf_counter()
+    sol = solver(**args)
+    wall = time.perf_counter() - t0
+    st = solver.stats()
+    status = st.get("return_status", "unknown")
+    iters = int(st.get("iter_count", -1))
+    if status not in ACCEPTED_STATUS:
+        raise TrajectoryError(f"IPOPT failed in '{label or 'solve'}': {status} after {iters} iterations "
+                              f"({wall:.1f} s); nothing was written")
+    xs = np.asarray(sol["x"]).ravel()
+    THs = xs[:nx_state].reshape(n, M, order="F")
+    OMs = xs[nx_state:2 * nx_state].reshape(n, M, order="F")
+    ACs = xs[2 * nx_state:3 * nx_state].reshape(n, M, order="F")
+    Us = xs[3 * nx_state:3 * nx_state + 2 * (N + 1)].reshape(2, N + 1, order="F")
+    tfs = float(xs[-1])
+    # node 0 acceleration: solve the dynamics there (at rest, undeformed: M a = B̄τ)
+    a0 = np.linalg.solve(red.mass_coefficients * np.cos(th0[:, None] - th0[None, :]),
+                         red.input_matrix @ (Us[:, 0] * lim))
+    T = red.T
+    stats = {"status": status, "iterations": iters, "wall_time_s": wall, "objective": float(sol["f"]),
+             "t_fixed": t_fixed, "label": label, "angles": n, "variables": n_x,
+             "constraints": n_g}
+    if verbose:
+        print(f"[trajectory] {label or 'solve'}: {status}, {iters} iterations, {wall:.1f} s, t_f = {tfs:.5f} s",
+              flush=True)
+    return CollocationSolution(
+        groups=red.groups, n_intervals=N, degree=d, t_f=tfs,
+        s=np.concatenate([[0.0], s_cols]),
+        theta=np.vstack([T @ th0, (T @ THs).T]),
+        omega=np.vstack([np.zeros(N_ELEMENTS), (T @ OMs).T]),
+        alpha=np.vstack([T @ a0, (T @ ACs).T]),
+        u=Us.T.copy(), x=xs, lam_x=np.asarray(sol["lam_x"]).ravel(), lam_g=np.asarray(sol["lam_g"]).ravel(),
+        stats=stats)
+
+
+_NLP_CACHE: dict = {}
+
+
+def _build_nlp(red: ReducedModel, N: int, d: int, regularisation: float, torque_rate_limit, opts: dict):
+    """The collocation NLP for one structure; model constants, start and line are parameters.
+
+    Parameters p = [w_tf, model coefficients, τ_limit (2), θ_r(0) (n), group lengths (n),
+    line start (2), line normal (2)]; the objective is w_tf·t_f + regulariser.
+    """
+    n = red.n
+    M = N * d
+    tau_c, D = _radau(d)
+    pattern = red.stiffness_pattern()
+    n_c = n * n + int(pattern.sum()) + 2 * n
+    P = ca.MX.sym("p", 1 + n_c + 2 + n + n + 4)
+    w_tf = P[0]
+    coeff = P[1:1 + n_c]
+    lim = P[1 + n_c:3 + n_c]
+    th0 = P[3 + n_c:3 + n_c + n]
+    lg = P[3 + n_c + n:3 + n_c + 2 * n]
+    p0 = P[3 + n_c + 2 * n:5 + n_c + 2 * n]
+    normal = P[5 + n_c + 2 * n:7 + n_c + 2 * n]
+
+    TH, OM, AC = ca.MX.sym("TH", n, M), ca.MX.sym("OM", n, M), ca.MX.sym("AC", n, M)
+    U = ca.MX.sym("U", 2, N + 1)
+    tf = ca.MX.sym("tf")
+    h = tf / N
+    last = list(range(d - 1, M, d))  # columns that are nodes 1..N
+    th_start = ca.horzcat(th0, TH[:, last[:-1]])
+    om_start = ca.horzcat(ca.DM.zeros(n, 1), OM[:, last[:-1]])
+    cons = []
+    for j in range(d):
+        cols = list(range(j, M, d))
+        dth = D[0, j] * th_start + sum(D[r, j] * TH[:, list(range(r - 1, M, d))] for r in range(1, d + 1))
+        dom = D[0, j] * om_start + sum(D[r, j] * OM[:, list(range(r - 1, M, d))] for r in range(1, d + 1))
+        cons += [dth - h * OM[:, cols], dom - h * AC[:, cols]]
+    # torque (N·m) at every collocation point: linear within the interval
+    w = np.tile(tau_c[1:], N)
+    kk = np.repeat(np.arange(N), d)
+    Ucol = U[:, list(kk)] * ca.repmat(ca.DM(1 - w).T, 2, 1) + U[:, list(kk + 1)] * ca.repmat(ca.DM(w).T, 2, 1)
+    Tcol = ca.repmat(lim, 1, M) * Ucol
+    dyn = _residual_function(n, pattern).map(M)
+    cons.append(dyn(TH, OM, AC, Tcol, ca.repmat(coeff, 1, M)))
+    n_eq = sum(c.numel() for c in cons)
+    # tip on the line at every collocation point before t_f (at t_f the end point is imposed),
+    # within ±line_tolerance: see the module notes for why not an exact equality.
+    thl = TH[:, : M - 1]
+    tip_x = ca.mtimes(lg.T, ca.cos(thl))
+    tip_y = ca.mtimes(lg.T, ca.sin(thl))
+    cons.append(normal[0] * (tip_x - p0[0]) + normal[1] * (tip_y - p0[1]))
+    n_line = M - 1
+    # zero final joint accelerations
+    cons.append(ca.DM(red.joint_rows) @ AC[:, M - 1])
+    # torque slew-rate limit: |Δu| ≤ rate·h (linear in t_f), both signs
+    n_rate = 0
+    dU = U[:, 1:] - U[:, :-1]
+    if torque_rate_limit is not None:
+        cons += [ca.vec(dU) - torque_rate_limit * h, -ca.vec(dU) - torque_rate_limit * h]
+        n_rate = 4 * N
+    g = ca.vertcat(*[ca.vec(c) for c in cons])
+    x = ca.vertcat(ca.vec(TH), ca.vec(OM), ca.vec(AC), ca.vec(U), tf)
+    f = w_tf * tf + regularisation * ca.sumsqr(dU)
+    solver = ca.nlpsol("slew", "ipopt", {"x": x, "f": f, "g": g, "p": P}, opts)
+    return solver, n_eq, n_line, n_rate, int(g.shape[0])
+
+
+def _straight_guess(params, red: ReducedModel, elbow: int, s_cols, N) -> np.ndarray:
+    """Rigid arm moving along the line with a symmetric bang-bang path speed."""
+    t_guess = 2.0
+    sigma = np.where(s_cols < 0.5, 2 * s_cols**2, 1 - 2 * (1 - s_cols) ** 2)
+    pts = params.line_start + sigma[:, None] * (params.line_end - params.line_start)
+    th = np.array([red.reduce(rigid_configuration(*inverse_kinematics(params, p, elbow))) for p in pts]).T
+    th = np.unwrap(th, axis=1)
+    om = np.gradient(th, s_cols * t_guess, axis=1)
+    ac = np.gradient(om, s_cols * t_guess, axis=1)
+    u = np.zeros((2, N + 1))
+    return np.concatenate([th.ravel("F"), om.ravel("F"), ac.ravel("F"), u.ravel("F"), [t_guess]])

@@ -1,0 +1,210 @@
+"""The complete solve: rigid warm-up, flexible free-t_f solve, then t_f rounded up to a whole ms.
+
+See :mod:`flexarm.trajectory.problem` for the NLP and docs/trajectory.md for the method.
+
+The 1 ms file
+-------------
+θ and θ̇ are the optimiser's collocation polynomials evaluated every 1 ms
+(the desired states come from the optimiser's model). The torque held over
+sample k, [kΔ, (k+1)Δ), is the exact mean of the piecewise-linear optimal
+torque over that millisecond, so a zero-order-hold replay delivers the same
+impulse per step; the torque at t_f (the last sample) is zero.
+:func:`verify_against_plant` replays those torques open loop in the full
+11-element plant (:func:`flexarm.integrator.simulate`) and measures the
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from ..model import ArmModel
+from ..parameters import ArmParameters, load_parameters
+from ..provenance import git_commit
+from .io import PAPER_TF, SAMPLE_TIME, TrajectoryError, TrajectoryResult
+from .problem import (
+    DEFAULT_REGULARISATION,
+    FLEX_GROUPS,
+    LINE_TOLERANCE,
+    RIGID_GROUPS,
+    TORQUE_RATE_LIMIT,
+    CollocationSolution,
+    solve_collocation,
+)
+
+
+def solve_minimum_time(params: ArmParameters | None = None, n_intervals: int = 200, degree: int = 5,
+                       warm_start: TrajectoryResult | CollocationSolution | None = None, verbose: bool = True,
+                       elbow: int = 1, regularisation: float = DEFAULT_REGULARISATION,
+                       rigid_intervals: int = 60, max_iter: int = 1000, line_tolerance: float = LINE_TOLERANCE,
+                       torque_rate_limit: float | None = TORQUE_RATE_LIMIT) -> TrajectoryResult:
+    """Solve the minimum-time slew and sample it every 1 ms.
+
+    Parameters
+    ----------
+    params : ArmParameters, optional
+        Default: the committed parameter file.
+    n_intervals : int
+        Collocation intervals of the flexible solve (t_f/N ≈ 10 ms at 200).
+    degree : int
+        Radau points per interval.
+    warm_start : TrajectoryResult or CollocationSolution, optional
+        A previous solution (e.g. for another payload); skips the rigid stage.
+    verbose : bool
+        Print progress (IPOPT every 10 iterations).
+    elbow : {1, -1}
+        Elbow branch (sign of q2).
+    regularisation : float
+        Weight (s) of the torque-rate term Σ|Δu|², u = τ/τ_limit, added to
+        t_f; it picks one solution on singular arcs and costs far less than
+        a millisecond of t_f.
+    rigid_intervals : int
+        Intervals of the rigid warm-up solve.
+    max_iter : int
+        IPOPT iteration limit per stage.
+
+    Returns
+    -------
+    TrajectoryResult
+
+    Raises
+    ------
+    TrajectoryError
+        Any stage failed to converge.
+    """
+    params = params if params is not None else load_parameters()
+    t_start = time.perf_counter()
+    stages = []
+    common = {"elbow": elbow, "regularisation": regularisation, "verbose": verbose, "max_iter": max_iter,
+              "line_tolerance": line_tolerance, "torque_rate_limit": torque_rate_limit}
+    guess = warm_start.solution if isinstance(warm_start, TrajectoryResult) else warm_start
+    if guess is None:
+        rigid = solve_collocation(params, RIGID_GROUPS, rigid_intervals, 3, label="rigid two-link", **common)
+        stages.append(rigid.stats)
+        guess = rigid
+    free = solve_collocation(params, FLEX_GROUPS, n_intervals, degree, guess=guess, label="flexible, t_f free",
+                             **common)
+    stages.append(free.stats)
+    t_ms = int(math.ceil(free.t_f / SAMPLE_TIME - 1e-9))
+    fixed = solve_collocation(params, FLEX_GROUPS, n_intervals, degree, t_fixed=t_ms * SAMPLE_TIME, guess=free,
+                              label="flexible, t_f rounded up to whole ms", **common)
+    stages.append(fixed.stats)
+    total = time.perf_counter() - t_start
+    result = sample_solution(params, fixed)
+    result.metadata.update({
+        "t_f_continuous_s": free.t_f,
+        "solver": {"name": "IPOPT (CasADi nlpsol, exact Hessian, MUMPS)", "casadi": ca.__version__,
+                   "status": fixed.stats["status"],
+                   "iterations": sum(s["iterations"] for s in stages),
+                   "solve_time_s": total, "stages": stages},
+        "discretisation": {
+            "method": "Radau IIA direct collocation, implicit dynamics M(θ)a = rhs at every collocation point",
+            "intervals": n_intervals, "degree": degree, "interval_s": fixed.t_f / n_intervals,
+            "model": "11 elements with rigid brackets (θ2=θ1, θ6=θ5, θ8=θ7): 8 angles",
+            "torque": "piecewise linear, continuous; file holds its mean over each 1 ms step",
+            "t_f_rounding": "free-t_f optimum rounded up to a whole ms, then re-solved with t_f fixed",
+            "regularisation_s": regularisation, "elbow": elbow,
+            "line_tolerance_m": line_tolerance, "torque_rate_limit_per_s": torque_rate_limit,
+        },
+    })
+    return result
+
+
+def sample_solution(params: ArmParameters, sol: CollocationSolution, dt: float = SAMPLE_TIME) -> TrajectoryResult:
+    """1 ms samples of a fixed-t_f collocation solution (t_f a whole number of dt)."""
+    n_steps = int(round(sol.t_f / dt))
+    if abs(n_steps * dt - sol.t_f) > 1e-9:
+        raise TrajectoryError(f"t_f = {sol.t_f} s is not a whole number of {dt} s steps")
+    t = np.arange(n_steps + 1) * dt
+    theta, omega = sol.sample(t)
+    tau = np.vstack([sol.torque_samples(params.torque_limit, n_steps, dt), np.zeros((1, 2))])
+    model = ArmModel(params)
+    tip = np.array([model.tip_position(th) for th in theta])
+    lim = params.torque_limit
+    u = sol.u
+    meta = {
+        "t_f_s": float(t[-1]),
+        "paper_t_f_s": PAPER_TF,
+        "samples": int(n_steps),
+        "sample_time_s": dt,
+        "tau1_on_limit_fraction": float(np.mean(np.abs(tau[:-1, 0]) >= 0.99 * lim[0])),
+        "tau2_on_limit_fraction": float(np.mean(np.abs(tau[:-1, 1]) >= 0.99 * lim[1])),
+        "tau1_on_limit_fraction_nodes": float(np.mean(np.abs(u[:, 0]) >= 0.99)),
+        "torque_limit_Nm": lim.tolist(),
+        "payload_kg": float(params.payload_mass),
+        "parameter_file": Path(params.source).name if params.source else "",
+        "parameter_sha256": params.sha256,
+        "line": {"start_m": params.line_start.tolist(), "end_m": params.line_end.tolist()},
+        "commit": git_commit(),
+        "command": _command_line(),
+        "sampling": ("theta/omega: optimiser's collocation polynomials at t = k ms; tau[k]: mean optimal torque "
+                     "over [t_k, t_k+1), held (zero-order hold); tau at t_f is 0"),
+    }
+    return TrajectoryResult(t=t, tau=tau, theta=theta, omega=omega, tip=tip, metadata=meta, solution=sol)
+
+
+def _command_line() -> str:
+    argv = sys.argv[:]
+    if argv and argv[0].endswith("trajectory.py") or (argv and argv[0].endswith("__main__.py")):
+        return " ".join(["python -m flexarm.trajectory"] + [shlex.quote(a) for a in argv[1:]])
+    return " ".join(shlex.quote(a) for a in argv)
+
+
+# -- sensitivity -----------------------------------------------------------------------
+def calibrated_unknowns(params: ArmParameters, design: dict) -> dict[str, float]:
+    """The calibrated unknowns read back from a parameter set (see flexarm.calibration)."""
+    mb = design["chosen"]["bracket_mass_kg"]
+    return {
+        "hub_inertia_kgm2": float(params.inertia[0]),
+        "stator_mass_kg": float(params.mass[5] - mb),
+        "rotor2_inertia_kgm2": float(params.inertia[6]),
+        "accelerometer2_mass_kg": float(params.point_mass[-1]),
+    }
+
+
+def sensitivity(base: TrajectoryResult, params: ArmParameters | None = None, change: float = 0.2,
+                n_intervals: int | None = None, verbose: bool = False) -> list[dict]:
+    """t_f when the elbow-stator mass and the joint-2 rotor inertia change by ±`change`.
+
+    Parameter sets are rebuilt with :func:`flexarm.parameters.build_from_design`
+    from the unknowns read back from `params`; each solve is warm-started from `base`.
+
+    Returns
+    -------
+    list of dict
+        One row per case: parameter, factor, t_f (continuous optimum, s), t_f
+        of the file (whole ms), iterations, wall time.
+    """
+    from ..parameters import build_from_design, load_design
+
+    params = params if params is not None else load_parameters()
+    design = load_design()
+    unknowns = calibrated_unknowns(params, design)
+    rebuilt, _ = build_from_design(design, unknowns)
+    for name in ("mass", "com", "inertia", "length"):
+        if not np.allclose(getattr(rebuilt, name), getattr(params, name), rtol=1e-9, atol=1e-12):
+            raise TrajectoryError(f"parameter file does not match the design rebuilt from its unknowns ({name})")
+    n_int = n_intervals or base.metadata.get("discretisation", {}).get("intervals", 200)
+    rows = []
+    for key in ("stator_mass_kg", "rotor2_inertia_kgm2"):
+        for factor in (1 - change, 1 + change):
+            unk = dict(unknowns, **{key: unknowns[key] * factor})
+            p, _ = build_from_design(design, unk)
+            p = dataclasses.replace(p, payload_mass=params.payload_mass)
+            t0 = time.perf_counter()
+            r = solve_minimum_time(p, n_intervals=n_int, warm_start=base, verbose=verbose)
+            rows.append({"parameter": key, "factor": factor, "value": unk[key],
+                         "t_f_continuous_s": r.metadata["t_f_continuous_s"], "t_f_file_s": r.t_f,
+                         "tau1_on_limit_fraction": r.metadata["tau1_on_limit_fraction"],
+                         "iterations": r.metadata["solver"]["iterations"],
+                         "wall_time_s": time.perf_counter() - t0})
+            if verbose:
+                print(f"[sensitivity] {key} x{factor:.2f}: t_f = {rows[-1]['t_f_continuous_s']:.4f} s", flush=True)
+    return rows

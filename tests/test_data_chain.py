@@ -1,0 +1,64 @@
+"""The data chain: a trajectory refuses to load against a parameter file it was not made from."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from flexarm.parameters import DEFAULT_PARAMETER_FILE
+from flexarm.provenance import sha256_file
+from flexarm.trajectory import (
+    DEFAULT_TRAJECTORY_FILE,
+    REGENERATE_COMMAND,
+    StaleTrajectoryError,
+    load_trajectory,
+    save_trajectory,
+)
+
+
+@pytest.fixture()
+def copied_chain(tmp_path):
+    """The committed parameter file and trajectory copied side by side into a temporary folder."""
+    params = tmp_path / DEFAULT_PARAMETER_FILE.name
+    shutil.copyfile(DEFAULT_PARAMETER_FILE, params)
+    traj = tmp_path / DEFAULT_TRAJECTORY_FILE.name
+    shutil.copyfile(DEFAULT_TRAJECTORY_FILE, traj)
+    return params, traj
+
+
+def test_committed_trajectory_matches_committed_parameters():
+    result = load_trajectory()
+    assert result.metadata["parameter_sha256"] == sha256_file(DEFAULT_PARAMETER_FILE)
+
+
+def test_trajectory_from_a_changed_parameter_file_is_refused(copied_chain):
+    params, traj = copied_chain
+    assert load_trajectory(traj).n_samples > 1000  # the copy next to it matches
+    params.write_text(params.read_text().replace("\n", "\n# edited\n", 1))
+    with pytest.raises(StaleTrajectoryError) as err:
+        load_trajectory(traj)
+    msg = str(err.value)
+    assert str(traj) in msg and str(params) in msg and REGENERATE_COMMAND in msg
+
+
+def test_explicit_parameter_file_is_checked(copied_chain, tmp_path):
+    params, traj = copied_chain
+    other = tmp_path / "other.toml"
+    other.write_text(params.read_text() + "\n")
+    with pytest.raises(StaleTrajectoryError, match="other.toml"):
+        load_trajectory(traj, parameter_file=other)
+    assert load_trajectory(traj, parameter_file=params).t_f == pytest.approx(load_trajectory().t_f)
+
+
+def test_trajectory_without_a_recorded_checksum_is_refused(copied_chain, tmp_path):
+    _, traj = copied_chain
+    result = load_trajectory(traj)
+    result.metadata.pop("parameter_sha256")
+    bare = tmp_path / "bare.npz"
+    save_trajectory(result, bare)
+    with pytest.raises(StaleTrajectoryError, match="records no parameter SHA-256"):
+        load_trajectory(bare)
+    # an inspecting tool may opt out explicitly, and then reads the same samples
+    assert np.array_equal(load_trajectory(bare, parameter_file=False).tau, result.tau)
