@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from flexarm import ArmModel, rigid_configuration
-from flexarm.gain_schedule import StaleDataError, TrajectoryData
+from flexarm.gain_schedule import StaleDataError, trajectory_from_states
 from flexarm.lqg import LqgController, LqgError
 from flexarm.lqg_design import (
     DEFAULT_LQG_DIR,
@@ -44,8 +44,8 @@ def one_point_design(point, rest) -> LqgDesign:
                      K_integral=point.K_integral[None], C=measurement_matrix(), V=measurement_covariance())
 
 
-def resting_trajectory(rest, n=4000) -> TrajectoryData:
-    return TrajectoryData(np.arange(n + 1) * 1e-3, np.zeros((n + 1, 2)), np.tile(rest, (n + 1, 1)))
+def resting_trajectory(rest, n=4000):
+    return trajectory_from_states(np.arange(n + 1) * 1e-3, np.zeros((n + 1, 2)), np.tile(rest, (n + 1, 1)))
 
 
 def doubling_dare(A, G, H, iterations=60):
