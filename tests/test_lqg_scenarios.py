@@ -49,3 +49,19 @@ def test_fmu_in_jacobi_stepping_equals_the_library_loop_with_delay_2(runs):
     n = min(len(theta), len(states))
     assert n > 2000
     assert np.max(np.abs(theta[:n] - states[:n, :11])) < 1e-9
+
+
+def test_exported_lqg_runs_closed_loop_in_libcosim(runs, tmp_path):
+    """Issue 14 item 3: the exported lqg_jacobi SSP (loop_delay_samples = 2) runs in libcosim as in our Jacobi master."""
+    pytest.importorskip("libcosimpy", reason="libcosimpy (the libcosim master) is not installed")
+    from scenarios.libcosim_runner import run_case_libcosim
+    from scenarios.ssp import export_ssp
+
+    _, lqg = runs
+    ssp = export_ssp(load_scenario("lqg_jacobi"), tmp_path)
+    out = run_case_libcosim(ssp, "tip")
+    theta = np.column_stack([out["signals"][f"plant.theta{i}"] for i in range(1, 12)])
+    ours = np.column_stack([lqg["tip"].series[f"plant.theta{i}"] for i in range(1, 12)])
+    n = min(len(theta), len(ours))
+    assert n > 2000
+    assert np.max(np.abs(theta[:n] - ours[:n])) < 1e-9
