@@ -52,7 +52,7 @@ def test_fmu_in_jacobi_stepping_equals_the_library_loop_with_delay_2(runs):
 
 
 def test_exported_lqg_runs_closed_loop_in_libcosim(runs, tmp_path):
-    """Issue 14 item 3: the exported lqg_jacobi SSP (loop_delay_samples = 2) runs in libcosim as in our Jacobi master."""
+    """Issue 14 item 3: the exported lqg_jacobi SSP (loop_delay_samples = 2) runs in libcosim as in our master."""
     pytest.importorskip("libcosimpy", reason="libcosimpy (the libcosim master) is not installed")
     from scenarios.libcosim_runner import run_case_libcosim
     from scenarios.ssp import export_ssp
