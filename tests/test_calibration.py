@@ -1,15 +1,17 @@
 """Calibration: the committed parameters meet the paper's facts and are the calibration's output."""
 
+import re
 import tomllib
 
 import numpy as np
 import pytest
 
 from flexarm import ArmModel, load_parameters
-from flexarm.calibration import TOLERANCES, facts
+from flexarm.calibration import MINIMUM_TIME_TOLERANCE, TOLERANCES, calibrated_unknowns, facts
 from flexarm.calibration import main as calibration_main
 from flexarm.modes import modal_analysis, rigid_joint_accelerations
-from flexarm.parameters import DEFAULT_PARAMETER_FILE, load_design
+from flexarm.parameters import DEFAULT_PARAMETER_FILE, DESIGN_FILE, load_design
+from flexarm.provenance import sha256_file
 
 PAPER = {"link1_mode_Hz": 20.0, "link2_mode_Hz": 8.0,
          "joint1_acceleration_deg_s2": 152.0, "joint2_acceleration_deg_s2": 2918.0}
@@ -62,8 +64,39 @@ def test_parameter_file_tags_every_value(model):
 
 
 def test_committed_file_is_the_calibration_output(tmp_path):
+    """Re-fitting the static facts at the committed stator mass (the minimum-time lever) gives the same file.
+
+    The full calibration (python -m flexarm.calibration) also re-solves the minimum time for each
+    stator mass, a minute or two; its result is checked below through the committed trajectory."""
+    old = load_parameters()
+    stator = calibrated_unknowns(old, load_design())["stator_mass_kg"]
     out = tmp_path / "arm.toml"
-    assert calibration_main(["--output", str(out)]) == 0
-    new, old = load_parameters(out), load_parameters()
+    assert calibration_main(["--output", str(out), "--stator-mass", repr(stator)]) == 0
+    new = load_parameters(out)
     for name in ("length", "mass", "com", "inertia", "spring_stiffness", "point_mass"):
         assert np.allclose(getattr(new, name), getattr(old, name), rtol=1e-6), name
+
+
+def test_minimum_time_meets_the_paper():
+    """t_f of the trajectory made from the committed parameters is within 0.5 % of the paper's 2.058 s."""
+    from flexarm.trajectory import load_trajectory  # checks the trajectory was made from this parameter file
+
+    meta = load_trajectory().metadata
+    target = load_design()["calibration"]["minimum_time_s"]
+    assert target == 2.058
+    assert abs(meta["t_f_continuous_s"] / target - 1) <= MINIMUM_TIME_TOLERANCE, meta["t_f_continuous_s"]
+
+
+def test_parameter_file_records_its_design_file():
+    header = DEFAULT_PARAMETER_FILE.read_text().split("\n[", 1)[0]
+    match = re.search(r"design file: (\S+) sha256 ([0-9a-f]{64})", header)
+    assert match and match.group(1) == DESIGN_FILE.name
+    assert match.group(2) == sha256_file(DESIGN_FILE)
+
+
+def test_calibration_refuses_to_write_when_targets_are_missed(tmp_path, capsys):
+    """A stator mass far from the fit cannot meet the accelerations: exit 1, no file."""
+    out = tmp_path / "arm.toml"
+    assert calibration_main(["--output", str(out), "--stator-mass", "1.0"]) == 1
+    assert not out.exists()
+    assert "NOT met" in capsys.readouterr().err

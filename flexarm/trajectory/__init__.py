@@ -39,8 +39,7 @@ from .io import (
 
 #: Names loaded from a submodule on first access (they import CasADi or the plant).
 _LAZY = {
-    "solve_minimum_time": "solve", "sample_solution": "solve", "sensitivity": "solve",
-    "calibrated_unknowns": "solve",
+    "solve_minimum_time": "solve", "solve_free_time": "solve", "sample_solution": "solve", "sensitivity": "solve",
     "solve_collocation": "problem", "CollocationSolution": "problem", "ReducedModel": "problem",
     "RIGID_GROUPS": "problem", "FLEX_GROUPS": "problem", "DEFAULT_REGULARISATION": "problem",
     "LINE_TOLERANCE": "problem", "TORQUE_RATE_LIMIT": "problem",

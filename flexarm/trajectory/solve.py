@@ -40,6 +40,34 @@ from .problem import (
 )
 
 
+def solve_free_time(params: ArmParameters, n_intervals: int = 200, degree: int = 5,
+                    warm_start: TrajectoryResult | CollocationSolution | None = None, rigid_intervals: int = 60,
+                    **common) -> tuple[CollocationSolution, list[dict]]:
+    """The continuous minimum time: the rigid warm-up (unless warm-started) and the free-t_f flexible solve.
+
+    What the calibration needs (t_f as a function of the parameters); :func:`solve_minimum_time`
+    adds the whole-millisecond re-solve and the 1 ms sampling. ``common`` are the keyword
+    arguments of :func:`flexarm.trajectory.problem.solve_collocation` (elbow, regularisation, ...).
+
+    Returns
+    -------
+    solution : CollocationSolution
+        ``solution.t_f`` is the minimum time, s.
+    stages : list of dict
+        Solver statistics of each stage.
+    """
+    stages = []
+    guess = warm_start.solution if isinstance(warm_start, TrajectoryResult) else warm_start
+    if guess is None:
+        rigid = solve_collocation(params, RIGID_GROUPS, rigid_intervals, 3, label="rigid two-link", **common)
+        stages.append(rigid.stats)
+        guess = rigid
+    free = solve_collocation(params, FLEX_GROUPS, n_intervals, degree, guess=guess, label="flexible, t_f free",
+                             **common)
+    stages.append(free.stats)
+    return free, stages
+
+
 def solve_minimum_time(params: ArmParameters | None = None, n_intervals: int = 200, degree: int = 5,
                        warm_start: TrajectoryResult | CollocationSolution | None = None, verbose: bool = True,
                        elbow: int = 1, regularisation: float = DEFAULT_REGULARISATION,
@@ -81,17 +109,9 @@ def solve_minimum_time(params: ArmParameters | None = None, n_intervals: int = 2
     """
     params = params if params is not None else load_parameters()
     t_start = time.perf_counter()
-    stages = []
     common = {"elbow": elbow, "regularisation": regularisation, "verbose": verbose, "max_iter": max_iter,
               "line_tolerance": line_tolerance, "torque_rate_limit": torque_rate_limit}
-    guess = warm_start.solution if isinstance(warm_start, TrajectoryResult) else warm_start
-    if guess is None:
-        rigid = solve_collocation(params, RIGID_GROUPS, rigid_intervals, 3, label="rigid two-link", **common)
-        stages.append(rigid.stats)
-        guess = rigid
-    free = solve_collocation(params, FLEX_GROUPS, n_intervals, degree, guess=guess, label="flexible, t_f free",
-                             **common)
-    stages.append(free.stats)
+    free, stages = solve_free_time(params, n_intervals, degree, warm_start, rigid_intervals=rigid_intervals, **common)
     t_ms = int(math.ceil(free.t_f / SAMPLE_TIME - 1e-9))
     fixed = solve_collocation(params, FLEX_GROUPS, n_intervals, degree, t_fixed=t_ms * SAMPLE_TIME, guess=free,
                               label="flexible, t_f rounded up to whole ms", **common)
@@ -158,17 +178,6 @@ def _command_line() -> str:
 
 
 # -- sensitivity -----------------------------------------------------------------------
-def calibrated_unknowns(params: ArmParameters, design: dict) -> dict[str, float]:
-    """The calibrated unknowns read back from a parameter set (see flexarm.calibration)."""
-    mb = design["chosen"]["bracket_mass_kg"]
-    return {
-        "hub_inertia_kgm2": float(params.inertia[0]),
-        "stator_mass_kg": float(params.mass[5] - mb),
-        "rotor2_inertia_kgm2": float(params.inertia[6]),
-        "accelerometer2_mass_kg": float(params.point_mass[-1]),
-    }
-
-
 def sensitivity(base: TrajectoryResult, params: ArmParameters | None = None, change: float = 0.2,
                 n_intervals: int | None = None, verbose: bool = False) -> list[dict]:
     """t_f when the elbow-stator mass and the joint-2 rotor inertia change by ±`change`.
@@ -182,6 +191,7 @@ def sensitivity(base: TrajectoryResult, params: ArmParameters | None = None, cha
         One row per case: parameter, factor, t_f (continuous optimum, s), t_f
         of the file (whole ms), iterations, wall time.
     """
+    from ..calibration import calibrated_unknowns
     from ..parameters import build_from_design, load_design
 
     params = params if params is not None else load_parameters()
