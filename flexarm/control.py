@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .gain_schedule import GainSchedule, TrajectoryData, as_trajectory_data
+from .gain_schedule import GainSchedule, as_trajectory, desired_states, sample_time
 from .integrator import DEFAULT_SUBSTEPS, PlantSimulator
 from .lqr_design import OMEGA7_CHOICES
 from .model import ArmModel, N, joint_angles, joint_velocities, reconstruct_angles, strain_gauge_angles
@@ -60,8 +60,8 @@ class TrackingController:
 
     Parameters
     ----------
-    trajectory : TrajectoryData, path or trajectory object
-        Desired states and feedforward torques (see :func:`flexarm.lqr.as_trajectory_data`).
+    trajectory : TrajectoryResult or path-like
+        Desired states and feedforward torques (:mod:`flexarm.trajectory.io`).
     schedule : GainSchedule or str or None
         Gain schedule, or a gain-set name loaded from the committed files with
         the ``200ms`` schedule (``gamma1``, ``gamma0.1``, ``gamma0``, ``eq32``,
@@ -86,7 +86,9 @@ class TrackingController:
             raise ControllerError(f"mode: {mode!r} is not one of {MODES}")
         if omega7 not in OMEGA7_CHOICES:
             raise ControllerError(f"omega7: {omega7!r} is not one of {OMEGA7_CHOICES}")
-        self.trajectory: TrajectoryData = as_trajectory_data(trajectory)
+        self.trajectory = as_trajectory(trajectory)
+        #: Desired states at every sample, shape (n_steps + 1, 22).
+        self.z = desired_states(self.trajectory)
         if isinstance(schedule, str):
             schedule = GainSchedule.load(schedule)
         if schedule is None and mode != "ff":
@@ -101,10 +103,10 @@ class TrackingController:
             if sat.shape != (2,) or not np.all(np.isfinite(sat)) or np.any(sat <= 0):
                 raise ControllerError(f"saturation: two finite torque limits > 0 N·m, got {saturation!r}")
             self.saturation = sat
-        self.dt = self.trajectory.dt
-        self.n_steps = self.trajectory.n_steps
+        self.dt = sample_time(self.trajectory)
+        self.n_steps = self.trajectory.n_samples
         # Desired sensor values along the trajectory, precomputed once (like with like, see module doc).
-        th_d, om_d = self.trajectory.z[:, :N], self.trajectory.z[:, N:]
+        th_d, om_d = self.trajectory.theta, self.trajectory.omega
         self._q_d = np.array([joint_angles(th) for th in th_d])
         self._qdot_d = np.array([joint_velocities(om) for om in om_d])
         eps_d = np.array([strain_gauge_angles(th) for th in th_d])
@@ -134,7 +136,7 @@ class TrackingController:
 
     def desired_state(self, k: int) -> np.ndarray:
         """Desired state z_d at sample k (the final state after the slew), shape (22,)."""
-        return self.trajectory.z[self._clamped(k)].copy()
+        return self.z[self._clamped(k)].copy()
 
     def feedforward(self, k: int) -> np.ndarray:
         """Feedforward torque of sample k, N·m, shape (2,): τ[k] during the slew, 0 after."""
@@ -272,7 +274,7 @@ def simulate_closed_loop(model: ArmModel, controller: TrackingController, n_step
     from .integrator import IntegrationError
 
     n_steps = controller.n_steps if n_steps is None else int(n_steps)
-    z0 = controller.trajectory.z[0] if z0 is None else np.asarray(z0, dtype=float)
+    z0 = controller.z[0] if z0 is None else np.asarray(z0, dtype=float)
     plant = PlantSimulator(model, z0, substeps=substeps)
     states, torques = [plant.z.copy()], []
     for k in range(n_steps):
@@ -296,7 +298,7 @@ def tracking_errors(states, trajectory) -> dict[str, float]:
     ----------
     states : array_like, shape (n + 1, 22)
         Simulated states from t = 0 (runs past the slew are compared with the final state).
-    trajectory : TrajectoryData or path or trajectory object
+    trajectory : TrajectoryResult or path-like
 
     Returns
     -------
@@ -304,10 +306,10 @@ def tracking_errors(states, trajectory) -> dict[str, float]:
         ``pos_peak``, ``vel_peak`` (max over all 11 elements and samples),
         ``pos_rms``, ``vel_rms`` (rms over all 11 elements and samples).
     """
-    traj = as_trajectory_data(trajectory)
+    traj = as_trajectory(trajectory)
     states = np.asarray(states, dtype=float)
-    idx = np.minimum(np.arange(len(states)), traj.n_steps)
-    err = np.degrees(states - traj.z[idx])
+    idx = np.minimum(np.arange(len(states)), traj.n_samples)
+    err = np.degrees(states - desired_states(traj)[idx])
     pos, vel = err[:, :N], err[:, N:]
     return {"pos_peak": float(np.abs(pos).max()), "vel_peak": float(np.abs(vel).max()),
             "pos_rms": float(np.sqrt(np.mean(pos**2))), "vel_rms": float(np.sqrt(np.mean(vel**2)))}

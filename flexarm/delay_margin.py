@@ -40,7 +40,7 @@ import sys
 
 import numpy as np
 
-from .gain_schedule import GainSchedule, as_trajectory_data, default_trajectory_path
+from .gain_schedule import GainSchedule, as_trajectory, default_trajectory_path, desired_states, sample_time
 from .gain_sets import GAIN_SET_NAMES
 from .lqr_design import DEFAULT_DT, effective_gain, scaling_transform, zoh
 from .model import ArmModel, N
@@ -112,7 +112,7 @@ def delay_margins(model: ArmModel, schedule: GainSchedule, trajectory, max_delay
     model : ArmModel
         The plant (no payload).
     schedule : GainSchedule
-    trajectory : TrajectoryData, path or trajectory object
+    trajectory : TrajectoryResult or path-like
     max_delay : int
         Largest delay examined (a margin equal to it means "at least").
     omega7 : str
@@ -124,16 +124,17 @@ def delay_margins(model: ArmModel, schedule: GainSchedule, trajectory, max_delay
         ``times`` (s, the schedule points), ``margins`` (int per point), ``rho`` (n_points, max_delay + 1),
         ``hold_margin``, ``hold_rho``.
     """
-    traj = as_trajectory_data(trajectory)
+    traj = as_trajectory(trajectory)
+    z, dt = desired_states(traj), sample_time(traj)
     margins, radii = [], []
     for t_k, K in zip(schedule.times, schedule.gains):
-        k = int(round(t_k / traj.dt))
-        tau_bar = traj.tau[k] if k < traj.n_steps else np.zeros(2)
-        Phi, Gamma, T_r = truncated_model(model, traj.z[k], tau_bar, traj.dt)
+        k = int(round(t_k / dt))
+        tau_bar = traj.tau[k] if k < traj.n_samples else np.zeros(2)
+        Phi, Gamma, T_r = truncated_model(model, z[k], tau_bar, dt)
         rho = spectral_radii(Phi, Gamma, effective_gain(K, omega7) @ T_r, max_delay)
         radii.append(rho)
         margins.append(margin_from_radii(rho))
-    Phi, Gamma, T_r = truncated_model(model, traj.z[-1], np.zeros(2), traj.dt)
+    Phi, Gamma, T_r = truncated_model(model, z[-1], np.zeros(2), dt)
     hold_rho = spectral_radii(Phi, Gamma, effective_gain(schedule.gains[-1], omega7) @ T_r, max_delay)
     return {"times": np.asarray(schedule.times), "margins": np.array(margins), "rho": np.array(radii),
             "hold_margin": margin_from_radii(hold_rho), "hold_rho": hold_rho}
@@ -163,7 +164,7 @@ def main(argv=None) -> int:
         print(f"error: --max-delay must be in 0..200, got {args.max_delay}", file=sys.stderr)
         return 2
     model = ArmModel()
-    traj = as_trajectory_data(default_trajectory_path())
+    traj = as_trajectory(default_trajectory_path())
     results = {name: delay_margins(model, GainSchedule.load(name, args.schedule), traj, args.max_delay, args.omega7)
                for name in args.sets}
     print(format_table(results, args.max_delay))

@@ -29,6 +29,8 @@ from .lqr_design import DEFAULT_DT, MEASURED_VELOCITY_STATES, R_PAPER, design_ga
 from .model import N_STATE, ArmModel, N
 from .parameters import DATA_DIR
 from .provenance import SOURCE_ROOT, git_commit, sha256_file, write_atomic
+from .trajectory.io import DEFAULT_TRAJECTORY_FILE, TrajectoryResult, load_trajectory
+from .trajectory.io import REGENERATE_COMMAND as CHAIN_COMMAND
 
 #: Directory of the committed gain-schedule files.
 DEFAULT_GAIN_DIR = DATA_DIR / "gains"
@@ -46,130 +48,75 @@ class StaleDataError(GainError):
 
 
 # -- trajectory access -----------------------------------------------------------------
-@dataclass
-class TrajectoryData:
-    """The desired trajectory as plain arrays (1 ms samples).
+def load_desired(trajectory) -> tuple[TrajectoryResult, str, str]:
+    """The desired trajectory, with the file it came from.
 
-    Attributes
+    Parameters
     ----------
-    t : ndarray, shape (n,)
-        Sample times, s, t[0] = 0, uniform spacing ``dt``.
-    tau : ndarray, shape (n, 2)
+    trajectory : TrajectoryResult or path-like
+        A trajectory in memory, or a file read (and checked against its parameter
+        file) by :func:`flexarm.trajectory.io.load_trajectory`.
+
+    Returns
+    -------
+    traj : TrajectoryResult
+    path, sha256 : str
+        The file and its SHA-256 ('' for a trajectory in memory).
+    """
+    if isinstance(trajectory, TrajectoryResult):
+        return trajectory, "", ""
+    if isinstance(trajectory, (str, os.PathLike)):
+        return load_trajectory(trajectory), str(trajectory), sha256_file(trajectory)
+    raise GainError(f"trajectory: a TrajectoryResult or the path of a trajectory file, got {type(trajectory)}")
+
+
+def as_trajectory(trajectory) -> TrajectoryResult:
+    """:func:`load_desired` without the file."""
+    return load_desired(trajectory)[0]
+
+
+def desired_states(traj: TrajectoryResult) -> np.ndarray:
+    """Desired states z = (θ, θ̇) at every sample, shape (n, 22)."""
+    return np.hstack([traj.theta, traj.omega])
+
+
+def sample_time(traj: TrajectoryResult) -> float:
+    """Sample spacing of a trajectory, s."""
+    return float(traj.t[1] - traj.t[0])
+
+
+def trajectory_from_states(t, tau, z) -> TrajectoryResult:
+    """A trajectory in memory from arrays (for tests and studies; files come from :mod:`flexarm.trajectory`).
+
+    Parameters
+    ----------
+    t : array_like, shape (n,)
+        Sample times from 0, uniform spacing, s.
+    tau : array_like, shape (n, 2)
         Feedforward torque held over [t_k, t_k+1), N·m.
-    z : ndarray, shape (n, 22)
-        Desired state (θ rad, θ̇ rad/s).
-    path : str
-        File it came from ('' when built in memory).
-    sha256 : str
-        SHA-256 of that file ('' when built in memory).
+    z : array_like, shape (n, 22)
+        Desired states (rad, rad/s).
     """
-
-    t: np.ndarray
-    tau: np.ndarray
-    z: np.ndarray
-    path: str = ""
-    sha256: str = ""
-
-    def __post_init__(self):
-        self.t = np.asarray(self.t, dtype=float)
-        self.tau = np.asarray(self.tau, dtype=float)
-        self.z = np.asarray(self.z, dtype=float)
-        n = len(self.t)
-        if self.t.ndim != 1 or n < 2:
-            raise GainError(f"trajectory t: expected a 1-D array of >= 2 times, got shape {self.t.shape}")
-        if self.tau.shape != (n, 2):
-            raise GainError(f"trajectory tau: expected shape ({n}, 2), got {self.tau.shape}")
-        if self.z.shape != (n, N_STATE):
-            raise GainError(f"trajectory z: expected shape ({n}, {N_STATE}), got {self.z.shape}")
-        steps = np.diff(self.t)
-        if abs(self.t[0]) > 1e-12 or np.ptp(steps) > 1e-9 or steps[0] <= 0:
-            raise GainError("trajectory t: must start at 0 with a uniform positive spacing")
-        for name in ("t", "tau", "z"):
-            if not np.all(np.isfinite(getattr(self, name))):
-                raise GainError(f"trajectory {name}: contains non-finite values")
-
-    @property
-    def dt(self) -> float:
-        """Sample spacing, s."""
-        return float(self.t[1] - self.t[0])
-
-    @property
-    def duration(self) -> float:
-        """Slew time t[-1], s."""
-        return float(self.t[-1])
-
-    @property
-    def n_steps(self) -> int:
-        """Number of control steps of the slew (samples − 1)."""
-        return len(self.t) - 1
-
-
-def as_trajectory_data(traj) -> TrajectoryData:
-    """Convert a trajectory object, mapping or path to :class:`TrajectoryData`.
-
-    Accepts a :class:`TrajectoryData`; a path to an ``.npz`` file (loaded with
-    :func:`flexarm.trajectory.load_trajectory` when that module exists); or
-    any object or mapping with fields ``t``, ``tau1``, ``tau2``,
-    ``theta1..theta11``, ``omega1..omega11`` (or ``tau`` (n, 2), ``theta``
-    (n, 11), ``omega`` (n, 11), or ``z`` (n, 22)).
-    """
-    if isinstance(traj, TrajectoryData):
-        return traj
-    path, sha = "", ""
-    if isinstance(traj, (str, os.PathLike)):
-        path = str(traj)
-        sha = sha256_file(path)
-        traj = _load_trajectory_file(path)
-    get = (lambda k: traj[k] if k in traj else None) if hasattr(traj, "keys") else \
-        (lambda k: getattr(traj, k, None))
-    path = path or str(get("path") or get("source") or "")
-    sha = sha or str(get("sha256") or "")
-    t = get("t")
-    if t is None:
-        raise GainError("trajectory: no field 't' (sample times, s)")
-    if get("tau") is not None:
-        tau = np.asarray(get("tau"), dtype=float)
-    elif get("tau1") is not None and get("tau2") is not None:
-        tau = np.column_stack([get("tau1"), get("tau2")])
-    else:
-        raise GainError("trajectory: needs 'tau' (n, 2) or 'tau1' and 'tau2' (N·m)")
-    if get("z") is not None:
-        z = np.asarray(get("z"), dtype=float)
-    else:
-        theta = _stack(get, "theta")
-        omega = _stack(get, "omega")
-        z = np.hstack([theta, omega])
-    return TrajectoryData(np.asarray(t, dtype=float), tau, z, path, sha)
-
-
-def _stack(get, prefix: str) -> np.ndarray:
-    whole = get(prefix)
-    if whole is not None and np.ndim(whole) == 2:
-        return np.asarray(whole, dtype=float)
-    cols = [get(f"{prefix}{i}") for i in range(1, N + 1)]
-    if any(c is None for c in cols):
-        raise GainError(f"trajectory: needs '{prefix}' (n, 11) or '{prefix}1'..'{prefix}11'")
-    return np.column_stack(cols)
-
-
-def _load_trajectory_file(path: str):
-    """Arrays of a trajectory file: via :func:`flexarm.trajectory.load_trajectory` (which
-    validates) for files in its format, else the raw npz arrays (e.g. ``t``, ``tau``, ``z``)."""
-    with np.load(path, allow_pickle=False) as data:
-        raw = {k: data[k] for k in data.files if k != "metadata"}
-    if "tau1" in raw:
-        try:
-            from .trajectory import load_trajectory
-        except ImportError:  # the optimiser module (CasADi) is not needed to read the arrays
-            return raw
-        return load_trajectory(path)
-    return raw
+    t, tau, z = (np.asarray(a, dtype=float) for a in (t, tau, z))
+    n = len(t)
+    if t.ndim != 1 or n < 2:
+        raise GainError(f"trajectory t: expected a 1-D array of >= 2 times, got shape {t.shape}")
+    if tau.shape != (n, 2):
+        raise GainError(f"trajectory tau: expected shape ({n}, 2), got {tau.shape}")
+    if z.shape != (n, N_STATE):
+        raise GainError(f"trajectory z: expected shape ({n}, {N_STATE}), got {z.shape}")
+    steps = np.diff(t)
+    if abs(t[0]) > 1e-12 or np.ptp(steps) > 1e-9 or steps[0] <= 0:
+        raise GainError("trajectory t: must start at 0 with a uniform positive spacing")
+    if not (np.isfinite(t).all() and np.isfinite(tau).all() and np.isfinite(z).all()):
+        raise GainError("trajectory: contains non-finite values")
+    return TrajectoryResult(t=t, tau=tau, theta=z[:, :N].copy(), omega=z[:, N:].copy(), tip=np.zeros((n, 2)),
+                            metadata={})
 
 
 def default_trajectory_path() -> Path:
     """The committed minimum-time trajectory, ``flexarm/data/trajectory.npz``."""
-    return DATA_DIR / "trajectory.npz"
-
+    return DEFAULT_TRAJECTORY_FILE
 
 
 # -- schedules -----------------------------------------------------------------------------
@@ -311,8 +258,8 @@ def design_schedule(model: ArmModel, trajectory, name: str, schedule: str = "200
     ----------
     model : ArmModel
         The controller's model (no payload: the payload is the model error).
-    trajectory : TrajectoryData, path or trajectory object
-        See :func:`as_trajectory_data`.
+    trajectory : TrajectoryResult or path-like
+        See :func:`load_desired`.
     name : str
         Gain-set name (see :func:`state_weight`).
     schedule : str
@@ -328,16 +275,16 @@ def design_schedule(model: ArmModel, trajectory, name: str, schedule: str = "200
     name = canonical_name(name)
     if linearization not in LINEARIZATIONS:
         raise GainError(f"linearization: {linearization!r} is not one of {LINEARIZATIONS}")
-    traj = as_trajectory_data(trajectory)
+    traj, traj_path, traj_sha = load_desired(trajectory)
+    z, dt = desired_states(traj), sample_time(traj)
     Q = state_weight(name)
     R = np.asarray(R, dtype=float)
-    times = operating_times(traj.duration, schedule, traj.dt)
-    idx = np.round(times / traj.dt).astype(int)
+    times = operating_times(traj.t_f, schedule, dt)
+    idx = np.round(times / dt).astype(int)
     designs = []
     for k in idx:
         tau_bar = traj.tau[k] if linearization == "feedforward" else (0.0, 0.0)
-        designs.append(design_gain(model, traj.z[k], Q, R, tau_bar, discrete=name.startswith(DISCRETE_PREFIX),
-                                   dt=traj.dt))
+        designs.append(design_gain(model, z[k], Q, R, tau_bar, discrete=name.startswith(DISCRETE_PREFIX), dt=dt))
     col = lambda a: np.array([getattr(d, a) for d in designs])  # noqa: E731
     meta = {
         "description": "LQR gains K (tau = tau_ff - K (x - x_d)), eqs. 17-20/32 of the paper",
@@ -349,13 +296,13 @@ def design_schedule(model: ArmModel, trajectory, name: str, schedule: str = "200
                                 "W = F'PG(R+G'PG)^-1 G'PF, original coordinates"),
         "linearization": ("paper: A = df/dz at z_d(t_k), tau_bar = 0 (eqs. 11-14)" if linearization == "paper"
                           else "feedforward: A = d(f+g tau_ff)/dz at (z_d(t_k), tau_ff(t_k))"),
-        "sample_time_s": traj.dt,
+        "sample_time_s": dt,
         "operating_times_s": times.tolist(),
         "Q_diagonal": np.diag(Q).tolist(),
         "R": R.tolist(),
         "measured_velocity_states": list(MEASURED_VELOCITY_STATES),
-        "trajectory_file": relative_path(traj.path),
-        "trajectory_sha256": traj.sha256,
+        "trajectory_file": relative_path(traj_path),
+        "trajectory_sha256": traj_sha,
         "parameter_file": relative_path(model.params.source),
         "parameter_sha256": model.params.sha256,
         "payload_mass_kg": float(model.params.payload_mass),
@@ -367,7 +314,7 @@ def design_schedule(model: ArmModel, trajectory, name: str, schedule: str = "200
         "max_abs_gain": float(np.abs(col("K")).max()),
     }
     return GainSchedule(name=name, schedule=schedule, times=times, gains=col("K"),
-                        operating_points=traj.z[idx], Q=Q, R=R, residuals=col("residual"),
+                        operating_points=z[idx], Q=Q, R=R, residuals=col("residual"),
                         rho_full=col("rho_full"), rho_reduced=col("rho_reduced"),
                         rho_implemented=col("rho_implemented"),
                         max_real_full=col("max_real_full"), max_real_reduced=col("max_real_reduced"),
@@ -439,7 +386,7 @@ def read_design_metadata(json_path, data_path) -> dict:
         par = _resolve(meta.get("parameter_file", "")) if meta.get("parameter_file") else "(in memory)"
         raise StaleDataError(f"design file {data_path} is stale: " + "; ".join(problems)
                              + f". It was made from trajectory file {traj} and parameter file {par}; "
-                             f"regenerate it with `{REGENERATE_COMMAND}` (after the trajectory, if the "
-                             "parameter file changed)")
+                             f"regenerate it with `{REGENERATE_COMMAND}` (if the parameter file changed, the "
+                             f"whole chain: `{CHAIN_COMMAND}`)")
     return meta
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .gain_schedule import TrajectoryData, as_trajectory_data
+from .gain_schedule import as_trajectory, desired_states, sample_time
 from .lqg_design import LqgDesign
 from .model import N_STATE
 
@@ -84,7 +84,7 @@ class LqgController:
 
     Parameters
     ----------
-    trajectory : TrajectoryData, path or trajectory object
+    trajectory : TrajectoryResult or path-like
     design : LqgDesign
     gain_set : str
         Weight name (:data:`flexarm.gain_sets.WEIGHT_NAMES`; a ``dlqr-`` prefix is ignored).
@@ -105,19 +105,21 @@ class LqgController:
         sat = np.asarray(saturation, dtype=float)
         if sat.shape != (2,) or not np.all(np.isfinite(sat)) or np.any(sat <= 0):
             raise LqgError(f"saturation: two finite torque limits > 0 N·m, got {saturation!r}")
-        self.trajectory: TrajectoryData = as_trajectory_data(trajectory)
+        self.trajectory = as_trajectory(trajectory)
+        #: Desired states at every sample, shape (n_steps + 1, 22).
+        self.z = desired_states(self.trajectory)
         self.design = design
         self.gain_set = gain_set
         self.delay = int(loop_delay_samples)
         self.integral_action = bool(integral_action)
         self.saturation = sat
-        self.dt = self.trajectory.dt
-        self.n_steps = self.trajectory.n_steps
+        self.dt = sample_time(self.trajectory)
+        self.n_steps = self.trajectory.n_samples
         w = design.weight_index(gain_set)
         self._K = design.K_integral[:, w, :, :N_STATE] if integral_action else design.K[:, w]
         self._K_xi = design.K_integral[:, w, :, N_STATE:] if integral_action else np.zeros((len(design.times), 2, 2))
         self._index = np.array([design.index_at(k * self.dt) for k in range(self.n_steps + 1)])
-        self._y_d = self.trajectory.z @ design.C.T  # desired measurements (the sensor map is linear)
+        self._y_d = self.z @ design.C.T  # desired measurements (the sensor map is linear)
         self._Cq = design.C[0:2]
 
     # -- trajectory lookup --------------------------------------------------------------
@@ -248,7 +250,7 @@ def simulate_lqg(model, controller: LqgController, n_steps: int | None = None, p
 
     n_steps = controller.n_steps if n_steps is None else int(n_steps)
     delay = controller.delay if plant_delay is None else int(plant_delay)
-    z0 = controller.trajectory.z[0] if z0 is None else np.asarray(z0, dtype=float)
+    z0 = controller.z[0] if z0 is None else np.asarray(z0, dtype=float)
     plant = PlantSimulator(model, z0, substeps=substeps or DEFAULT_SUBSTEPS)
     C = controller.design.C
     state = controller.initial_state()
@@ -264,3 +266,46 @@ def simulate_lqg(model, controller: LqgController, n_steps: int | None = None, p
         torques.append(tau)
         states.append(plant.z.copy())
     return np.array(states), np.array(torques).reshape(-1, 2)
+
+
+#: Master stepping algorithms (the names of :mod:`scenarios.master`).
+STEPPINGS = ("gauss-seidel", "jacobi")
+
+
+def required_loop_delay(stepping: str, feedthrough_fmus: int = 2) -> int:
+    """The ``loop_delay_samples`` a master's stepping puts into the loop.
+
+    Parameters
+    ----------
+    stepping : {"gauss-seidel", "jacobi"}
+        Gauss-Seidel (our master's default: each FMU reads its inputs after
+        the FMUs before it updated) adds no delay. Jacobi (libcosim's fixed-step
+        algorithm, fmpy's ``simulate_ssp``: all outputs read, then all inputs
+        set) adds one sample per direct-feedthrough FMU the signal crosses.
+    feedthrough_fmus : int
+        Direct-feedthrough FMUs from the plant's outputs to its torque inputs,
+        the controller included: 2 with a separate sensors FMU, 1 when the
+        controller reads the plant directly.
+
+    Returns
+    -------
+    int
+        Samples (0..:data:`MAX_DELAY_SAMPLES`).
+    """
+    if stepping not in STEPPINGS:
+        raise LqgError(f"stepping: {stepping!r} is not one of {STEPPINGS}")
+    if isinstance(feedthrough_fmus, bool) or not isinstance(feedthrough_fmus, int) \
+            or not 1 <= feedthrough_fmus <= MAX_DELAY_SAMPLES:
+        raise LqgError(f"feedthrough_fmus: an integer in 1..{MAX_DELAY_SAMPLES}, got {feedthrough_fmus!r}")
+    return 0 if stepping == "gauss-seidel" else feedthrough_fmus
+
+
+def with_loop_delay(parameters: dict, stepping: str, feedthrough_fmus: int = 2) -> dict:
+    """A controller's parameters for a target master: ``loop_delay_samples`` set to :func:`required_loop_delay`.
+
+    For exports (SSP) to masters that step differently from the scenario's own:
+    the returned copy has ``loop_delay_samples`` replaced; other keys are kept.
+    """
+    out = dict(parameters)
+    out["loop_delay_samples"] = required_loop_delay(stepping, feedthrough_fmus)
+    return out

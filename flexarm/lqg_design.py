@@ -56,7 +56,8 @@ import scipy.linalg
 from .gain_schedule import (
     REGENERATE_COMMAND,
     SCHEDULES,
-    as_trajectory_data,
+    desired_states,
+    load_desired,
     operating_times,
     read_design_metadata,
     relative_path,
@@ -122,8 +123,8 @@ def tip_jacobian(model: ArmModel, theta, h: float = 1e-7) -> np.ndarray:
 
 def rms_tip_acceleration(model: ArmModel, traj) -> float:
     """rms over the slew of the tip acceleration magnitude, m/s² (finite differences of the tip velocity)."""
-    vel = np.array([model.tip_velocity(z[:N], z[N:]) for z in traj.z])
-    acc = np.diff(vel, axis=0) / traj.dt
+    vel = np.array([model.tip_velocity(th, om) for th, om in zip(traj.theta, traj.omega)])
+    acc = np.diff(vel, axis=0) / (traj.t[1] - traj.t[0])
     return float(np.sqrt(np.mean(np.sum(acc**2, axis=1))))
 
 
@@ -350,7 +351,7 @@ def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: Se
     ----------
     model : ArmModel
         The controller's model (no payload: the payload is what the filter absorbs).
-    trajectory : TrajectoryData, path or trajectory object
+    trajectory : TrajectoryResult or path-like
     schedule : str
         ``200ms``, ``20ms`` or ``single``.
     sensors : SensorSettings, optional
@@ -358,15 +359,16 @@ def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: Se
     integral_weight : float
         Weight of the integrated joint-angle errors.
     """
-    traj = as_trajectory_data(trajectory)
-    times = operating_times(traj.duration, schedule, traj.dt)
-    idx = np.round(times / traj.dt).astype(int)
+    traj, traj_path, traj_sha = load_desired(trajectory)
+    z, dt = desired_states(traj), float(traj.t[1] - traj.t[0])
+    times = operating_times(traj.t_f, schedule, dt)
+    idx = np.round(times / dt).astype(int)
     V = measurement_covariance(sensors)
     a_tip = rms_tip_acceleration(model, traj)
     tip_sigma = PAYLOAD_MASS_KG * a_tip
     # the feedforward of the last sample is the hold's zero torque
-    tau_bar = np.array([traj.tau[k] if k < traj.n_steps else np.zeros(2) for k in idx])
-    points = [design_point(model, traj.z[k], tb, V, tip_sigma, traj.dt, integral_weight)
+    tau_bar = np.array([traj.tau[k] if k < traj.n_samples else np.zeros(2) for k in idx])
+    points = [design_point(model, z[k], tb, V, tip_sigma, dt, integral_weight)
               for k, tb in zip(idx, tau_bar)]
     stack = lambda a: np.array([getattr(p, a) for p in points])  # noqa: E731
     meta = {
@@ -380,17 +382,17 @@ def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: Se
                           "tip_force_sigma_N": tip_sigma, "motor_torque_sigma_Nm": MOTOR_TORQUE_SIGMA,
                           "element_force_sigma_Nm": ELEMENT_FORCE_SIGMA},
         "linearization": "about (z_d(t_k), tau_ff(t_k)), 1 ms zero-order hold",
-        "sample_time_s": traj.dt,
+        "sample_time_s": dt,
         "operating_times_s": times.tolist(),
-        "trajectory_file": relative_path(traj.path),
-        "trajectory_sha256": traj.sha256,
+        "trajectory_file": relative_path(traj_path),
+        "trajectory_sha256": traj_sha,
         "parameter_file": relative_path(model.params.source),
         "parameter_sha256": model.params.sha256,
         "commit": git_commit(),
         "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "versions": {"scipy": scipy.__version__, "numpy": np.__version__},
     }
-    return LqgDesign(schedule=schedule, times=times, operating_points=traj.z[idx], tau_bar=tau_bar,
+    return LqgDesign(schedule=schedule, times=times, operating_points=z[idx], tau_bar=tau_bar,
                      Phi=stack("Phi"), Gamma=stack("Gamma"), W=stack("W"), M=stack("M"),
                      P_prior=stack("P_prior"), P_post=stack("P_post"), K=stack("K"),
                      K_integral=stack("K_integral"), C=measurement_matrix(), V=V, metadata=meta)

@@ -24,12 +24,14 @@ from .gain_schedule import (  # noqa: F401 - re-exported
     SCHEDULES,
     GainSchedule,
     StaleDataError,
-    TrajectoryData,
-    as_trajectory_data,
+    as_trajectory,
     default_trajectory_path,
     design_schedule,
+    desired_states,
+    load_desired,
     operating_times,
     read_design_metadata,
+    trajectory_from_states,
 )
 from .gain_sets import (  # noqa: F401 - re-exported
     GAIN_SET_NAMES,
@@ -97,13 +99,13 @@ def main(argv=None) -> int:
         print(f"error: trajectory file {args.trajectory} does not exist", file=sys.stderr)
         return 2
     model = ArmModel(load_parameters(args.params))
-    traj = as_trajectory_data(args.trajectory)
-    print(f"trajectory {args.trajectory} ({traj.duration:.3f} s, sha256 {traj.sha256[:12]}...), "
+    traj, _, traj_sha = load_desired(args.trajectory)
+    print(f"trajectory {args.trajectory} ({traj.t_f:.3f} s, sha256 {traj_sha[:12]}...), "
           f"linearization={args.linearization}, R = 10 I2")
     done = []
     for name in args.sets:
         for sched in args.schedules:
-            s = design_schedule(model, traj, name, sched, linearization=args.linearization)
+            s = design_schedule(model, args.trajectory, name, sched, linearization=args.linearization)
             done.append(s)
             if args.write:
                 s.save(args.out)
@@ -121,7 +123,7 @@ def main(argv=None) -> int:
         print(f"wrote {len(done)} schedules to {args.out}")
     if not args.no_lqg:
         for sched in args.schedules:
-            lqg = design_lqg(model, traj, sched)
+            lqg = design_lqg(model, args.trajectory, sched)
             rho_f = max(np.abs(np.linalg.eigvals(p - m @ lqg.C @ p)).max() for p, m in zip(lqg.Phi, lqg.M))
             print(f"LQG {sched}: {len(lqg.times)} points, max |K| {np.abs(lqg.K).max():.4g}, max |M| "
                   f"{np.abs(lqg.M).max():.4g}, filter spectral radius {rho_f:.6f}")

@@ -146,6 +146,9 @@ SCENARIOS: dict[str, dict] = {
     **{name: {"params": {"gain_set": "gamma0.1" if name != "controller_dlqr" else "dlqr-gamma0.1"},
               "inputs": _controller_inputs}
        for name in ("controller", "controller_ff", "controller_fb", "controller_dlqr")},
+    "controller_lqg": {"params": {"gain_set": "gamma0.1", "loop_delay_samples": 2, "integral_action": True,
+                                  "tau1_max": 1000.0, "tau2_max": 1000.0},  # the inputs are far off the path
+                       "inputs": _controller_inputs},
 }
 
 

@@ -6,7 +6,7 @@ import pytest
 from flexarm import ArmModel, load_parameters, rigid_configuration
 from flexarm.control import PEAK_TORQUE, ControllerError, TrackingController, simulate_closed_loop, tracking_errors
 from flexarm.integrator import simulate
-from flexarm.lqr import GainSchedule, TrajectoryData, default_trajectory_path, design_schedule
+from flexarm.lqr import GainSchedule, default_trajectory_path, design_schedule, desired_states, trajectory_from_states
 from flexarm.model import N, joint_angles, joint_velocities, reconstruct_angles, strain_gauge_angles
 from flexarm.modes import modal_analysis
 
@@ -28,7 +28,7 @@ def synthetic(model):
     tau = np.column_stack([4.0 * np.sin(2 * np.pi * s) * window, -0.8 * np.sin(2 * np.pi * s) * window])
     tau[-1] = 0.0
     z0 = np.r_[rigid_configuration(-0.9, 1.6), np.zeros(N)]
-    traj = TrajectoryData(t, tau, simulate(model, z0, tau[:-1]))
+    traj = trajectory_from_states(t, tau, simulate(model, z0, tau[:-1]))
     return traj, design_schedule(model, traj, "gamma0.1", "200ms")
 
 
@@ -41,9 +41,9 @@ def test_reconstruction_returns_true_angles_to_bracket_deflection(model, synthet
     """Noiseless sensors of simulated states give the 11 angles up to the (µrad) bracket deflections."""
     traj, _ = synthetic
     # add the link modes so the gauges have something to read
-    modes = modal_analysis(model, traj.z[300, :N])
+    modes = modal_analysis(model, desired_states(traj)[300, :N])
     worst = 0.0
-    for z in traj.z[::50]:
+    for z in desired_states(traj)[::50]:
         th = z[:N] + 0.01 * modes.shapes[:, modes.link_mode(2)] / np.abs(modes.shapes[:, modes.link_mode(2)]).max()
         q, _, eps = sensors(np.r_[th, z[N:]])
         rec = reconstruct_angles(q, eps)
@@ -53,7 +53,7 @@ def test_reconstruction_returns_true_angles_to_bracket_deflection(model, synthet
         assert np.abs(rec - th).max() <= np.abs(brackets).sum() + 1e-12
     assert worst < 2e-5  # rad: bracket springs deflect by a few µrad
     # on the stand-in trajectory (a real plant run, brackets loaded) too
-    for z in traj.z:
+    for z in desired_states(traj):
         q, _, eps = sensors(z)
         assert np.abs(reconstruct_angles(q, eps) - z[:N]).max() < 2e-5
 
@@ -63,14 +63,14 @@ def test_error_is_zero_on_the_trajectory(synthetic):
     for omega7 in ("tachometer", "rigid"):
         c = TrackingController(traj, sched, omega7=omega7)
         for k in (0, 123, 599, 600, 900):
-            e = c.error_estimate(k, *sensors(traj.z[min(k, traj.n_steps)]))
+            e = c.error_estimate(k, *sensors(desired_states(traj)[min(k, traj.n_samples)]))
             assert np.abs(e).max() < 1e-12
             assert np.count_nonzero(e[N:]) == 0
 
 
 def test_velocity_error_interpretation(synthetic):
     traj, sched = synthetic
-    q, qd, eps = sensors(traj.z[100])
+    q, qd, eps = sensors(desired_states(traj)[100])
     qd_err = np.array([0.01, -0.02])
     e_t = TrackingController(traj, sched).error_estimate(100, q, qd + qd_err, eps)
     e_r = TrackingController(traj, sched, omega7="rigid").error_estimate(100, q, qd + qd_err, eps)
@@ -85,7 +85,7 @@ def test_error_estimate_is_the_reconstruction_error(synthetic):
     rng = np.random.default_rng(3)
     c = TrackingController(traj, sched)
     for k in (0, 250, 599):
-        q_d, qd_d, eps_d = sensors(traj.z[k])
+        q_d, qd_d, eps_d = sensors(desired_states(traj)[k])
         q, qd, eps = q_d + rng.normal(size=2), qd_d + rng.normal(size=2), eps_d + rng.normal(scale=1e-2, size=6)
         e = c.error_estimate(k, q, qd, eps)
         assert np.allclose(e[:N], reconstruct_angles(q, eps) - reconstruct_angles(q_d, eps_d), atol=1e-14)
@@ -101,7 +101,7 @@ def test_feedforward_only_replays_trajectory_torques(synthetic):
     traj, _ = synthetic
     c = TrackingController(traj, None, mode="ff", saturation=None)
     rng = np.random.default_rng(0)
-    for k in range(traj.n_steps):
+    for k in range(traj.n_samples):
         q, qd, eps = rng.normal(size=2), rng.normal(size=2), rng.normal(size=6)  # ignored
         assert np.array_equal(c.torque_at(k, q, qd, eps), traj.tau[k])
     assert np.array_equal(c.torque(0.2, q, qd, eps), traj.tau[200])
@@ -110,16 +110,16 @@ def test_feedforward_only_replays_trajectory_torques(synthetic):
 def test_hold_after_slew(synthetic):
     traj, sched = synthetic
     c = TrackingController(traj, sched)
-    zf = traj.z[-1]
-    for k in (traj.n_steps, traj.n_steps + 1, traj.n_steps + 5000):
+    zf = desired_states(traj)[-1]
+    for k in (traj.n_samples, traj.n_samples + 1, traj.n_samples + 5000):
         assert np.array_equal(c.feedforward(k), np.zeros(2))
         assert np.array_equal(c.desired_state(k), zf)
         assert np.allclose(c.torque_at(k, *sensors(zf)), 0.0, atol=1e-12)
-        assert np.array_equal(c.gain(k), c.gain(traj.n_steps))
+        assert np.array_equal(c.gain(k), c.gain(traj.n_samples))
     # an error after the slew is fed back against the final state with the last gain set
     q, qd, eps = sensors(zf)
-    tau = c.torque_at(traj.n_steps + 10, q + np.array([0.01, 0.0]), qd, eps)
-    assert np.allclose(tau, -c.gain(traj.n_steps) @ c.error_estimate(traj.n_steps, q + [0.01, 0.0], qd, eps))
+    tau = c.torque_at(traj.n_samples + 10, q + np.array([0.01, 0.0]), qd, eps)
+    assert np.allclose(tau, -c.gain(traj.n_samples) @ c.error_estimate(traj.n_samples, q + [0.01, 0.0], qd, eps))
     assert np.abs(tau).max() > 0
 
 
@@ -130,20 +130,20 @@ def test_saturation_never_exceeded(synthetic):
     rng = np.random.default_rng(2)
     hit = np.zeros(2, dtype=bool)
     for k in rng.integers(0, 800, size=400):
-        q, qd, eps = sensors(traj.z[min(k, traj.n_steps)])
+        q, qd, eps = sensors(desired_states(traj)[min(k, traj.n_samples)])
         tau = c.torque_at(int(k), q + rng.normal(scale=2.0, size=2), qd + rng.normal(scale=20, size=2),
                           eps + rng.normal(scale=0.5, size=6))
         assert np.all(np.abs(tau) <= limits)
         hit |= np.isclose(np.abs(tau), limits)
     assert hit.all()  # the limits were actually active
     small = TrackingController(traj, sched, saturation=(0.5, 0.1))
-    assert np.all(np.abs(small.torque_at(100, *sensors(traj.z[0]))) <= [0.5, 0.1])
+    assert np.all(np.abs(small.torque_at(100, *sensors(desired_states(traj)[0]))) <= [0.5, 0.1])
 
 
 def test_feedback_only_has_no_feedforward(synthetic):
     traj, sched = synthetic
     c = TrackingController(traj, sched, mode="fb")
-    assert np.allclose(c.torque_at(100, *sensors(traj.z[100])), 0.0)
+    assert np.allclose(c.torque_at(100, *sensors(desired_states(traj)[100])), 0.0)
     assert np.array_equal(c.feedforward(100), np.zeros(2))
 
 

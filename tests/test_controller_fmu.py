@@ -13,7 +13,7 @@ from fmpy.validation import validate_fmu
 from fmu_harness import Slave
 
 from flexarm.control import TrackingController, tracking_errors
-from flexarm.lqr import DEFAULT_GAIN_DIR, GainSchedule, as_trajectory_data, default_trajectory_path
+from flexarm.lqr import DEFAULT_GAIN_DIR, GainSchedule, as_trajectory, default_trajectory_path, desired_states
 from flexarm.model import N, joint_angles, joint_velocities, strain_gauge_angles
 from flexarm.sensors import MEASURED_SIGNAL_NAMES
 
@@ -44,7 +44,7 @@ def unzipped(fmus, tmp_path_factory) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def trajectory():
-    return as_trajectory_data(default_trajectory_path())
+    return as_trajectory(default_trajectory_path())
 
 
 def measurements(z) -> np.ndarray:
@@ -116,12 +116,12 @@ def test_torques_equal_flexarm_control_bit_for_bit(fmus, unzipped, trajectory, f
                              mode=mode, saturation=(params.get("tau1_max", 7.0), params.get("tau2_max", 2.25)),
                              omega7=params.get("omega7", "tachometer"))
     rng = np.random.default_rng(0)
-    n = trajectory.n_steps + 200  # past the slew: the hold
+    n = trajectory.n_samples + 200  # past the slew: the hold
     ctrl = Slave(fmus[fmu], unzipped[fmu], fmu, **params)
     try:
         for k in range(n):
             if k % 7 == 0 or k > n - 5:  # a subsample of the points, all steps taken
-                z = trajectory.z[min(k, trajectory.n_steps)]
+                z = desired_states(trajectory)[min(k, trajectory.n_samples)]
                 y = measurements(z) + rng.normal(0.0, [1e-2] * 4 + [1e-4] * 6)
                 ctrl.set_vector(USED, y)
                 ctrl.set_vector(["acc1_m", "acc2_m"], rng.normal(0.0, 10.0, 2))  # ignored
@@ -142,7 +142,7 @@ def test_outputs_follow_the_inputs_set_at_the_same_point(fmus, unzipped, traject
     try:
         for _ in range(k):
             ctrl.step()
-        y = measurements(trajectory.z[k])
+        y = measurements(desired_states(trajectory)[k])
         ctrl.set_vector(USED, y)
         on_track = ctrl.get(["tau1", "tau2"])
         np.testing.assert_allclose(on_track, trajectory.tau[k], atol=1e-9)  # zero error: pure feedforward
@@ -164,7 +164,7 @@ def test_outputs_follow_the_inputs_set_at_the_same_point(fmus, unzipped, traject
 
 def closed_loop(fmus, unzipped, trajectory, controller: str, n: int, **params) -> np.ndarray:
     """Plant FMU (0.275 kg payload) + controller FMU, perfect measurement; states (n + 1, 22)."""
-    theta0 = trajectory.z[0, :N]
+    theta0 = desired_states(trajectory)[0, :N]
     q0 = joint_angles(theta0)
     plant = Slave(fmus["plant"], unzipped["plant"], "plant", payload_mass=PAYLOAD, q1_0=q0[0], q2_0=q0[1])
     ctrl = Slave(fmus[controller], unzipped[controller], controller, **params)
@@ -186,8 +186,8 @@ def closed_loop(fmus, unzipped, trajectory, controller: str, n: int, **params) -
 
 
 def test_closed_loop_with_payload_tracks_better_than_feedforward(fmus, unzipped, trajectory):
-    n = trajectory.n_steps
-    np.testing.assert_allclose(trajectory.z[0, N:], 0.0, atol=1e-12)  # starts at rest
+    n = trajectory.n_samples
+    np.testing.assert_allclose(desired_states(trajectory)[0, N:], 0.0, atol=1e-12)  # starts at rest
     fb = tracking_errors(closed_loop(fmus, unzipped, trajectory, "controller", n, gain_set="gamma_0.1"), trajectory)
     ff = tracking_errors(closed_loop(fmus, unzipped, trajectory, "controller_ff", n), trajectory)
     print(f"\n0.275 kg payload, {n} steps: pos rms ff+fb {fb['pos_rms']:.3f} deg, ff {ff['pos_rms']:.3f} deg; "

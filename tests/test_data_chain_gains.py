@@ -12,10 +12,13 @@ from flexarm.gain_schedule import (
     GainSchedule,
     StaleDataError,
     design_schedule,
+    trajectory_from_states,
 )
 from flexarm.gain_sets import GAIN_SET_NAMES
 from flexarm.model import N
 from flexarm.parameters import DEFAULT_PARAMETER_FILE, load_parameters
+from flexarm.provenance import sha256_file
+from flexarm.trajectory.io import load_trajectory, save_trajectory
 
 
 @pytest.fixture()
@@ -28,7 +31,9 @@ def chain(tmp_path):
     t = np.arange(n) * 1e-3
     z = np.tile(np.r_[rigid_configuration(-0.9, 1.0), np.zeros(N)], (n, 1))
     traj = tmp_path / "traj.npz"
-    np.savez(traj, t=t, tau=np.zeros((n, 2)), z=z)
+    result = trajectory_from_states(t, np.zeros((n, 2)), z)
+    result.metadata.update(parameter_file=par.name, parameter_sha256=sha256_file(par))
+    save_trajectory(result, traj)
     gains = tmp_path / "gains"
     design_schedule(model, traj, "gamma0.1", "single").save(gains)
     return par, traj, gains
@@ -45,10 +50,9 @@ def test_fresh_schedule_loads(chain):
 def test_changed_input_is_refused_naming_both_files_and_the_command(chain, changed):
     par, traj, gains = chain
     if changed == "trajectory":
-        with np.load(traj) as d:
-            arrays = {k: d[k] for k in d.files}
-        arrays["tau"][10, 0] = 0.5
-        np.savez(traj, **arrays)
+        result = load_trajectory(traj)
+        result.tau[10, 0] = 0.5
+        save_trajectory(result, traj)
     else:
         par.write_text(par.read_text() + "\n# recalibrated\n")
     with pytest.raises(StaleDataError) as err:

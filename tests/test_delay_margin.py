@@ -9,9 +9,10 @@ from flexarm.delay_margin import closed_loop_matrix, delay_margins, margin_from_
 from flexarm.gain_schedule import (
     DEFAULT_GAIN_DIR,
     GainSchedule,
-    TrajectoryData,
-    as_trajectory_data,
+    as_trajectory,
     default_trajectory_path,
+    desired_states,
+    trajectory_from_states,
 )
 from flexarm.integrator import IntegrationError, PlantSimulator
 from flexarm.model import N, joint_angles, joint_velocities, strain_gauge_angles
@@ -41,16 +42,17 @@ def test_margin_from_radii():
 
 def hold_controller(name: str):
     """The controller of the hold after the slew: final state, no feedforward, the last 200 ms gain set."""
-    traj = as_trajectory_data(default_trajectory_path())
+    traj = as_trajectory(default_trajectory_path())
+    z_final = desired_states(traj)[-1]
     sched = GainSchedule.load(name, "200ms")
     n = 4000
-    hold = TrajectoryData(np.arange(n + 1) * traj.dt, np.zeros((n + 1, 2)), np.tile(traj.z[-1], (n + 1, 1)))
+    hold = trajectory_from_states(np.arange(n + 1) * 1e-3, np.zeros((n + 1, 2)), np.tile(z_final, (n + 1, 1)))
     last = GainSchedule(name=name, schedule="single", times=[0.0], gains=sched.gains[-1:],
-                        operating_points=traj.z[-1:], Q=sched.Q, R=sched.R, residuals=sched.residuals[-1:],
+                        operating_points=z_final[None], Q=sched.Q, R=sched.R, residuals=sched.residuals[-1:],
                         rho_full=sched.rho_full[-1:], rho_reduced=sched.rho_reduced[-1:],
                         rho_implemented=sched.rho_implemented[-1:], max_real_full=sched.max_real_full[-1:],
                         max_real_reduced=sched.max_real_reduced[-1:])
-    return TrackingController(hold, last, mode="fb", saturation=None), traj
+    return TrackingController(hold, last, mode="fb", saturation=None), traj, z_final
 
 
 def run_with_delay(controller, z_final, delay: int, n_steps: int) -> np.ndarray:
@@ -75,7 +77,7 @@ def run_with_delay(controller, z_final, delay: int, n_steps: int) -> np.ndarray:
 @pytest.mark.skipif(not (DEFAULT_GAIN_DIR / "eq32_200ms.npz").exists(), reason="gain files not generated")
 def test_hold_margin_of_eq32_against_the_nonlinear_plant():
     """eq32's hold entry: the analysis's margin d* keeps the real plant bounded, d* + 1 makes it grow."""
-    controller, traj = hold_controller("eq32")
+    controller, traj, z_final = hold_controller("eq32")
     result = delay_margins(ArmModel(), GainSchedule.load("eq32", "200ms"), traj, max_delay=4)
     d_star = result["hold_margin"]
     assert 0 <= d_star < 4
@@ -83,8 +85,8 @@ def test_hold_margin_of_eq32_against_the_nonlinear_plant():
     # long enough for the unstable mode to grow 1000-fold by the linear analysis
     n = int(np.ceil(np.log(1e3) / np.log(rho_out)))
     assert n <= 4000, "the growth past the margin is too slow to test"
-    inside = run_with_delay(controller, traj.z[-1], d_star, n)
-    outside = run_with_delay(controller, traj.z[-1], d_star + 1, n)
+    inside = run_with_delay(controller, z_final, d_star, n)
+    outside = run_with_delay(controller, z_final, d_star + 1, n)
     start = max(inside[:20].max(), 1e-12)
     assert np.all(np.isfinite(inside)) and inside[-200:].max() < 2 * start  # bounded: no growth
     assert not np.isfinite(outside[-1]) or outside[-200:].max() > 30 * start  # grows

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from flexarm import ArmModel, rigid_configuration
-from flexarm.gain_schedule import StaleDataError, TrajectoryData
+from flexarm.gain_schedule import StaleDataError, trajectory_from_states
 from flexarm.lqg import LqgController, LqgError
 from flexarm.lqg_design import (
     DEFAULT_LQG_DIR,
@@ -44,8 +44,8 @@ def one_point_design(point, rest) -> LqgDesign:
                      K_integral=point.K_integral[None], C=measurement_matrix(), V=measurement_covariance())
 
 
-def resting_trajectory(rest, n=4000) -> TrajectoryData:
-    return TrajectoryData(np.arange(n + 1) * 1e-3, np.zeros((n + 1, 2)), np.tile(rest, (n + 1, 1)))
+def resting_trajectory(rest, n=4000):
+    return trajectory_from_states(np.arange(n + 1) * 1e-3, np.zeros((n + 1, 2)), np.tile(rest, (n + 1, 1)))
 
 
 def doubling_dare(A, G, H, iterations=60):
@@ -210,3 +210,17 @@ def test_committed_design_files_load_and_stale_ones_are_refused(tmp_path):
     (tmp_path / "lqg_200ms.json").write_text(meta.replace(d.metadata["trajectory_sha256"], "0" * 64))
     with pytest.raises(StaleDataError, match="trajectory file"):
         LqgDesign.load("200ms", tmp_path)
+
+
+def test_required_loop_delay_for_the_target_stepping():
+    from flexarm.lqg import required_loop_delay, with_loop_delay
+
+    assert required_loop_delay("gauss-seidel", 2) == 0
+    assert required_loop_delay("jacobi", 2) == 2  # plant -> sensors -> controller -> plant
+    assert required_loop_delay("jacobi", 1) == 1  # controller reads the plant directly
+    assert with_loop_delay({"gain_set": "gamma0.1", "loop_delay_samples": 0}, "jacobi") == \
+        {"gain_set": "gamma0.1", "loop_delay_samples": 2}
+    with pytest.raises(LqgError, match="stepping"):
+        required_loop_delay("parallel")
+    with pytest.raises(LqgError, match="feedthrough_fmus"):
+        required_loop_delay("jacobi", 0)

@@ -12,7 +12,6 @@ from flexarm.lqr import (
     GAIN_SET_NAMES,
     GainError,
     GainSchedule,
-    TrajectoryData,
     canonical_name,
     design_gain,
     design_schedule,
@@ -23,6 +22,7 @@ from flexarm.lqr import (
     reduce_gain,
     riccati_residual,
     state_weight,
+    trajectory_from_states,
 )
 from flexarm.model import N, joint_angles, joint_velocities, reconstruct_angles, strain_gauge_angles
 
@@ -47,7 +47,7 @@ def synthetic_trajectory(model, n_steps=600):
     tau = np.column_stack([4.0 * np.sin(2 * np.pi * s) * window, -0.8 * np.sin(2 * np.pi * s) * window])
     tau[-1] = 0.0
     z0 = np.r_[rigid_configuration(-0.9, 1.6), np.zeros(N)]
-    return TrajectoryData(t, tau, simulate(model, z0, tau[:-1]))
+    return trajectory_from_states(t, tau, simulate(model, z0, tau[:-1]))
 
 
 @pytest.mark.parametrize("name", GAIN_SET_NAMES)

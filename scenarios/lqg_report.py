@@ -1,0 +1,102 @@
+"""The LQG's tables beside the paper's LQR and ours (issue 14): ``python -m scenarios.lqg_report``.
+
+Runs, through the FMUs and our master: ``table2`` (our γ = 0.1 LQR,
+Gauss-Seidel), ``lqg`` (Gauss-Seidel) and ``lqg_jacobi`` (Jacobi stepping,
+delay 2), the last with Table 2's and with Table 1's weights (noise
+robustness), integral action off and on, and prints per Table 2 case the
+paper's LQR, our LQR and the LQG variants, then the acceptance figures of the
+issue. The paper's numbers come from ``scenarios/paper_tables.toml`` and are
+only printed beside ours.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import tempfile
+import tomllib
+from pathlib import Path
+
+from .config import SCENARIO_DIR, load_scenario
+from .runner import DEFAULT_FMU_DIR, run_scenario
+
+CASES = ("none", "noise", "tip", "tip_noise")
+ROWS = (("rms_position_error", "rms position error, deg"), ("rms_velocity_error", "rms velocity error, deg/s"),
+        ("peak_position_error", "peak position error, deg"), ("peak_velocity_error", "peak velocity error, deg/s"),
+        ("peak_tau1", "peak torque 1, N.m"), ("peak_tau2", "peak torque 2, N.m"))
+
+
+def _with_gain_set(scenario, gain_set: str):
+    sc = copy.deepcopy(scenario)
+    for case in sc.cases:
+        case.parameters.setdefault("controller", {})["gain_set"] = gain_set
+    return sc
+
+
+def _run(scenario, out: Path, fmu_dir: Path) -> dict:
+    return {r.key: r.metrics for r in run_scenario(scenario, out, fmu_dir, progress=False)}
+
+
+def _fmt(v) -> str:
+    return "unbounded" if v is None else f"{v:.4g}"
+
+
+def main(argv=None) -> int:
+    """Run the scenarios and print the comparison."""
+    ap = argparse.ArgumentParser(prog="python -m scenarios.lqg_report", description=__doc__.split("\n")[0])
+    ap.add_argument("--out", type=Path, default=None, help="results folder (default: a temporary folder)")
+    ap.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR)
+    args = ap.parse_args(argv)
+    paper = tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
+    metric_names = paper["metrics"]
+    with tempfile.TemporaryDirectory() as tmp:
+        out = args.out or Path(tmp)
+        lqg, jac = load_scenario("lqg"), load_scenario("lqg_jacobi")
+        runs = {
+            "our LQR (GS)": _run(load_scenario("table2"), out, args.fmu_dir),
+            "LQG (GS)": _run(lqg, out, args.fmu_dir),
+            "LQG (Jacobi, d=2)": _run(jac, out, args.fmu_dir),
+        }
+        t1 = _with_gain_set(jac, "gamma1")
+        t1.name = "lqg_jacobi_gamma1"
+        runs["LQG gamma1 (Jacobi)"] = _run(t1, out, args.fmu_dir)
+        lqr1 = _with_gain_set(load_scenario("table2"), "gamma1")
+        lqr1.name = "table1_lqr"
+        runs["our LQR gamma1 (GS)"] = _run(lqr1, out, args.fmu_dir)
+    cols = ["paper LQR", "our LQR (GS)", "LQG (GS)", "LQG+I (GS)", "LQG (Jacobi, d=2)", "LQG+I (Jacobi)"]
+    for case in CASES:
+        p = paper["table2"].get(case)
+        print(f"\n== Table 2 case '{case}' (gamma = 0.1 weights)")
+        print(f"{'':28s}" + "".join(f"{c:>19s}" for c in cols))
+        for key, label in ROWS:
+            pv = None if p is None or isinstance(p, dict) else p[metric_names.index(key)]
+            vals = [pv, runs["our LQR (GS)"][case], runs["LQG (GS)"][case], runs["LQG (GS)"][f"{case}_integral"],
+                    runs["LQG (Jacobi, d=2)"][case], runs["LQG (Jacobi, d=2)"][f"{case}_integral"]]
+            cells = [_fmt(vals[0])] + [_fmt(None if v is None else v[key]) for v in vals[1:]]
+            print(f"{label:28s}" + "".join(f"{c:>19s}" for c in cells))
+    lqr, jacobi = runs["our LQR (GS)"], runs["LQG (Jacobi, d=2)"]
+    print("\n== Acceptance (issue 14)")
+    for case in CASES:
+        bound = max(1.5 * lqr[case]["rms_position_error"], 0.05) if lqr[case] else None
+        ours = jacobi[case]["rms_position_error"] if jacobi[case] else None
+        ok = ours is not None and bound is not None and ours <= bound
+        print(f"Jacobi d=2, {case:10s}: rms position {_fmt(ours)} deg, bound max(1.5 x LQR, 0.05) = "
+              f"{_fmt(bound)} deg: {'met' if ok else 'NOT met'}")
+    g1, l1 = runs["LQG gamma1 (Jacobi)"], runs["our LQR gamma1 (GS)"]
+    for name, r in (("LQG gamma1, Jacobi d=2", g1), ("our LQR gamma1, GS", l1)):
+        for base in ("none", "tip"):
+            a, b = r[base], r[f"{base}_noise" if base == "tip" else "noise"]
+            ratio = b["rms_position_error"] / a["rms_position_error"] if a and b else None
+            print(f"noise robustness, {name}, {base:4s}: rms position {_fmt(a and a['rms_position_error'])} -> "
+                  f"{_fmt(b and b['rms_position_error'])} deg with noise, ratio {_fmt(ratio)}")
+    for name, key in (("without", "tip"), ("with", "tip_integral")):
+        m = jacobi[key]
+        print(f"payload 0.275 kg, LQG Jacobi {name} integral action: rms position {_fmt(m['rms_position_error'])} "
+              f"deg, rms velocity {_fmt(m['rms_velocity_error'])} deg/s, peak torques {_fmt(m['peak_tau1'])} / "
+              f"{_fmt(m['peak_tau2'])} N.m (our LQR: {_fmt(lqr['tip']['rms_position_error'])} deg, "
+              f"{_fmt(lqr['tip']['rms_velocity_error'])} deg/s)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
