@@ -1,16 +1,35 @@
 """The paper's qualitative findings (notes section 4), checked on full three-FMU runs of the shipped scenarios.
 
-Each test names the finding; where our model disagrees with the paper the
-test asserts what our model does and says so (README, "Which findings hold").
+Each test names the finding and says whether it HOLDS or DOES NOT HOLD in our model (with the calibrated
+parameters, t_f = 2.058 s); where it does not, the test asserts what our model does instead. The numbers
+and their interpretation are in docs/findings.md (generated data: docs/findings-data.md,
+``python analysis/reexamine.py``). Runs use the default plant (RODAS4, no damping) unless the test is
+about the integrator: then the non-dissipative scheme (plant integrator = 2, exponential) is used too.
 """
 
+import copy
+
+import numpy as np
 import pytest
 
+from flexarm import ArmModel
 from flexarm.control import PEAK_TORQUE
+from flexarm.lqr import GainSchedule, effective_gain, zoh
+from flexarm.trajectory import load_trajectory
 from scenarios.config import load_scenario
 from scenarios.runner import run_scenario
 
 SCENARIOS = ("table1", "table2", "table3", "compare_ff_fb", "compare_schedule")
+EXPONENTIAL = 2  # the plant FMU's integrator value of the non-dissipative scheme
+
+
+def with_plant(scenario, **plant):
+    """The scenario with plant parameters set on every case (e.g. integrator, damping_ratio)."""
+    s = copy.deepcopy(scenario)
+    s.name = scenario.name + "-" + "-".join(f"{k}{v}" for k, v in plant.items())
+    for case in s.cases:
+        case.parameters.setdefault("plant", {}).update(plant)
+    return s
 
 
 @pytest.fixture(scope="module")
@@ -23,6 +42,17 @@ def runs(tmp_path_factory):
     return metrics
 
 
+@pytest.fixture(scope="module")
+def exponential_runs(tmp_path_factory):
+    """Tables 1 and 2 with the non-dissipative integrator: (table, case) -> (status, metrics)."""
+    out = tmp_path_factory.mktemp("findings_exponential")
+    results = {}
+    for name in ("table1", "table2"):
+        for r in run_scenario(with_plant(load_scenario(name), integrator=EXPONENTIAL), out, progress=False):
+            results[(name, r.key)] = (r.status, r.metrics)
+    return results
+
+
 def rms_pos(m):
     return m["rms_position_error"]
 
@@ -33,6 +63,7 @@ def rms_vel(m):
 
 @pytest.mark.parametrize("table", ["table1", "table2", "table3"])
 def test_every_case_stays_within_the_motor_limits(runs, table):
+    """Paper: peak torques stay within 7.0 and 2.25 N·m in every case. HOLDS (RODAS4 plant)."""
     for case in ("none", "noise", "tip", "tip_noise"):
         m = runs[(table, case)]
         assert m is not None, f"{table}:{case} unbounded"
@@ -41,7 +72,9 @@ def test_every_case_stays_within_the_motor_limits(runs, table):
 
 @pytest.mark.parametrize("table", ["table1", "table2", "table3"])
 def test_payload_degrades_velocity_tracking_far_more_than_position(runs, table):
-    """Paper: with the 0.275 kg payload velocity errors reach 150-190 deg/s while positions stay within ~10 deg."""
+    """Paper: with the 0.275 kg payload velocity errors reach 150-190 deg/s while positions stay within ~10 deg.
+
+    HOLDS: ours 94-126 deg/s peak velocity error, 9.8-15 deg peak position error."""
     none, tip = runs[(table, "none")], runs[(table, "tip")]
     assert rms_vel(tip) > 5 * rms_vel(none)
     assert tip["peak_position_error"] < 20.0
@@ -49,32 +82,78 @@ def test_payload_degrades_velocity_tracking_far_more_than_position(runs, table):
 
 
 def test_gamma1_is_the_most_noise_sensitive(runs):
-    """Paper: gamma = 1 is fragile under noise (its runs become unbounded).
-
-    Ours stays bounded (see README), but noise hurts gamma = 1 most: the
-    noise/no-noise ratio of the rms position error falls with gamma.
-    """
+    """Paper: gamma = 1 is fragile under noise. HOLDS in ordering only (rms position error with noise / without:
+    gamma 1 > 0.1 > 0); the runs stay bounded (see the next tests)."""
     amplification = {t: rms_pos(runs[(t, "noise")]) / rms_pos(runs[(t, "none")])
                      for t in ("table1", "table2", "table3")}
     assert amplification["table1"] > amplification["table2"] > amplification["table3"] > 1.0
 
 
+def test_gamma1_with_noise_goes_unbounded_within_the_slew(runs, exponential_runs):
+    """Paper: gamma = 1 with noise becomes numerically unbounded within the 2.058 s run.
+
+    DOES NOT HOLD as stated. With the non-dissipative plant the gamma = 1 loop IS unstable, but with and
+    without noise alike (its 5.7 kHz bracket mode grows at about 3 1/s, linear ZOH analysis); within the
+    2.058 s slew it reaches only ~150-190 deg/s peak velocity error (tau2 saturating), far from unbounded,
+    and it keeps growing after the slew (docs/findings.md). With RODAS4 it looks stable (~8 deg/s)."""
+    for case in ("none", "noise"):
+        status, m = exponential_runs[("table1", case)]
+        assert status == "ok" and m is not None  # bounded within the slew
+        assert m["peak_velocity_error"] > 10 * runs[("table1", case)]["peak_velocity_error"]
+        assert m["peak_tau2"] == pytest.approx(PEAK_TORQUE[1])  # the elbow motor saturates
+    noise, quiet = exponential_runs[("table1", "noise")][1], exponential_runs[("table1", "none")][1]
+    assert noise["peak_velocity_error"] < 2 * quiet["peak_velocity_error"]  # noise is not the cause
+
+
+def test_bracket_instability_needs_almost_no_damping():
+    """Paper (cause of the divergence): 'the lack of joint dampening in the model and the one millisecond
+    step'. HOLDS for the sampled loop's bracket mode: undamped, gamma = 1 grows (ln rho > 0 at some scheduled
+    set); a modal damping ratio of 0.005, far below a bolted arm's, makes every set stable."""
+    traj = load_trajectory()
+    sched = GainSchedule.load("gamma1")
+
+    def worst_rate(ratio):
+        model = ArmModel(damping_ratio=ratio)
+        rates = []
+        for t_k, gain in zip(sched.times, sched.gains):
+            A, B = model.linearize(traj.state(min(int(round(t_k / 1e-3)), traj.n_samples)))
+            phi, gam = zoh(A, B)
+            rates.append(np.log(np.abs(np.linalg.eigvals(phi - gam @ effective_gain(gain))).max()) / 1e-3)
+        return max(rates)
+
+    assert worst_rate(0.0) > 1.0  # 1/s (measured 3.27)
+    assert worst_rate(0.005) < 0.0  # measured -0.15
+
+
 def test_gamma01_tolerates_noise_and_payload(runs):
-    """Paper: gamma = 0.1 stays bounded with noise and payload; noise costs little position accuracy."""
+    """Paper: gamma = 0.1 stays bounded with noise and payload; noise costs little position accuracy. HOLDS."""
     for case in ("noise", "tip", "tip_noise"):
         assert runs[("table2", case)] is not None
     assert rms_pos(runs[("table2", "noise")]) < 0.1  # deg
     assert rms_pos(runs[("table2", "tip_noise")]) < 1.2 * rms_pos(runs[("table2", "tip")])
 
 
+def test_noise_multiplies_gamma01_velocity_errors(runs, exponential_runs):
+    """Paper (Table 2): noise multiplies the gamma = 0.1 velocity errors 4.7x (peak) and 3.6x (rms).
+
+    DOES NOT HOLD: ours 1.00-1.05x under both integrators, so the integrator is not the cause; the noise
+    reaching the loop is (about ten times the stated amplitudes reproduces the paper's ratios,
+    docs/findings.md)."""
+    ratios = [rms_vel(runs[("table2", "noise")]) / rms_vel(runs[("table2", "none")])]
+    ratios.append(rms_vel(exponential_runs[("table2", "noise")][1]) / rms_vel(exponential_runs[("table2", "none")][1]))
+    assert all(1.0 <= r < 1.2 for r in ratios), ratios
+
+
 def test_velocity_weighting_helps_with_the_payload(runs):
-    """Paper: gamma = 0 tracks the payload worst in velocity (Table 3: 184.6 deg/s peak vs 152.8 at gamma 0.1)."""
+    """Paper: gamma = 0 tracks the payload worst in velocity (Table 3: 184.6 deg/s peak vs 152.8 at gamma 0.1).
+    HOLDS (ours 125.5 vs 104.4 deg/s)."""
     assert rms_vel(runs[("table3", "tip")]) > rms_vel(runs[("table2", "tip")])
     assert runs[("table3", "tip")]["peak_velocity_error"] > runs[("table2", "tip")]["peak_velocity_error"]
 
 
 def test_feedforward_plus_feedback_beats_either_alone(runs):
-    """Paper: the combination tracks closer than feedforward only or feedback only, most of all with a payload."""
+    """Paper: the combination tracks closer than feedforward only or feedback only, most of all with a payload.
+    HOLDS."""
     m = {k: runs[("compare_ff_fb", k)] for k in ("ff", "fb", "both", "ff_tip", "fb_tip", "both_tip")}
     for suffix in ("", "_tip"):
         both = m["both" + suffix]
@@ -86,7 +165,7 @@ def test_feedforward_plus_feedback_beats_either_alone(runs):
 
 
 def test_gain_schedule_period_makes_little_difference(runs):
-    """Paper: gains every 200 ms, every 20 ms or one set make little difference."""
+    """Paper: gains every 200 ms, every 20 ms or one set make little difference. HOLDS."""
     for suffix in ("", "_tip"):
         rms = [rms_pos(runs[("compare_schedule", k + suffix)]) for k in ("s200ms", "s20ms", "single")]
         vel = [rms_vel(runs[("compare_schedule", k + suffix)]) for k in ("s200ms", "s20ms", "single")]

@@ -24,8 +24,8 @@ undamped mode (decay rate in 1/s at the default 2 substeps per 1 ms step;
 docs/model.md has the derivation and costs):
 
 * 1 ``rodas4`` (default): L-stable Rosenbrock, order 4. Adds 4.4e-11 1/s at
-  8 Hz and 1.1e-8 1/s at 20 Hz (nothing), but 1.53e3, 3.12e3 and 4.05e3 1/s
-  at the 5.6, 13.2 and 21.2 kHz bracket modes: they vanish within a few ms,
+  8 Hz and 1.1e-8 1/s at 20 Hz (nothing), but 1.56e3, 3.12e3 and 4.05e3 1/s
+  at the 5.7, 13.2 and 21.2 kHz bracket modes: they vanish within a few ms,
   so a controller that destabilises a bracket mode looks stable.
 * 2 ``exponential``: exponential Rosenbrock-Euler, order 2, exact for the
   linearised dynamics. Adds no damping to any mode (0 1/s at 8 Hz, 20 Hz and
