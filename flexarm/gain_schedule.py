@@ -120,6 +120,11 @@ def default_trajectory_path() -> Path:
 
 
 # -- schedules -----------------------------------------------------------------------------
+def schedule_index(times, t: float) -> int:
+    """Index of the schedule point in force at time t (s): point k covers [t_k, t_k+1); the first before t_0."""
+    return max(int(np.searchsorted(times, t + 1e-9, side="right")) - 1, 0)
+
+
 def operating_times(duration: float, schedule: str, dt: float = DEFAULT_DT) -> np.ndarray:
     """Operating times of a schedule, s, on the ``dt`` sample grid.
 
@@ -192,7 +197,7 @@ class GainSchedule:
 
     def index_at(self, t: float) -> int:
         """Index of the set in force at time t (s); the first set before t_0."""
-        return max(int(np.searchsorted(self.times, t + 1e-9, side="right")) - 1, 0)
+        return schedule_index(self.times, t)
 
     def gain_at(self, t: float, reduced: bool = True) -> np.ndarray:
         """Gain in force at time t (s), shape (2, 22); ``reduced`` zeros the unmeasured velocity columns."""

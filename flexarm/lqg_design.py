@@ -61,6 +61,7 @@ from .gain_schedule import (
     operating_times,
     read_design_metadata,
     relative_path,
+    schedule_index,
 )
 from .gain_sets import WEIGHT_NAMES, GainError, state_weight
 from .lqr_design import R_PAPER, scaling_transform, zoh
@@ -307,7 +308,7 @@ class LqgDesign:
 
     def index_at(self, t: float) -> int:
         """Index of the point in force at time t (s); the first before t_0."""
-        return max(int(np.searchsorted(self.times, t + 1e-9, side="right")) - 1, 0)
+        return schedule_index(self.times, t)
 
     def weight_index(self, name: str) -> int:
         """Index of a weight name (:data:`flexarm.gain_sets.WEIGHT_NAMES`) in ``K``."""

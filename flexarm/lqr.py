@@ -93,6 +93,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(DEFAULT_GAIN_DIR), help="output directory for --write")
     ap.add_argument("--per-set", action="store_true", help="also print each operating point's numbers")
     ap.add_argument("--no-lqg", action="store_true", help="skip the LQG design files (flexarm.lqg_design)")
+    ap.add_argument("--lqg-only", action="store_true", help="only the LQG design files (no LQR gain sets)")
     ap.add_argument("--lqg-out", default=str(DEFAULT_LQG_DIR), help="output directory of the LQG design files")
     args = ap.parse_args(argv)
     if not Path(args.trajectory).exists():
@@ -103,7 +104,7 @@ def main(argv=None) -> int:
     print(f"trajectory {args.trajectory} ({traj.t_f:.3f} s, sha256 {traj_sha[:12]}...), "
           f"linearization={args.linearization}, R = 10 I2")
     done = []
-    for name in args.sets:
+    for name in [] if args.lqg_only else args.sets:
         for sched in args.schedules:
             s = design_schedule(model, args.trajectory, name, sched, linearization=args.linearization)
             done.append(s)
@@ -114,12 +115,13 @@ def main(argv=None) -> int:
                     mag = gain_magnitudes(s.gains[k])
                     print(f"  {s.name} {sched} t={tk:6.3f} max|K|={mag['overall']:9.4g} res={s.residuals[k]:.2e} "
                           f"rho_full={s.rho_full[k]:.9f} rho_red={s.rho_reduced[k]:.9f}")
-    print(_table(done))
-    print("\nmax|K|: full gain; |K|vel2: theta1/theta7 velocity columns; max|KC|: gain on the true state as "
-          "implemented (reduced, rigid-bracket reconstruction, tachometers); res: relative Riccati residual "
-          "(original coordinates, see module doc); rho: spectral radius of Phi - Gamma K (1 ms ZOH) with the full, "
-          "reduced and implemented gain; maxRe: max Re eig(A - BK), continuous, full / reduced gain.")
-    if args.write:
+    if done:
+        print(_table(done))
+        print("\nmax|K|: full gain; |K|vel2: theta1/theta7 velocity columns; max|KC|: gain on the true state as "
+              "implemented (reduced, rigid-bracket reconstruction, tachometers); res: relative Riccati residual "
+              "(original coordinates, see module doc); rho: spectral radius of Phi - Gamma K (1 ms ZOH) with the "
+              "full, reduced and implemented gain; maxRe: max Re eig(A - BK), continuous, full / reduced gain.")
+    if args.write and done:
         print(f"wrote {len(done)} schedules to {args.out}")
     if not args.no_lqg:
         for sched in args.schedules:
