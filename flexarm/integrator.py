@@ -73,14 +73,19 @@ def advance(model: ArmModel, z, tau, dt: float, substeps: int = DEFAULT_SUBSTEPS
     if tau.shape != (2,) or not np.isfinite(tau).all():
         raise ValueError(f"tau: must be two finite torques in N·m, got {tau!r}")
     z = np.ascontiguousarray(z, dtype=float)
-    if integrator == "exponential":
-        z_new = kern.advance_exponential(z, tau, float(dt), int(substeps), model.mass_coefficients,
-                                         model.stiffness, model.j2p, model.j2d, model.damping)
-        err = 0.0
-    else:
-        z_new, err = kern.advance(z, tau, float(dt), int(substeps), model.mass_coefficients, model.stiffness,
-                                  model.j2p, model.j2d, model.damping, kern.RODAS4_A, kern.RODAS4_C,
-                                  kern.RODAS4_GAMMA)
+    try:
+        if integrator == "exponential":
+            z_new = kern.advance_exponential(z, tau, float(dt), int(substeps), model.mass_coefficients,
+                                             model.stiffness, model.j2p, model.j2d, model.damping)
+            err = 0.0
+        else:
+            z_new, err = kern.advance(z, tau, float(dt), int(substeps), model.mass_coefficients, model.stiffness,
+                                      model.j2p, model.j2d, model.damping, kern.RODAS4_A, kern.RODAS4_C,
+                                      kern.RODAS4_GAMMA)
+    except (ValueError, ZeroDivisionError, FloatingPointError) as exc:
+        # The state has left the numbers the stage systems can be solved for (e.g. an absurd torque):
+        # the step is not done, which is a discard, not a failure of the library.
+        raise IntegrationError(f"state became non-finite ({exc})") from None
     if not np.isfinite(z_new).all():
         raise IntegrationError("state became non-finite")
     return z_new, float(err)
