@@ -73,14 +73,19 @@ def advance(model: ArmModel, z, tau, dt: float, substeps: int = DEFAULT_SUBSTEPS
     if tau.shape != (2,) or not np.isfinite(tau).all():
         raise ValueError(f"tau: must be two finite torques in N·m, got {tau!r}")
     z = np.ascontiguousarray(z, dtype=float)
-    if integrator == "exponential":
-        z_new = kern.advance_exponential(z, tau, float(dt), int(substeps), model.mass_coefficients,
-                                         model.stiffness, model.j2p, model.j2d, model.damping)
-        err = 0.0
-    else:
-        z_new, err = kern.advance(z, tau, float(dt), int(substeps), model.mass_coefficients, model.stiffness,
-                                  model.j2p, model.j2d, model.damping, kern.RODAS4_A, kern.RODAS4_C,
-                                  kern.RODAS4_GAMMA)
+    try:
+        if integrator == "exponential":
+            z_new = kern.advance_exponential(z, tau, float(dt), int(substeps), model.mass_coefficients,
+                                             model.stiffness, model.j2p, model.j2d, model.damping)
+            err = 0.0
+        else:
+            z_new, err = kern.advance(z, tau, float(dt), int(substeps), model.mass_coefficients,
+                                      model.stiffness, model.j2p, model.j2d, model.damping, kern.RODAS4_A,
+                                      kern.RODAS4_C, kern.RODAS4_GAMMA)
+    except (ValueError, ZeroDivisionError, np.linalg.LinAlgError) as exc:
+        # Absurd torques or steps overflow the stage systems to inf/NaN before the state does: the
+        # kernels' factorisations then report a singular or indefinite matrix.
+        raise IntegrationError(f"state or stage system became non-finite ({exc})") from exc
     if not np.isfinite(z_new).all():
         raise IntegrationError("state became non-finite")
     return z_new, float(err)
