@@ -79,13 +79,13 @@ def advance(model: ArmModel, z, tau, dt: float, substeps: int = DEFAULT_SUBSTEPS
                                              model.stiffness, model.j2p, model.j2d, model.damping)
             err = 0.0
         else:
-            z_new, err = kern.advance(z, tau, float(dt), int(substeps), model.mass_coefficients, model.stiffness,
-                                      model.j2p, model.j2d, model.damping, kern.RODAS4_A, kern.RODAS4_C,
-                                      kern.RODAS4_GAMMA)
-    except (ValueError, ZeroDivisionError, FloatingPointError) as exc:
-        # The state has left the numbers the stage systems can be solved for (e.g. an absurd torque):
-        # the step is not done, which is a discard, not a failure of the library.
-        raise IntegrationError(f"state became non-finite ({exc})") from None
+            z_new, err = kern.advance(z, tau, float(dt), int(substeps), model.mass_coefficients,
+                                      model.stiffness, model.j2p, model.j2d, model.damping, kern.RODAS4_A,
+                                      kern.RODAS4_C, kern.RODAS4_GAMMA)
+    except (ValueError, ZeroDivisionError, np.linalg.LinAlgError) as exc:
+        # Absurd torques or steps overflow the stage systems to inf/NaN before the state does: the
+        # kernels' factorisations then report a singular or indefinite matrix.
+        raise IntegrationError(f"state or stage system became non-finite ({exc})") from exc
     if not np.isfinite(z_new).all():
         raise IntegrationError("state became non-finite")
     return z_new, float(err)

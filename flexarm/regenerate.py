@@ -28,14 +28,17 @@ DATA = Path(__file__).resolve().parent / "data"
 def stages(sensitivity: bool) -> list[tuple[str, list[str]]]:
     """(name, command) of every stage, in order."""
     py = sys.executable
-    trajectory = [py, "-m", "flexarm.trajectory", "--quiet", "--plot", str(DATA / "trajectory.png")]
+    # Paths relative to the repository (the stages run there): they are recorded in the files' metadata.
+    plot = DATA / "trajectory.png"
+    plot = plot.relative_to(REPO) if plot.is_relative_to(REPO) else plot
+    trajectory = [py, "-m", "flexarm.trajectory", "--quiet", "--plot", str(plot)]
     if sensitivity:
         trajectory.append("--sensitivity")
     return [
         ("parameters", [py, "-m", "flexarm.calibration"]),
         ("trajectory", trajectory),
         ("gains", [py, "-m", "flexarm.lqr", "--write"]),
-        ("fmus", [py, str(REPO / "build_fmus.py"), "--force"]),
+        ("fmus", [py, "build_fmus.py", "--force"]),
     ]
 
 

@@ -62,3 +62,31 @@ def test_trajectory_without_a_recorded_checksum_is_refused(copied_chain, tmp_pat
         load_trajectory(bare)
     # an inspecting tool may opt out explicitly, and then reads the same samples
     assert np.array_equal(load_trajectory(bare, parameter_file=False).tau, result.tau)
+
+
+def test_regenerate_runs_the_chain_in_order_and_stops_at_a_failure(monkeypatch, capsys):
+    """parameters -> trajectory -> gains -> FMUs, each its documented command; a failing stage stops the chain."""
+    import subprocess
+
+    from flexarm import regenerate
+
+    ran = []
+
+    class Done:
+        def __init__(self, rc):
+            self.returncode = rc
+
+    def fake_run(cmd, cwd):
+        ran.append(cmd)
+        return Done(1 if "flexarm.lqr" in cmd else 0)
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    assert regenerate.main([]) == 1
+    assert [c[2] if c[1] == "-m" else c[1] for c in ran] == ["flexarm.calibration", "flexarm.trajectory",
+                                                               "flexarm.lqr"]  # FMUs not built after a failure
+    assert "--write" in ran[-1]
+    err = capsys.readouterr().err
+    assert "stage 'gains' failed" in err and "--from gains" in err
+    ran.clear()
+    assert regenerate.main(["--from", "fmus"]) == 0
+    assert ran == [[ran[0][0], "build_fmus.py", "--force"]]

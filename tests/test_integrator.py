@@ -285,3 +285,14 @@ def test_modal_damping_ratio(integrator):
     assert np.allclose(damped.damping @ elbow, 0.0, atol=1e-9 * np.abs(damped.damping).max())
     with pytest.raises(ValueError, match="damping_ratio"):
         ArmModel(damping_ratio=-0.01)
+
+
+@pytest.mark.parametrize("integrator", ["rodas4", "exponential"])
+def test_absurd_torque_is_an_integration_error(model, integrator):
+    """A torque no integrator survives raises IntegrationError (the FMU's discard), never a bare ValueError."""
+    from flexarm.integrator import IntegrationError
+
+    for q in ((0.0, np.pi / 2), (-1.0, 1.8)):
+        z0 = np.concatenate([rigid_configuration(*q), np.zeros(N)])
+        with pytest.raises(IntegrationError, match="non-finite"):
+            advance(model, z0, (1e300, 0.0), 1e-3, integrator=integrator)

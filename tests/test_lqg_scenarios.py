@@ -65,3 +65,16 @@ def test_exported_lqg_runs_closed_loop_in_libcosim(runs, tmp_path):
     n = min(len(theta), len(ours))
     assert n > 2000
     assert np.max(np.abs(theta[:n] - ours[:n])) < 1e-9
+
+
+def test_fmu_in_gauss_seidel_stepping_equals_the_library_loop_without_delay(tmp_path):
+    sc = load_scenario("lqg")
+    assert sc.algorithm == "gauss-seidel"
+    sc.cases = [c for c in sc.cases if c.key == "tip_integral"]
+    (r,) = run_scenario(sc, tmp_path, progress=False)
+    states, _ = simulate_lqg(ArmModel(load_parameters(payload_mass=0.275)),
+                             lqg_controller(loop_delay_samples=0, integral_action=True))
+    theta = np.column_stack([r.series[f"plant.theta{i}"] for i in range(1, 12)])
+    n = min(len(theta), len(states))
+    assert n > 2000
+    assert np.max(np.abs(theta[:n] - states[:n, :11])) < 1e-9
