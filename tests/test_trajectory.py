@@ -81,9 +81,12 @@ def test_inverse_kinematics_round_trip(params):
 
 
 def test_coarse_solve_end_to_end(params, tmp_path):
-    """Few nodes: every stage converges and the constraints hold on the optimiser's own samples."""
+    """Few nodes: every stage converges and the constraints hold on the optimiser's own samples.
+
+    50 intervals: with the calibrated arm, 40 intervals of degree 3 leave the whole-ms re-solve marginal
+    (it converged with single-threaded BLAS and hit the iteration limit with multi-threaded BLAS)."""
     t0 = time.perf_counter()
-    res = solve_minimum_time(params, n_intervals=40, degree=3, verbose=False)
+    res = solve_minimum_time(params, n_intervals=50, degree=3, verbose=False)
     assert time.perf_counter() - t0 < 120
     assert res.metadata["solver"]["status"] == "Solve_Succeeded"
     assert 1.5 < res.t_f < 3.0
