@@ -541,6 +541,22 @@ static char *resources_path(Instance *s, const char *uri)
     return out;
 }
 
+/*
+ * pythonfmu 0.7.0 delivers the Python slave's queued log messages at the end of every call, except after
+ * creating the slave object (fmi2Instantiate, fmi2Reset): what the slave's __init__ logs stays queued. Its
+ * fmi2FreeInstance deletes its logger object before the slave (C++ member order in Fmi2Component), and the
+ * slave's destructor then delivers the queue through the deleted logger: a use-after-free that crashed hosts
+ * freeing an instance they never initialised (a master whose wiring fails), depending on what had reused the
+ * memory. An empty fmi2GetReal right after the slave object is made delivers the queue while the logger is
+ * alive, in the call that caused it; the queue is then empty whenever pythonfmu's destructor runs.
+ */
+static fmi2Status deliver_queued_log(Instance *s)
+{
+    fmi2ValueReference vr = 0;
+    fmi2Real value = 0.0;
+    return api.getReal(s->inner, &vr, 0, &value); /* the slave's get_real([]): no effect in instantiated mode */
+}
+
 static void free_instance_memory(Instance *s)
 {
     s->magic = 0;
@@ -611,6 +627,11 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     if (s->inner == NULL) {
         shim_log(s, fmi2Error, "fmi2Instantiate: pythonfmu could not create the Python slave (see the messages "
                  "above); are numpy and scipy importable by this Python (PYTHONPATH)?");
+        goto fail;
+    }
+    if (deliver_queued_log(s) == fmi2Fatal) { /* pythonfmu released the slave: freeing it would crash */
+        shim_log(s, fmi2Error, "fmi2Instantiate: the Python slave failed right after it was created (see the "
+                 "messages above)");
         goto fail;
     }
     return s;
@@ -716,7 +737,12 @@ fmi2Status fmi2Reset(fmi2Component c)
     fmi2Status r;
     Instance *s = admit(c, "fmi2Reset", LIVE, &r);
     if (s == NULL) return r;
-    r = outcome(s, "fmi2Reset", api.reset(s->inner)); /* pythonfmu makes a new Python slave object */
+    r = api.reset(s->inner); /* pythonfmu makes a new Python slave object */
+    if (r <= fmi2Warning) {
+        fmi2Status delivered = deliver_queued_log(s);
+        if (delivered > r) r = delivered;
+    }
+    r = outcome(s, "fmi2Reset", r);
     if (r <= fmi2Warning) {
         s->state = S_INSTANTIATED;
         s->start_time = 0.0;
