@@ -33,10 +33,11 @@ def main(argv=None) -> int:
     sweep.add_argument("--serial", action="store_true", help="run in this process, no Dask (debugging)")
     sweep.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
-    ssp = sub.add_parser("export-ssp", help="write a scenario as an SSP 1.0 package (.ssp) for other masters")
+    ssp = sub.add_parser("export-ssp", help="write a scenario's cases as SSP 1.0 packages (one .ssp per case)")
     ssp.add_argument("scenario", help="table1, table2, table3 or a path to a scenario file")
     ssp.add_argument("--out", type=Path, default=REPO / "build" / "ssp",
-                     help="folder for <name>.ssp, or a .ssp path (default: build/ssp/)")
+                     help="folder for <scenario>/<case>.ssp (default: build/ssp/)")
+    ssp.add_argument("--case", action="append", help="export only this case (repeatable; default: all)")
     ssp.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
     args = ap.parse_args(argv)
     try:
@@ -45,15 +46,15 @@ def main(argv=None) -> int:
 
             return sweep_cli(args)
         if args.command == "export-ssp":
-            from .ssp import SSPExportError, export_ssp, parameter_sets
+            from .ssp import SSPExportError, export_ssp
 
             try:
-                path = export_ssp(load_scenario(args.scenario), args.out, args.fmu_dir)
+                paths = export_ssp(load_scenario(args.scenario), args.out, args.fmu_dir, cases=args.case)
             except SSPExportError as exc:
                 print(f"error: {exc}", file=sys.stderr)
                 return 2
-            sets = parameter_sets(path)
-            print(f"{path}: cases (parameter sets) {', '.join(sets)}")
+            for key, path in paths.items():
+                print(f"{key}: {path}")
             return 0
         if args.command == "list":
             for s in list_scenarios():

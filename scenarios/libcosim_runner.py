@@ -2,7 +2,8 @@
 
 libcosim is the Open Simulation Platform's co-simulation library (C++), used
 here through its Python binding libcosimpy. :func:`run_case_libcosim` loads the
-archive, selects a case's parameter set, observes the requested variables with
+archive of one case (:func:`scenarios.ssp.export_ssp` writes one per case; its
+FMUs default to the case's values and its parameter bindings say the same), observes the requested variables with
 a time-series observer and steps the whole run.
 
 How libcosim's fixed-step algorithm exchanges values (libcosim 0.11,
@@ -64,7 +65,7 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
-from .ssp import NS, SSPExportError, case_ssd
+from .ssp import DEFAULT_SSD, NS, SSPExportError
 
 NANO = 1_000_000_000
 
@@ -112,15 +113,9 @@ def default_record(ssd: bytes) -> list[tuple[str, str]]:
     return [(plant, v) for v in states + ["tip_x", "tip_y"]] + [(driver, "tau1"), (driver, "tau2")]
 
 
-def _select_case(ssd: bytes, unpacked: Path, case_key: str, worker_threads: int | None) -> tuple[bytes, float, float]:
-    """The SSD with the case's bindings first in every component; also its step size and stop time."""
+def _prepare_ssd(ssd: bytes, worker_threads: int | None) -> tuple[bytes, float, float]:
+    """The SSD with libcosim's worker-thread count set; also its step size and run length."""
     doc = etree.parse(io.BytesIO(ssd))
-    for bindings in doc.iterfind("ssd:System/ssd:Elements/ssd:Component/ssd:ParameterBindings", NS):
-        chosen = [b for b in bindings if b.get("source") and
-                  etree.parse(str(unpacked / b.get("source"))).getroot().get("name") == case_key]
-        for b in reversed(chosen):
-            bindings.remove(b)
-            bindings.insert(0, b)
     algo = doc.find("ssd:DefaultExperiment/ssd:Annotations/ssc:Annotation/osp:Algorithm/osp:FixedStepAlgorithm", NS)
     exp = doc.find("ssd:DefaultExperiment", NS)
     if algo is None or exp is None or exp.get("stopTime") is None:
@@ -131,7 +126,7 @@ def _select_case(ssd: bytes, unpacked: Path, case_key: str, worker_threads: int 
         float(exp.get("stopTime")) - float(exp.get("startTime", 0.0))
 
 
-def run_case_libcosim(ssp_path: str | Path, case_key: str, n_steps: int | None = None,
+def run_case_libcosim(ssp_path: str | Path, n_steps: int | None = None,
                       record: list[tuple[str, str]] | list[str] | None = None,
                       worker_threads: int | None = 0) -> dict:
     """Run one case of an exported scenario in libcosim.
@@ -139,9 +134,7 @@ def run_case_libcosim(ssp_path: str | Path, case_key: str, n_steps: int | None =
     Parameters
     ----------
     ssp_path : path
-        Archive written by :func:`scenarios.ssp.export_ssp`.
-    case_key : str
-        The case (parameter set name), e.g. ``"none"``.
+        A case's archive, written by :func:`scenarios.ssp.export_ssp`.
     n_steps : int, optional
         Communication steps (default: the SSD's DefaultExperiment, i.e. the scenario's run length).
     record : list of (instance, variable) or "instance.variable", optional
@@ -162,12 +155,12 @@ def run_case_libcosim(ssp_path: str | Path, case_key: str, n_steps: int | None =
     _quiet_logging()
 
     ssp_path = Path(ssp_path)
-    ssd_name = case_ssd(ssp_path, case_key)
+    ssd_name = DEFAULT_SSD
     with tempfile.TemporaryDirectory(prefix="flexarm-libcosim-") as tmp:
         unpacked = Path(tmp)
         with zipfile.ZipFile(ssp_path) as zf:
             zf.extractall(unpacked)
-        ssd, h, duration = _select_case((unpacked / ssd_name).read_bytes(), unpacked, case_key, worker_threads)
+        ssd, h, duration = _prepare_ssd((unpacked / ssd_name).read_bytes(), worker_threads)
         (unpacked / ssd_name).write_bytes(ssd)
         n = int(round(duration / h)) if n_steps is None else int(n_steps)
         if record is None:
@@ -198,7 +191,7 @@ def run_case_libcosim(ssp_path: str | Path, case_key: str, n_steps: int | None =
 
         if not execution.step(n):
             status = execution.status()
-            raise LibcosimError(f"{case_key}: stepping failed at t = {status.current_time / NANO:.3f} s: "
+            raise LibcosimError(f"{ssp_path.name}: stepping failed at t = {status.current_time / NANO:.3f} s: "
                                 f"{_last_error()}")
 
         # libcosimpy's sample reader drops sample 0 (it counts step number 0 as "missing"): read directly.
@@ -229,7 +222,7 @@ def run_case_libcosim(ssp_path: str | Path, case_key: str, n_steps: int | None =
 
 
 def main(argv=None) -> int:
-    """``python -m scenarios.libcosim_runner SSP CASE [--steps N] [--out FILE.csv|.npz]``: one case in libcosim."""
+    """``python -m scenarios.libcosim_runner SSP [--steps N] [--out FILE.csv|.npz]``: one case in libcosim."""
     import argparse
     import sys
     import time
@@ -240,8 +233,8 @@ def main(argv=None) -> int:
 
     ap = argparse.ArgumentParser(prog="python -m scenarios.libcosim_runner",
                                  description="Run one case of an exported scenario (.ssp) in libcosim.")
-    ap.add_argument("ssp", type=Path, help="archive from `python -m scenarios export-ssp`")
-    ap.add_argument("case", help="case key (parameter set), e.g. none")
+    ap.add_argument("ssp", type=Path, help="a case's archive from `python -m scenarios export-ssp`, "
+                    "e.g. build/ssp/table2/none.ssp")
     ap.add_argument("--steps", type=int, help="communication steps (default: the scenario's run length)")
     ap.add_argument("--out", type=Path, help="write the time series: .csv (as `scenarios run`) or .npz")
     ap.add_argument("--worker-threads", type=int, default=0,
@@ -249,7 +242,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     try:
         t0 = time.perf_counter()
-        out = run_case_libcosim(args.ssp, args.case, args.steps,
+        out = run_case_libcosim(args.ssp, args.steps,
                                 worker_threads=None if args.worker_threads < 0 else args.worker_threads)
         wall = time.perf_counter() - t0
     except (LibcosimError, SSPExportError) as exc:
@@ -264,7 +257,7 @@ def main(argv=None) -> int:
             tmp.replace(args.out)
         else:
             write_csv(args.out, series)
-    print(f"{args.ssp} case {args.case}: {len(out['time']) - 1} steps of {out['step_size']} s in libcosim, "
+    print(f"{args.ssp}: {len(out['time']) - 1} steps of {out['step_size']} s in libcosim, "
           f"{wall:.2f} s wall time")
     sig = out["signals"]
     plant = next((k.split(".")[0] for k in sig if k.endswith(".theta1")), None)

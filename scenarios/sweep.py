@@ -67,7 +67,7 @@ from distributed import WorkerPlugin
 from fmpy import read_model_description
 
 from .config import SCENARIO_DIR, Case, Scenario, ScenarioError, load_scenario
-from .master import CoSimulationError
+from .master import CoSimulationError, parse_choices
 from .metrics import METRICS
 from .results import git_commit, sha256_file, write_atomic, write_json
 from .runner import DEFAULT_FMU_DIR, REPO, prepare, resolve_fmus, simulate_case
@@ -355,13 +355,16 @@ def _check_axis_against_fmu(sweep: Sweep, axis: Axis, fmu_path: Path) -> None:
     for x in axis.values:
         if v.type == "Real":
             _require(_is_number(x), where, f"numbers ({axis.variable} is Real{unit})", x)
+        elif v.type == "Integer" and parse_choices(v.description or ""):  # names, mapped by the master
+            _require(isinstance(x, str), where, f"choice names ({axis.variable}: "
+                     f"{', '.join(parse_choices(v.description))})", x)
         elif v.type in ("Integer", "Enumeration"):
             _require(_is_int(x), where, f"integers ({axis.variable} is {v.type})", x)
         elif v.type == "Boolean":
             _require(isinstance(x, bool), where, f"true or false ({axis.variable} is Boolean)", x)
         else:
             _require(isinstance(x, str), where, f"strings ({axis.variable} is {v.type})", x)
-        if v.type in ("Real", "Integer"):
+        if v.type == "Real" or (v.type == "Integer" and not isinstance(x, str)):
             _require((lo is None or x >= lo) and (hi is None or x <= hi), where,
                      f"values in the FMU's range {bounds}{unit}", x)
 

@@ -51,10 +51,13 @@ class Slave:
         self.time = 0.0
 
     def set(self, **values):
+        """Set variables by name; a choice parameter takes its option's name (as scenario files write it)."""
         for name, value in values.items():
             var = self.vars[name]
-            setter = {"Real": self.fmu.setReal, "Integer": self.fmu.setInteger, "Boolean": self.fmu.setBoolean,
-                      "String": self.fmu.setString}[var.type]
+            if isinstance(value, str) and var.type == "Integer":
+                value = choice(var, value)
+            setter = {"Real": self.fmu.setReal, "Integer": self.fmu.setInteger,
+                      "Boolean": self.fmu.setBoolean, "String": self.fmu.setString}[var.type]
             setter([var.valueReference], [value])
 
     def set_vector(self, names, values):
@@ -94,6 +97,16 @@ def rss_mb() -> float:
     """Resident set size of this process in MB (VmRSS of /proc/self/status)."""
     text = Path("/proc/self/status").read_text()
     return int(re.search(r"^VmRSS:\s+(\d+)\s+kB", text, re.M).group(1)) / 1024.0
+
+
+def choice(var, name: str) -> int:
+    """The integer of choice parameter `var`'s option `name` (listed in its description)."""
+    from scenarios.master import parse_choices
+
+    items = parse_choices(var.description or "")
+    if name not in items:
+        raise ValueError(f"{var.name}: {name!r} is not one of {list(items)}")
+    return items[name]
 
 
 # -- every FMU of the project, built once per test process ----------------------------------------
@@ -143,7 +156,7 @@ SCENARIOS: dict[str, dict] = {
     "sensors": {"params": {"noise_enabled": True, "noise_seed": 11, "accelerometer_noise_m_per_s2": 0.05,
                            "strain_gauge_filter": True, "accelerometer_filter": True, "adc_quantization": True},
                 "inputs": _sensor_inputs},
-    **{name: {"params": {"gain_set": "gamma0.1" if name != "controller_dlqr" else "dlqr-gamma0.1"},
+    **{name: {"params": {"gain_set": "gamma0.1"},
               "inputs": _controller_inputs}
        for name in ("controller", "controller_ff", "controller_fb", "controller_dlqr")},
 }

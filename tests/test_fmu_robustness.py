@@ -57,7 +57,8 @@ def _set_status(slave: Slave, var, value) -> int:
 
 
 def _start_value(var):
-    return {"Real": float, "Integer": int, "Boolean": lambda s: s == "true", "String": str}[var.type](var.start)
+    return {"Real": float, "Integer": int, "Enumeration": int, "Boolean": lambda s: s == "true",
+            "String": str}[var.type](var.start)
 
 
 # -- the FMI 2.0 state machine ---------------------------------------------------------------------

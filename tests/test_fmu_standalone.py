@@ -41,7 +41,7 @@ import numpy as np
 import pytest
 import scipy
 from fmpy import read_model_description
-from fmu_harness import DT, SCENARIOS, built_fmus
+from fmu_harness import DT, SCENARIOS, built_fmus, choice
 
 ROOT = Path(__file__).resolve().parents[1]
 HOST_SOURCE = ROOT / "tests" / "native_host" / "fmi2_host.c"
@@ -145,11 +145,13 @@ def _alone(fmu: Path, folder: Path) -> Path:
 
 def _scenario_files(name: str, md, folder: Path) -> tuple[list[str], Path]:
     """The --set arguments and the inputs CSV of SCENARIOS[name] for N_STEPS points."""
-    types = {v.name: v.type for v in md.modelVariables}
+    variables = {v.name: v for v in md.modelVariables}
     sets = []
     for key, value in SCENARIOS[name]["params"].items():
+        if isinstance(value, str) and variables[key].type == "Integer":
+            value = choice(variables[key], value)
         text = {"Real": repr, "Integer": str, "Boolean": lambda b: "true" if b else "false",
-                "String": str}[types[key]](value)
+                "String": str}[variables[key].type](value)
         sets += ["--set", f"{key}={text}"]
     rows = [SCENARIOS[name]["inputs"](k) for k in range(N_STEPS)]
     path = folder / "inputs.csv"
@@ -266,7 +268,9 @@ def test_fmu_alone_in_a_native_host_equals_fmpy(name, host, venv_site_packages, 
     assert not outside, f"imported from outside the FMU, the venv and the standard library: {outside[:5]}"
 
     names, native = _read_csv(proc.stdout)
-    reference = _fmpy_reference(unpacked, SCENARIOS[name]["params"], inputs, tmp_path / "fmpy.json")
+    variables = {v.name: v for v in read_model_description(str(unpacked)).modelVariables}
+    params = {k: choice(variables[k], v) if isinstance(v, str) else v for k, v in SCENARIOS[name]["params"].items()}
+    reference = _fmpy_reference(unpacked, params, inputs, tmp_path / "fmpy.json")
     assert reference["numba"] is False
     assert names == reference["names"]
     expected = np.array(reference["rows"])

@@ -145,7 +145,8 @@ def test_sweep_file_errors_name_the_field(tmp_path, text, field, allowed):
 @pytest.mark.parametrize("axis, field, allowed", [
     ("plant.payload_mass = [0.0, -1.0]", "axes.plant.payload_mass", "values in the FMU's range [0, 10] kg"),
     ("plant.payload_mas = [0.0]", "axes.plant.payload_mas", "a parameter of FMU plant.fmu (['payload_mass'"),
-    ("controller.gain_set = [1, 2]", "axes.controller.gain_set", "strings (gain_set is String)"),
+    ("controller.gain_set = [1, 2]", "axes.controller.gain_set",
+     "choice names (gain_set: gamma1, gamma0.1, gamma0, eq32)"),
     ("sensors.noise_enabled = { range = [0, 1] }", "axes.sensors.noise_enabled", "true or false"),
     ("fmus.controller = ['controller', 'controller_xyz']", "axes.fmus.controller", "controller_dlqr"),
 ])

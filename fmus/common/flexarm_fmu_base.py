@@ -91,11 +91,14 @@ from pythonfmu import Fmi2Slave
 from pythonfmu.enums import Fmi2Causality, Fmi2Status, Fmi2Variability
 from pythonfmu.variables import Boolean, Integer, Real, String
 
-__all__ = ["BUNDLE_MANIFEST", "UNITS", "FlexarmSlave", "StepDiscarded", "Var", "bundle_files",
-           "complete_model_description", "pin_module_namespace", "tree_sha256", "variable_table"]
+__all__ = ["BUNDLE_MANIFEST", "CHOICES_MARK", "START_VALUES", "UNITS", "FlexarmSlave", "StepDiscarded", "Var",
+           "bundle_files", "complete_model_description", "pin_module_namespace", "slew", "slew_experiment",
+           "tree_sha256", "variable_table"]
 
 #: File (in an FMU's resources) describing the bundled sources.
 BUNDLE_MANIFEST = "flexarm_bundle.json"
+#: Optional file (in an FMU's resources): {variable: start value} of a case's copy of the FMU.
+START_VALUES = "flexarm_start_values.json"
 
 #: Known units: name -> SI base-unit exponents (FMI 2.0 <BaseUnit> attributes)
 #: and optional display units {name: factor}. Extend per FMU via ``EXTRA_UNITS``.
@@ -117,6 +120,8 @@ UNITS: dict[str, dict[str, Any]] = {
 _CAUSALITIES = {c.name: c for c in Fmi2Causality}
 _VARIABILITIES = {v.name: v for v in Fmi2Variability}
 _TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean, "String": String}
+#: How a choice parameter lists its choices in its description (docs/fmu-interface.md, "Choice parameters").
+CHOICES_MARK = "choices: "
 
 #: SHA-256 of the imported `flexarm` folder, by path (see FlexarmSlave._check_vendored_modules).
 _LOADED_TREE_SHA256: dict[Path, str] = {}
@@ -161,6 +166,12 @@ class Var:
         communication point (its ``<Outputs>`` dependencies). ``()`` means
         no direct feedthrough; None (default) writes no attribute, i.e.
         "may depend on every input".
+    choices : tuple of (int, str, str)
+        Integer parameters that select one of several named choices: (value,
+        name, description) of each. The allowed values are exactly these;
+        the description gets ``"; choices: 1 = name1, 2 = name2"`` appended
+        (masters read it back, e.g. ``scenarios.master.parse_choices``). A choice is an Integer, not an
+        FMI Enumeration, because libcosim 0.11 ignores Enumeration variables.
     """
 
     name: str
@@ -173,6 +184,7 @@ class Var:
     max: float | None = None
     type: str = "Real"
     depends_on: tuple[str, ...] | None = None
+    choices: tuple[tuple[int, str, str], ...] = ()
 
     def __post_init__(self):
         if self.causality not in _CAUSALITIES:
@@ -189,10 +201,32 @@ class Var:
             raise ValueError(f"{self.name}: outputs are calculated and take no start value")
         if self.depends_on is not None and self.causality != "output":
             raise ValueError(f"{self.name}: depends_on applies to outputs only")
+        if self.choices:
+            if self.type != "Integer":
+                raise ValueError(f"{self.name}: only an Integer can have choices")
+            values = [v for v, _, _ in self.choices]
+            if self.start not in values or (self.min, self.max) != (min(values), max(values)):
+                raise ValueError(f"{self.name}: start and range must lie among the choices {self.choices_text}")
+            if CHOICES_MARK in self.description or any("," in n or "=" in n or " " in n for _, n, _ in self.choices):
+                raise ValueError(f"{self.name}: choice names must be free of ',', '=' and spaces")
+
+    @property
+    def choices_text(self) -> str:
+        """Choices as text, e.g. '1 (gamma1), 2 (gamma0.1)'."""
+        return ", ".join(f"{v} ({n})" for v, n, _ in self.choices)
+
+    @property
+    def full_description(self) -> str:
+        """The description written into modelDescription.xml (with the choices, if any)."""
+        if not self.choices:
+            return self.description
+        return f"{self.description}; {CHOICES_MARK}" + ", ".join(f"{v} = {n}" for v, n, _ in self.choices)
 
     @property
     def range_text(self) -> str:
         """Allowed range as text, e.g. '[0, 10] kg' or 'any finite value'."""
+        if self.choices:
+            return f"one of {self.choices_text}"
         if self.min is None and self.max is None:
             body = "any finite value" if self.type == "Real" else "any value"
         else:
@@ -284,6 +318,7 @@ class FlexarmSlave(Fmi2Slave):
         self._output_slice = slice(self._output_vrs[0], self._output_vrs[-1] + 1) if contiguous else None
         self._drop_repeated_resources_path()
         self._check_vendored_modules()
+        self._apply_start_values()
 
     # -- variable table --------------------------------------------------------
     def _register(self, var: Var) -> None:
@@ -294,7 +329,7 @@ class FlexarmSlave(Fmi2Slave):
         values = self._values
         sv = _TYPES[var.type](
             var.name, start=var.start, causality=_CAUSALITIES[var.causality],
-            variability=_VARIABILITIES[var.variability], description=var.description,
+            variability=_VARIABILITIES[var.variability], description=var.full_description,
             getter=lambda: values[vr], setter=lambda v: values.__setitem__(vr, v),
         )
         self.register_variable(sv, nested=False)
@@ -599,6 +634,30 @@ class FlexarmSlave(Fmi2Slave):
         except Exception:
             return {"invalid": True}
 
+    def _apply_start_values(self) -> None:
+        """Start values of a case's copy of this FMU (:data:`START_VALUES`, written by the SSP export).
+
+        The export also writes them as the ``start`` attributes of modelDescription.xml, so the copy
+        runs its case in any master, with nothing set. A value that does not fit its variable is an
+        error that keeps initialisation refused.
+        """
+        try:
+            path = Path(self.resources) / START_VALUES if self.resources else None
+            if path is None or not path.is_file():
+                return
+            for name, value in json.loads(path.read_text()).items():
+                vr = self._vr.get(name)
+                if vr is not None and self._vars[vr].type in ("Real", "Integer") \
+                        and not isinstance(value, bool) and isinstance(value, int | float):
+                    value = float(value) if self._vars[vr].type == "Real" else value
+                problem = f"{name}: no such variable" if vr is None else _check_value(self._vars[vr], value)
+                if problem is not None:
+                    self._error(f"{START_VALUES}: {problem}", f"value:{name}")
+                else:
+                    self._values[vr] = value
+        except Exception as exc:
+            self._exception(f"reading {START_VALUES}", exc, "start_values")
+
     def _drop_repeated_resources_path(self) -> None:
         """Keep one copy of this FMU's resources folder in sys.path.
 
@@ -643,6 +702,32 @@ class FlexarmSlave(Fmi2Slave):
         root = super().to_xml(model_options or {})
         complete_model_description(root, self._vars, {**UNITS, **self.EXTRA_UNITS})
         return root
+
+
+def slew() -> dict[str, float]:
+    """Facts of the committed trajectory (``flexarm/data/trajectory.npz``) every FMU's defaults come from.
+
+    Returns ``duration`` (s, the slew's length, last sample time), ``dt`` (s,
+    its sample time) and ``q1_0``, ``q2_0`` (rad, the joint angles of its first
+    sample). Read with NumPy alone (no optimiser code).
+    """
+    import numpy as np
+
+    from flexarm.model import joint_angles
+    from flexarm.parameters import DATA_DIR
+
+    with np.load(DATA_DIR / "trajectory.npz", allow_pickle=False) as data:
+        t = data["t"]
+        theta0 = np.array([float(data[f"theta{i}"][0]) for i in range(1, 12)])
+    q = joint_angles(theta0)
+    return {"duration": float(t[-1] - t[0]), "dt": float(t[1] - t[0]), "q1_0": float(q[0]), "q2_0": float(q[1])}
+
+
+def slew_experiment():
+    """pythonfmu's DefaultExperiment of every FMU: from 0 over the whole slew, 1 ms steps."""
+    from pythonfmu.default_experiment import DefaultExperiment
+
+    return DefaultExperiment(start_time=0.0, stop_time=slew()["duration"], step_size=1e-3)
 
 
 def pin_module_namespace(namespace: dict) -> None:
@@ -702,6 +787,8 @@ def complete_model_description(root: Element, variables: list[Var], units: dict[
             typed.set("unit", var.unit)
             if var.unit not in used:
                 used.append(var.unit)
+        if var.type == "Real" and var.start is not None:
+            typed.set("start", repr(float(var.start)))  # reads back as the same double (pythonfmu rounds)
         if var.type in ("Real", "Integer"):
             fmt = (lambda x: f"{float(x):.16g}") if var.type == "Real" else (lambda x: str(int(x)))
             if var.min is not None:
@@ -773,6 +860,8 @@ def _check_value(var: Var, value) -> str | None:
         where = "" if var.min is None and var.max is None else f" in {var.range_text}"
         unit = f" ({var.unit})" if not where and var.unit not in (None, "1") else ""
         return f"{var.name}: must be a finite number{where}{unit}, got {value!r}"
+    if var.choices and value not in [v for v, _, _ in var.choices]:
+        return f"{var.name}: {value!r} is not one of the allowed values {var.choices_text}"
     if var.type in ("Real", "Integer"):
         if (var.min is not None and value < var.min) or (var.max is not None and value > var.max):
             return f"{var.name}: {value!r} is outside the allowed range {var.range_text}"

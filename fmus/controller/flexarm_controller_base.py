@@ -17,7 +17,15 @@ FMU                 model identifier            law
 ``controller_dlqr`` ``FlexarmControllerDLQR``   feedforward + discrete LQR
 ==================  ==========================  ==========================
 
-All have the same variables, so a scenario swaps them with one line. The
+All have the same variables, so a scenario swaps them with one line.
+Defaults (nothing set): the paper's Table 2 law, ``gain_set`` = 2 (``gamma0.1``)
+switched every 200 ms (``schedule_period`` = 0.2 s), the motors' peak
+torques as saturation, the theta7 rate from the tachometer
+(``omega7_estimate`` = 1); the default experiment lasts the slew. The two
+choices are Integer parameters whose description lists the choices
+(``...; choices: 1 = gamma1, 2 = gamma0.1, 3 = gamma0, 4 = eq32``); no
+String parameters, and no FMI Enumeration either, because libcosim 0.11
+ignores Enumeration variables. The
 trajectory (``flexarm/data/trajectory.npz``) and the gain schedules
 (``flexarm/data/gains/``) travel in the bundled ``flexarm`` package.
 
@@ -34,8 +42,7 @@ from typing import ClassVar
 
 import numpy as np
 from flexarm_feedthrough import FeedthroughSlave
-from flexarm_fmu_base import Var, variable_table
-from pythonfmu.default_experiment import DefaultExperiment
+from flexarm_fmu_base import Var, slew_experiment, variable_table
 
 from flexarm.control import PEAK_TORQUE, TrackingController
 from flexarm.lqr import OMEGA7_CHOICES, canonical_name, default_trajectory_path
@@ -46,9 +53,19 @@ USED_INPUTS = ("q1_m", "q2_m", "qd1_m", "qd2_m", *(f"eps{i}_m" for i in range(1,
 UNUSED_INPUTS = ("acc1_m", "acc2_m")
 #: ``schedule_period`` value (s) -> :data:`flexarm.lqr.SCHEDULES` label.
 SCHEDULE_PERIODS = {0.2: "200ms", 0.02: "20ms", 0.0: "single"}
-#: Gain-set aliases accepted besides :data:`flexarm.lqr.GAIN_SET_NAMES`.
-GAIN_SET_ALIASES = {"experimental": "eq32"}
-DEFAULT_GAIN_SET = "gamma0.1"
+#: ``gain_set`` choices: value, :mod:`flexarm.lqr` weights name, description.
+GAIN_SET_ITEMS = (
+    (1, "gamma1", "LQR weights gamma = 1 (paper Table 1)"),
+    (2, "gamma0.1", "LQR weights gamma = 0.1 (paper Table 2, the default)"),
+    (3, "gamma0", "LQR weights gamma = 0 (paper Table 3)"),
+    (4, "eq32", "LQR weights of the paper's experiments (eq. 32)"),
+)
+#: ``omega7_estimate`` choices: how the theta7-rate error is formed.
+OMEGA7_ITEMS = (
+    (1, "tachometer", "from the joint-2 tachometer (qd2 error)"),
+    (2, "rigid", "from both tachometers, rigid-body (qd1 + qd2 errors)"),
+)
+DEFAULT_GAIN_SET = 2  # gamma0.1
 
 _INPUT_INFO = {
     "q1_m": ("rad", "Measured joint-1 angle (encoder 1)"),
@@ -63,50 +80,35 @@ _INPUT_INFO = {
 VARIABLES = variable_table([
     *[Var(name, "input", "continuous", *_INPUT_INFO[name], 0.0) for name in (*USED_INPUTS, *UNUSED_INPUTS)],
     Var("gain_set", "parameter", "fixed", None,
-        "LQR gain set: gamma1, gamma0.1, gamma0, eq32 (alias experimental), dlqr-<set>; "
-        "gamma_1 style accepted", DEFAULT_GAIN_SET, type="String"),
+        "LQR gain set (weights); controller_dlqr uses their discrete-time design", DEFAULT_GAIN_SET, 1, 4,
+        type="Integer", choices=GAIN_SET_ITEMS),
     Var("schedule_period", "parameter", "fixed", "s",
         "Gain-switching period: 0.2, 0.02, or 0 for one gain set (mid-slew)", 0.2, 0.0, 10.0),
     Var("tau1_max", "parameter", "fixed", "N.m", "Saturation |tau1| <= tau1_max (shoulder motor peak torque)",
         float(PEAK_TORQUE[0]), 1e-9, 1000.0),
     Var("tau2_max", "parameter", "fixed", "N.m", "Saturation |tau2| <= tau2_max (elbow motor peak torque)",
         float(PEAK_TORQUE[1]), 1e-9, 1000.0),
-    Var("omega7", "parameter", "fixed", None,
-        "How the theta7-rate error is formed: tachometer (qd2 error) or rigid (qd1 + qd2 errors)",
-        "tachometer", type="String"),
+    Var("omega7_estimate", "parameter", "fixed", None,
+        "How the theta7-rate error is formed: from the joint-2 tachometer (qd2 error) or rigid-body "
+        "(qd1 + qd2 errors)", 1, 1, 2, type="Integer", choices=OMEGA7_ITEMS),
     Var("tau1", "output", "continuous", "N.m", "Joint-1 (shoulder) motor torque command", depends_on=USED_INPUTS),
     Var("tau2", "output", "continuous", "N.m", "Joint-2 (elbow) motor torque command", depends_on=USED_INPUTS),
 ])
 
 
-def gain_set_name(value: str, discrete: bool = False) -> str:
-    """The :mod:`flexarm.lqr` name of a ``gain_set`` parameter value.
-
-    Parameters
-    ----------
-    value : str
-        ``gamma1``, ``gamma0.1``, ``gamma0``, ``eq32``, ``dlqr-<set>``,
-        ``dlqr`` (= ``dlqr-gamma0.1``); also ``gamma_1``-style names,
-        ``experimental`` (= ``eq32``) and ``dlqr_<set>``.
-    discrete : bool
-        Return the discrete (``dlqr-``) design of the same weights.
+def gain_set_name(value: int, discrete: bool = False) -> str:
+    """The :mod:`flexarm.lqr` name of a ``gain_set`` parameter value (1..4, see :data:`GAIN_SET_ITEMS`).
 
     Raises
     ------
     ValueError
-        Naming ``gain_set`` and the allowed names.
+        Naming ``gain_set`` and the allowed values.
     """
-    name = value.strip()
-    is_dlqr = name == "dlqr" or name.startswith(("dlqr-", "dlqr_"))
-    base = "gamma0.1" if name == "dlqr" else name[5:] if is_dlqr else name
-    base = GAIN_SET_ALIASES.get(base, base)
-    if base.startswith("gamma_"):
-        base = "gamma" + base[6:]
-    name = f"dlqr-{base}" if discrete or is_dlqr else base
-    try:
-        return canonical_name(name)
-    except ValueError as exc:
-        raise ValueError(f"gain_set: {value!r} is not a gain set ({exc})") from None
+    names = {v: n for v, n, _ in GAIN_SET_ITEMS}
+    if value not in names:
+        raise ValueError(f"gain_set: {value!r} is not one of "
+                         + ", ".join(f"{v} ({n})" for v, n in names.items()))
+    return canonical_name(f"dlqr-{names[value]}" if discrete else names[value])
 
 
 def schedule_label(period: float) -> str:
@@ -144,7 +146,7 @@ class ControllerSlave(FeedthroughSlave):
     VARIABLES = VARIABLES
     MODE: ClassVar[str] = "ff+fb"
     DISCRETE: ClassVar[bool] = False
-    default_experiment = DefaultExperiment(start_time=0.0, stop_time=2.058, step_size=1e-3)
+    default_experiment = slew_experiment()
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -153,9 +155,10 @@ class ControllerSlave(FeedthroughSlave):
         self._used_vrs = [self._vr[n] for n in USED_INPUTS]
 
     def _config(self) -> tuple:
-        omega7 = self.value("omega7")
+        omega7 = dict((v, n) for v, n, _ in OMEGA7_ITEMS).get(self.value("omega7_estimate"))
         if omega7 not in OMEGA7_CHOICES:
-            raise ValueError(f"omega7: {omega7!r} is not one of {OMEGA7_CHOICES}")
+            raise ValueError(f"omega7_estimate: {self.value('omega7_estimate')!r} is not one of "
+                             + ", ".join(f"{v} ({n})" for v, n, _ in OMEGA7_ITEMS))
         name = gain_set_name(self.value("gain_set"), self.DISCRETE)
         return (name, schedule_label(self.value("schedule_period")), self.value("tau1_max"),
                 self.value("tau2_max"), omega7)

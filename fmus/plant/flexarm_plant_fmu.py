@@ -14,6 +14,11 @@ Interface (full table in ``docs/fmu-interface.md``):
   angles and rates, strain-gauge angles, tip position, link-tip
   accelerations and accelerometer signals.
 
+Defaults (nothing set): the arm starts at rest and undeformed on the
+committed trajectory's first state (``q1_0``, ``q2_0`` read from
+``flexarm/data/trajectory.npz`` when the FMU is built), no payload beyond the
+parameter file's, and the default experiment lasts the slew (1 ms steps).
+
 A step whose integration leaves the finite numbers (absurd torques or step
 sizes) is discarded (``fmi2Discard``; the state stays at the communication
 point), as FMI intends for a step a smaller one may complete.
@@ -29,8 +34,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from flexarm_fmu_base import FlexarmSlave, StepDiscarded, Var, pin_module_namespace, variable_table
-from pythonfmu.default_experiment import DefaultExperiment
+from flexarm_fmu_base import (
+    FlexarmSlave,
+    StepDiscarded,
+    Var,
+    pin_module_namespace,
+    slew,
+    slew_experiment,
+    variable_table,
+)
 
 from flexarm.integrator import DEFAULT_SUBSTEPS, IntegrationError, advance
 from flexarm.model import (
@@ -41,6 +53,9 @@ from flexarm.model import (
 from flexarm.parameters import load_parameters
 
 pin_module_namespace(globals())  # pythonfmu 0.7.0 drops a reference per instantiation (see there)
+
+#: The committed trajectory's start angles and length: the defaults (q1_0, q2_0, default experiment).
+_SLEW = slew()
 
 
 def _out(name: str, unit: str, description: str) -> Var:
@@ -60,10 +75,10 @@ VARIABLES = variable_table([
     ("tau2", "input", "continuous", "N.m", "Joint-2 (elbow) motor torque, held over the step", 0.0),
     ("payload_mass", "parameter", "fixed", "kg", "Extra point mass at the tip of link 2",
      float(load_parameters().payload_mass), (0.0, 10.0)),
-    ("q1_0", "parameter", "fixed", "rad", "Initial joint-1 angle (arm undeformed and at rest)",
-     0.0, (-2 * math.pi, 2 * math.pi)),
-    ("q2_0", "parameter", "fixed", "rad", "Initial joint-2 (elbow) angle, relative to link 1",
-     math.pi / 2, (-math.pi, math.pi)),
+    ("q1_0", "parameter", "fixed", "rad", "Initial joint-1 angle (arm undeformed and at rest); "
+     "default: the trajectory's first sample", _SLEW["q1_0"], (-2 * math.pi, 2 * math.pi)),
+    ("q2_0", "parameter", "fixed", "rad", "Initial joint-2 (elbow) angle, relative to link 1; "
+     "default: the trajectory's first sample", _SLEW["q2_0"], (-math.pi, math.pi)),
     ("substeps", "parameter", "fixed", "1", "RODAS4 substeps per communication step", int(DEFAULT_SUBSTEPS), (1, 64)),
     *[_out(f"theta{i + 1}", "rad", f"Absolute angle of element {i + 1} ({e})") for i, e in enumerate(_ELEMENTS)],
     *[_out(f"omega{i + 1}", "rad/s", f"Angular rate of element {i + 1} ({e})") for i, e in enumerate(_ELEMENTS)],
@@ -93,7 +108,7 @@ class FlexarmPlant(FlexarmSlave):
 
     VARIABLES = VARIABLES
     description = "Sandia two-link flexible arm, 11-element model (plant)"
-    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=1e-3)
+    default_experiment = slew_experiment()
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)

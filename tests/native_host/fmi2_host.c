@@ -39,7 +39,7 @@
 typedef struct {
     char name[128];
     unsigned vr;
-    char type[16];      /* Real, Integer, Boolean, String */
+    char type[16];      /* Real, Integer, Enumeration, Boolean, String */
     char causality[32];
     char variability[32];
 } Variable;
@@ -196,7 +196,7 @@ static fmi2Status set_value(const Api *api, fmi2Component c, const Variable *v, 
         fmi2Real x = strtod(text, NULL);
         return api->setReal(c, &vr, 1, &x);
     }
-    if (strcmp(v->type, "Integer") == 0) {
+    if (strcmp(v->type, "Integer") == 0 || strcmp(v->type, "Enumeration") == 0) {
         fmi2Integer x = (fmi2Integer)strtol(text, NULL, 10);
         return api->setInteger(c, &vr, 1, &x);
     }
