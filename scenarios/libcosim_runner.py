@@ -65,6 +65,9 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
+from flexarm.signals import names as signal_names
+
+from .compat import libcosim_last_error, libcosim_real_samples_reader
 from .ssp import DEFAULT_SSD, NS, SSPExportError
 
 NANO = 1_000_000_000
@@ -92,13 +95,11 @@ def _quiet_logging() -> None:
 
 
 def _last_error() -> str:
-    from libcosimpy._internal import get_last_error_message
-
-    return get_last_error_message() or "(no message)"
+    return libcosim_last_error()
 
 
 def default_record(ssd: bytes) -> list[tuple[str, str]]:
-    """The plant's 11 angles and rates, the tip, and the torques: the signals the table metrics need.
+    """The plant's state and tip outputs and the torques (signal catalogue): what the table metrics need.
 
     The plant is the component whose input ``tau1`` is connected; the driver (controller) its source.
     """
@@ -109,8 +110,8 @@ def default_record(ssd: bytes) -> list[tuple[str, str]]:
             break
     else:
         raise SSPExportError("no connection drives an input 'tau1' (the plant's torque)")
-    states = [f"theta{i}" for i in range(1, 12)] + [f"omega{i}" for i in range(1, 12)]
-    return [(plant, v) for v in states + ["tip_x", "tip_y"]] + [(driver, "tau1"), (driver, "tau2")]
+    return [(plant, v) for v in signal_names("plant", "output", ("state", "tip"))] + \
+        [(driver, v) for v in signal_names("controller", "output")]
 
 
 def _prepare_ssd(ssd: bytes, worker_threads: int | None) -> tuple[bytes, float, float]:
@@ -150,7 +151,6 @@ def run_case_libcosim(ssp_path: str | Path, n_steps: int | None = None,
         (sample 0 = after initialisation, sample k = after the k-th step), ``step_size``.
     """
     CosimExecution, CosimObserver, CosimVariableType = _import_libcosimpy()
-    from libcosimpy._internal import libcosimc, wrap_function
 
     _quiet_logging()
 
@@ -195,11 +195,7 @@ def run_case_libcosim(ssp_path: str | Path, n_steps: int | None = None,
                                 f"{_last_error()}")
 
         # libcosimpy's sample reader drops sample 0 (it counts step number 0 as "missing"): read directly.
-        get_samples = wrap_function(
-            lib=libcosimc(), funcname="cosim_observer_slave_get_real_samples",
-            argtypes=[ctypes.c_void_p, ctypes.c_int, ctypes.c_uint32, ctypes.c_int64, ctypes.c_size_t,
-                      ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int64), ctypes.POINTER(ctypes.c_int64)],
-            restype=ctypes.c_int64)
+        get_samples = libcosim_real_samples_reader()
         values = np.empty(n + 1)
         steps = np.empty(n + 1, dtype=np.int64)
         times = np.empty(n + 1, dtype=np.int64)

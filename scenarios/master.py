@@ -61,6 +61,8 @@ from fmpy.fmi2 import (
     fmi2ValueReference,
 )
 
+from .compat import fmu2_raw_functions
+
 ALGORITHMS = ("gauss-seidel", "jacobi", "fmpy-ssp")
 _STATUS = {1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
 
@@ -146,9 +148,7 @@ class _Unit:
         self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
         # fmpy's getReal/setReal allocate arrays and log each call; the stepping
         # loop calls the library functions directly with preallocated buffers.
-        self.get_real = self.slave._functions["fmi2GetReal"]
-        self.set_real = self.slave._functions["fmi2SetReal"]
-        self.do_step = self.slave._functions["fmi2DoStep"]
+        self.get_real, self.set_real, self.do_step = fmu2_raw_functions(self.slave)
 
     def reinstantiate(self) -> None:
         """Free the instance and make a new one (after an FMU failed and refuses reset)."""

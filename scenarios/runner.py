@@ -11,6 +11,7 @@ import numpy as np
 from fmpy import read_model_description
 
 from flexarm.parameters import DEFAULT_PARAMETER_FILE
+from flexarm.signals import names as signal_names
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
 from . import master
@@ -21,7 +22,8 @@ from .results import git_commit, sha256_file, write_csv, write_json
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_FMU_DIR = REPO / "build" / "fmus"
 N_EL = 11
-PLANT_STATE = [f"theta{i}" for i in range(1, N_EL + 1)] + [f"omega{i}" for i in range(1, N_EL + 1)]
+#: The plant's state outputs (theta1..11, omega1..11), from the signal catalogue.
+PLANT_STATE = list(signal_names("plant", "output", "state"))
 
 
 @dataclass
@@ -49,10 +51,9 @@ def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = Non
     to_build = [n for n in names.values() if not n.endswith(".fmu")]
     built = {}
     if to_build and build:
-        sys.path.insert(0, str(REPO))
-        import build_fmus
+        import fmu_build
 
-        built = build_fmus.build_all(fmu_dir, only=sorted(set(to_build)))
+        built = fmu_build.build_all(fmu_dir, only=sorted(set(to_build)))
     for inst, name in names.items():
         if name.endswith(".fmu"):
             p = Path(name) if Path(name).is_absolute() else (scenario.path.parent / name)

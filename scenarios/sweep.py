@@ -377,10 +377,9 @@ def _point_key(sweep_sha: str, scenario_sha: str, fmus: dict, parameters: dict) 
 
 def _known_fmu_names() -> list[str]:
     try:
-        sys.path.insert(0, str(REPO))
-        import build_fmus
+        import fmu_build
 
-        return sorted(build_fmus.FMUS)
+        return sorted(fmu_build.FMUS)
     except Exception:  # noqa: BLE001 - only for the error message
         return []
 

@@ -114,15 +114,13 @@ _BUILT: dict[str, Path] = {}
 
 
 def built_fmus() -> dict[str, Path]:
-    """Every FMU of build_fmus.FMUS, freshly built (force) into a temporary folder once per process."""
+    """Every FMU of fmu_build.FMUS, freshly built (force) into a temporary folder once per process."""
     import atexit
     import shutil
-    import sys
     import tempfile
 
     if not _BUILT:
-        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-        from build_fmus import build_all
+        from fmu_build import build_all
 
         out = Path(tempfile.mkdtemp(prefix="flexarm_fmus_"))
         atexit.register(shutil.rmtree, out, True)

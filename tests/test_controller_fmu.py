@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,11 +15,10 @@ from flexarm.control import TrackingController, tracking_errors
 from flexarm.lqr import DEFAULT_GAIN_DIR, GainSchedule, as_trajectory_data, default_trajectory_path
 from flexarm.model import N, joint_angles, joint_velocities, strain_gauge_angles
 from flexarm.sensors import MEASURED_SIGNAL_NAMES
+from fmu_build import build_all
 from scenarios.master import parse_choices
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from build_fmus import build_all  # noqa: E402
 
 DT = 1e-3
 PAYLOAD = 0.275

@@ -22,11 +22,10 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions
 from fmu_harness import DT, ERROR, OK, SCENARIOS, Slave, built_fmus, drive, rss_mb
 
+from fmu_build import FMUS
 from scenarios.master import logging_callbacks
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from build_fmus import FMUS  # noqa: E402
 
 NAMES = list(FMUS)
 #: fmi2StatusKind values.

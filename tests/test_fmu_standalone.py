@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import fcntl
+import hashlib
 import json
 import os
 import re
@@ -319,3 +320,46 @@ def test_a_broken_python_environment_is_an_error_not_a_crash(host, python_home, 
                              capture_output=True, text=True, timeout=120)
     assert no_home.returncode == 2, (no_home.returncode, no_home.stderr[-2000:])
     assert "is not the prefix of a Python 3.11" in no_home.stderr, no_home.stderr
+
+
+@pytest.mark.parametrize("damage", ["runtime", "missing", "altered", "chain"])
+def test_an_fmu_that_cannot_start_says_why_at_error_level(host, venv_site_packages, python_home, tmp_path, damage):
+    """Issue 12: fmi2Instantiate returns NULL after an fmi2Error message naming what is missing and the remedy.
+
+    With loggingOn = false: the message must not depend on the host's debug setting.
+    """
+    name = "controller" if damage == "chain" else "plant"
+    unpacked = _alone(built_fmus()[name], tmp_path / "alone")
+    libpython = _libpython()
+    env = _native_env(libpython, python_home, venv_site_packages, tmp_path)
+    data = unpacked / "resources" / "flexarm" / "data"
+    if damage == "runtime":
+        env = _native_env(libpython, python_home, venv_site_packages, tmp_path, LD_PRELOAD=None,
+                          FLEXARM_FMU_LIBPYTHON="/nonexistent/libpython.so")
+        expected = ["/nonexistent/libpython.so", "LD_PRELOAD", "FLEXARM_FMU_LIBPYTHON"]
+    elif damage == "missing":
+        (data / "sandia_arm.toml").unlink()
+        expected = ["resources/flexarm/data/sandia_arm.toml is missing", "build_fmus.py"]
+    elif damage == "altered":
+        path = data / "sandia_arm.toml"
+        path.write_text(path.read_text() + "\n# edited\n")
+        expected = ["resources/flexarm/data/sandia_arm.toml differs", "flexarm_bundle.json", "build_fmus.py"]
+    else:  # a gain file recording another trajectory than the one bundled, and a manifest that agrees with both
+        gains = data / "gains" / "gamma0.1_200ms.json"
+        meta = json.loads(gains.read_text())
+        meta["trajectory_sha256"] = "0" * 64
+        gains.write_text(json.dumps(meta))
+        manifest = unpacked / "resources" / "flexarm_bundle.json"
+        info = json.loads(manifest.read_text())
+        info["data_sha256"]["gains/gamma0.1_200ms.json"] = hashlib.sha256(gains.read_bytes()).hexdigest()
+        manifest.write_text(json.dumps(info))
+        expected = ["gains/gamma0.1_200ms.json records trajectory_sha256", "flexarm/data/trajectory.npz",
+                    "python -m flexarm.lqr --write", "build_fmus.py"]
+    proc = subprocess.run([str(host), str(unpacked), "--steps", "2", "--out", "tau1" if name != "plant" else "q1",
+                           "--logging-off"], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])  # NULL from fmi2Instantiate, not a crash
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("[Error]") and "(logStatusError)" in ln]
+    assert errors, proc.stderr[-2000:]
+    text = "\n".join(proc.stderr.splitlines())
+    assert all(e in text for e in expected), proc.stderr[-3000:]
+    assert "fmi2Instantiate failed" in proc.stderr

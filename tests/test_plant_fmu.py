@@ -6,7 +6,6 @@ Running it alone outside the project: tests/test_fmu_standalone.py.
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,10 +20,9 @@ from flexarm.integrator import DEFAULT_SUBSTEPS, simulate
 from flexarm.model import N
 from flexarm.modes import modal_analysis
 from flexarm.parameters import load_parameters
+from fmu_build import build_all
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from build_fmus import build_all  # noqa: E402
 
 DT = 1e-3
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,10 +21,9 @@ from flexarm.sensors import (
     SensorBank,
     SensorSettings,
 )
+from fmu_build import build_all
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from build_fmus import build_all  # noqa: E402
 
 DT = 1e-3
 #: Every stage on: filters, noise (accelerometers too), both quantisers.

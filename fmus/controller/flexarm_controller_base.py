@@ -46,11 +46,12 @@ from flexarm_fmu_base import Var, slew_experiment, variable_table
 
 from flexarm.control import PEAK_TORQUE, TrackingController
 from flexarm.lqr import OMEGA7_CHOICES, canonical_name, default_trajectory_path
+from flexarm.signals import names, signals
 
-#: Measured signals the law uses (sensors FMU output names), in the order q, q̇, ε.
-USED_INPUTS = ("q1_m", "q2_m", "qd1_m", "qd2_m", *(f"eps{i}_m" for i in range(1, 7)))
-#: Accepted for plug-compatibility with the sensors FMU, not used by the law.
-UNUSED_INPUTS = ("acc1_m", "acc2_m")
+#: Measured signals the law uses (sensors FMU output names), in the order q, q̇, ε (catalogue group "feedback").
+USED_INPUTS = names("controller", "input", "feedback")
+#: Accepted for plug-compatibility with the sensors FMU, not used by the law (catalogue group "unused").
+UNUSED_INPUTS = names("controller", "input", "unused")
 #: ``schedule_period`` value (s) -> :data:`flexarm.lqr.SCHEDULES` label.
 SCHEDULE_PERIODS = {0.2: "200ms", 0.02: "20ms", 0.0: "single"}
 #: ``gain_set`` choices: value, :mod:`flexarm.lqr` weights name, description.
@@ -67,18 +68,8 @@ OMEGA7_ITEMS = (
 )
 DEFAULT_GAIN_SET = 2  # gamma0.1
 
-_INPUT_INFO = {
-    "q1_m": ("rad", "Measured joint-1 angle (encoder 1)"),
-    "q2_m": ("rad", "Measured joint-2 angle (encoder 2)"),
-    "qd1_m": ("rad/s", "Measured joint-1 rate (tachometer 1)"),
-    "qd2_m": ("rad/s", "Measured joint-2 rate (tachometer 2)"),
-    **{f"eps{i}_m": ("rad", f"Measured strain-gauge segment angle {i}") for i in range(1, 7)},
-    "acc1_m": ("m/s2", "Measured link-1 tip acceleration (accepted, not used by the control law)"),
-    "acc2_m": ("m/s2", "Measured link-2 tip acceleration (accepted, not used by the control law)"),
-}
-
 VARIABLES = variable_table([
-    *[Var(name, "input", "continuous", *_INPUT_INFO[name], 0.0) for name in (*USED_INPUTS, *UNUSED_INPUTS)],
+    *[Var(s.name, "input", "continuous", s.unit, s.description, 0.0) for s in signals("controller", "input")],
     Var("gain_set", "parameter", "fixed", None,
         "LQR gain set (weights); controller_dlqr uses their discrete-time design", DEFAULT_GAIN_SET, 1, 4,
         type="Integer", choices=GAIN_SET_ITEMS),
@@ -91,8 +82,8 @@ VARIABLES = variable_table([
     Var("omega7_estimate", "parameter", "fixed", None,
         "How the theta7-rate error is formed: from the joint-2 tachometer (qd2 error) or rigid-body "
         "(qd1 + qd2 errors)", 1, 1, 2, type="Integer", choices=OMEGA7_ITEMS),
-    Var("tau1", "output", "continuous", "N.m", "Joint-1 (shoulder) motor torque command", depends_on=USED_INPUTS),
-    Var("tau2", "output", "continuous", "N.m", "Joint-2 (elbow) motor torque command", depends_on=USED_INPUTS),
+    *[Var(s.name, "output", "continuous", s.unit, s.description, depends_on=USED_INPUTS)
+      for s in signals("controller", "output")],
 ])
 
 
