@@ -132,7 +132,8 @@ print(json.dumps(sorted(m.__file__ for n, m in sys.modules.items()
 
 def flexarm_modules(spec: FmuSpec) -> list[Path]:
     """The ``flexarm`` source files the slave imports when loaded, initialised and stepped once (a subprocess)."""
-    paths = [str(p) for p in _import_paths(spec)]
+    # The glue, the slave's folder, and the flexarm this build bundles (first, ahead of any other install).
+    paths = [str(p) for p in _import_paths(spec)] + [str(FLEXARM_DIR.parent)]
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     proc = subprocess.run([sys.executable, "-c", _TRACE.format(paths=paths, module=spec.script.stem)],
                           capture_output=True, text=True, env=env, cwd=tempfile.gettempdir(), timeout=600)

@@ -38,14 +38,14 @@ value references, types).
 from __future__ import annotations
 
 import io
-import os
-import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 from fmpy import read_model_description
 from lxml import etree
+
+from flexarm.provenance import write_atomic
 
 from . import runner
 from .config import Scenario
@@ -298,24 +298,16 @@ def export_ssp(scenario: Scenario, out_dir: str | Path = DEFAULT_SSP_DIR,
 
 
 def _write_zip(out: Path, members: dict[str, bytes]) -> Path:
-    """Write the archive atomically (temporary file beside it, then rename), mode 0644 under the umask."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f, zipfile.ZipFile(f, "w") as zf:
+    """Write the archive atomically (:func:`flexarm.provenance.write_atomic`: readable by everyone)."""
+    def write(f) -> None:
+        with zipfile.ZipFile(f, "w") as zf:
             for name in sorted(members, key=lambda n: (not n.endswith(".ssd"), n)):
                 info = _member(name)
                 if name.endswith(".fmu"):
                     info.compress_type = zipfile.ZIP_STORED  # an FMU is already a zip
                 zf.writestr(info, members[name])
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would make the archive private
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return out
+
+    return write_atomic(out, write)
 
 
 def _schema(name: str) -> etree.XMLSchema:
