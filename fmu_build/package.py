@@ -146,6 +146,21 @@ def flexarm_modules(spec: FmuSpec) -> list[Path]:
     return sorted(set(files) | {FLEXARM_DIR / "__init__.py"})
 
 
+def all_flexarm_modules() -> list[Path]:
+    """The union of :func:`flexarm_modules` over every FMU: what each FMU bundles.
+
+    FMUs loaded into one interpreter share the ``flexarm`` package imported first (modules are cached
+    by name), so the first FMU's copy must hold every module a later one imports. (Data files are
+    read from each FMU's own folder, see ``own_data_dir`` in the glue.)
+    """
+    if not _ALL_MODULES:
+        _ALL_MODULES.extend(sorted({f for spec in FMUS.values() for f in flexarm_modules(spec)}))
+    return list(_ALL_MODULES)
+
+
+_ALL_MODULES: list[Path] = []
+
+
 def data_files(spec: FmuSpec) -> list[Path]:
     """The data files of the spec (glob patterns under flexarm/data); BuildError if a pattern matches nothing."""
     data = FLEXARM_DIR / "data"
@@ -233,7 +248,7 @@ def _slew() -> dict[str, float]:
 def stage(spec: FmuSpec, folder: Path) -> list[Path]:
     """Lay out the FMU's project files in `folder`; return them (pythonfmu's ``project_files``)."""
     flexarm = folder / "flexarm"
-    for src in [*flexarm_modules(spec), *data_files(spec)]:
+    for src in [*all_flexarm_modules(), *data_files(spec)]:
         dest = flexarm / src.relative_to(FLEXARM_DIR)
         dest.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(src, dest)

@@ -291,7 +291,6 @@ def test_slave_modules_are_unique_and_every_fmu_loads_into_one_process(fmus, unz
 
 _SIMULATE_TWICE = r"""
 import json, sys
-sys.path.extend(json.loads(sys.argv[1]))  # site-packages as plain paths: no editable 'flexarm' (see below)
 import importlib.util
 assert importlib.util.find_spec("flexarm") is None, "flexarm importable outside the FMU"
 from fmpy import simulate_fmu
@@ -304,7 +303,7 @@ print(json.dumps(out))
 """
 
 
-def test_fmpy_simulate_fmu_runs_fmus_again_in_one_process(fmus):
+def test_fmpy_simulate_fmu_runs_fmus_again_in_one_process(fmus, tmp_path):
     """fmpy's simulate_fmu deletes each unpacked FMU afterwards; the next FMU must not use its modules.
 
     With pythonfmu alone the second run crashed the process (the slave module cached from the deleted
@@ -319,10 +318,11 @@ def test_fmpy_simulate_fmu_runs_fmus_again_in_one_process(fmus):
 
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
     env["FLEXARM_NO_NUMBA"] = "1"
-    paths = [p for p in site.getsitepackages() if not Path(p).resolve().is_relative_to(ROOT)]
-    proc = subprocess.run([sys.executable, "-I", "-S", "-c", _SIMULATE_TWICE, json.dumps(paths),
+    # -S: no site, so no .pth (the editable 'flexarm'); site-packages as plain PYTHONPATH entries
+    env["PYTHONPATH"] = os.pathsep.join(p for p in site.getsitepackages() if not Path(p).resolve().is_relative_to(ROOT))
+    proc = subprocess.run([sys.executable, "-S", "-s", "-c", _SIMULATE_TWICE, "[]",
                            json.dumps({k: str(v) for k, v in fmus.items()})],
-                          env=env, capture_output=True, text=True, timeout=300)
+                          env=env, capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     assert len(out["plant"]) == 3 and out["plant"][0] == out["plant"][1] == out["plant"][2]

@@ -184,7 +184,6 @@ def _read_csv(text: str) -> tuple[list[str], np.ndarray]:
 _FMPY_RUN = r"""
 import csv, json, sys
 args = json.loads(sys.argv[1])
-sys.path.extend(args["paths"])
 import importlib.util
 assert importlib.util.find_spec("flexarm") is None, "flexarm importable outside the FMU"
 from fmpy import read_model_description
@@ -224,10 +223,11 @@ with open(args["out"], "w") as f:
 def _fmpy_reference(unpacked: Path, params: dict, inputs: Path, out: Path) -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
     env["FLEXARM_NO_NUMBA"] = "1"
-    paths = [p for p in site.getsitepackages() if not Path(p).resolve().is_relative_to(ROOT)]
-    args = {"paths": paths, "dir": str(unpacked), "params": params, "inputs": str(inputs), "steps": N_STEPS,
+    # -S: no site, so no .pth (the editable 'flexarm'); site-packages as plain PYTHONPATH entries
+    env["PYTHONPATH"] = os.pathsep.join(p for p in site.getsitepackages() if not Path(p).resolve().is_relative_to(ROOT))
+    args = {"dir": str(unpacked), "params": params, "inputs": str(inputs), "steps": N_STEPS,
             "dt": DT, "out": str(out)}
-    proc = subprocess.run([sys.executable, "-I", "-S", "-c", _FMPY_RUN, json.dumps(args)], cwd=unpacked.parent,
+    proc = subprocess.run([sys.executable, "-S", "-s", "-c", _FMPY_RUN, json.dumps(args)], cwd=unpacked.parent,
                           env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(out.read_text())

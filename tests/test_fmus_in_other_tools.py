@@ -112,3 +112,30 @@ def test_fmpy_cli_simulates_each_fmu_with_no_options(fmus, name, tmp_path):
     data = np.genfromtxt(out, delimiter=",", names=True)
     assert data["time"][0] == 0.0 and data["time"][-1] == pytest.approx(2.11, abs=1e-9)
     assert all(np.all(np.isfinite(data[c])) for c in data.dtype.names)
+
+
+_FRESH = r"""
+import json, sys
+from fmpy import simulate_fmu
+paths = json.loads(sys.argv[1])
+assert "flexarm" not in sys.modules and "pythonfmu" not in sys.modules
+rows = {}
+for name in ("plant", "sensors", "controller", "controller_dlqr"):  # the plant's flexarm is imported first
+    result = simulate_fmu(paths[name], stop_time=0.05, output_interval=1e-3)
+    rows[name] = len(result)
+import flexarm
+import pythonfmu.builder  # the host's pythonfmu, not an FMU's run-time copy
+print(json.dumps({"rows": rows, "flexarm": flexarm.__file__}))
+"""
+
+
+def test_fmus_loaded_into_one_fresh_process_share_modules_but_read_their_own_data(fmus, tmp_path):
+    """A process that loads the (lean) plant first, then the others: each finds its modules and its own data."""
+    import json
+
+    out = subprocess.run([sys.executable, "-c", _FRESH, json.dumps({k: str(v) for k, v in fmus.items()})],
+                         capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    assert set(result["rows"].values()) == {51}
+    assert "/resources/flexarm/" in result["flexarm"]  # the first FMU's copy served every FMU

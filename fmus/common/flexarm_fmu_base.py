@@ -91,6 +91,7 @@ from flexarm_fmu_interface import (
     blank_value,
     check_value,
     complete_model_description,
+    own_data_dir,
     slew,
     slew_experiment,
     variable_table,
@@ -101,8 +102,8 @@ from pythonfmu.enums import Fmi2Causality, Fmi2Status, Fmi2Variability
 from pythonfmu.variables import Boolean, Integer, Real, String
 
 __all__ = ["BUNDLE_MANIFEST", "CHOICES_MARK", "START_VALUES", "UNITS", "FlexarmSlave", "StepDiscarded", "Var",
-           "bundle_files", "complete_model_description", "pin_module_namespace", "slew", "slew_experiment",
-           "tree_sha256", "variable_table"]
+           "bundle_files", "complete_model_description", "own_data_dir", "pin_module_namespace", "slew",
+           "slew_experiment", "tree_sha256", "variable_table"]
 
 #: Optional file (in an FMU's resources): {variable: start value} of a case's copy of the FMU.
 START_VALUES = "flexarm_start_values.json"

@@ -20,8 +20,8 @@ from xml.etree.ElementTree import Element, SubElement
 
 from flexarm_fmu_preflight import BUNDLE_MANIFEST
 
-__all__ = ["CHOICES_MARK", "TYPES", "UNITS", "Var", "check_value", "blank_value", "complete_model_description",
-           "slew", "slew_experiment", "variable_table"]
+__all__ = ["CHOICES_MARK", "TYPES", "UNITS", "Var", "blank_value", "check_value", "complete_model_description",
+           "own_data_dir", "slew", "slew_experiment", "variable_table"]
 
 #: Known units: name -> SI base-unit exponents (FMI 2.0 <BaseUnit> attributes)
 #: and optional display units {name: factor}. Extend per FMU via ``EXTRA_UNITS``.
@@ -174,6 +174,19 @@ def variable_table(rows) -> tuple[Var, ...]:
     if dup:
         raise ValueError(f"variable names must be unique, repeated: {sorted(dup)}")
     return tuple(out)
+
+
+def own_data_dir(resources) -> str | None:
+    """An FMU's own ``resources/flexarm/data`` folder (as text), or None outside a built FMU.
+
+    FMUs loaded into one interpreter share the ``flexarm`` package imported first (modules are
+    cached by name), so an FMU reads the data files it needs from its own folder, not from
+    ``flexarm.parameters.DATA_DIR``.
+    """
+    if not resources:
+        return None
+    folder = Path(resources) / "flexarm" / "data"
+    return str(folder) if folder.is_dir() else None
 
 
 def slew() -> dict[str, float]:

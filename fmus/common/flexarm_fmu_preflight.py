@@ -168,6 +168,10 @@ def preflight(resources: str) -> str:
             file = getattr(module, "__file__", None)
             if name.split(".")[0] in provided and file and not os.path.exists(file):
                 del sys.modules[name]  # from an FMU folder that is gone: this FMU's copy replaces it
+        try:  # the host's own pythonfmu, if it has one: the FMU's copy (run-time part only) must not shadow it
+            importlib.import_module("pythonfmu")
+        except ImportError:
+            pass
         if resources not in sys.path:
             sys.path.insert(0, resources)
         with open(os.path.join(resources, "slavemodule.txt")) as f:

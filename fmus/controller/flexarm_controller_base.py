@@ -38,11 +38,12 @@ with the trajectory sample k = round(t_k / 1 ms); the plant holds them over
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 from flexarm_feedthrough import FeedthroughSlave
-from flexarm_fmu_base import Var, slew_experiment, variable_table
+from flexarm_fmu_base import Var, own_data_dir, slew_experiment, variable_table
 
 from flexarm.control import PEAK_TORQUE, TrackingController
 from flexarm.lqr import OMEGA7_CHOICES, canonical_name, default_trajectory_path
@@ -111,20 +112,22 @@ def schedule_label(period: float) -> str:
 
 
 @functools.lru_cache(maxsize=16)
-def _tracking_controller(mode: str, name: str, schedule: str, tau1_max: float, tau2_max: float,
+def _tracking_controller(data: str | None, mode: str, name: str, schedule: str, tau1_max: float, tau2_max: float,
                          omega7: str) -> TrackingController:
     """The control law of one configuration, built once per process (about 25 ms).
 
-    Shared by the instances (and resets) with the same configuration: a
-    TrackingController does not change after construction.
+    Shared by the instances (and resets) with the same configuration and data folder: a
+    TrackingController does not change after construction. `data` is this FMU's own
+    ``resources/flexarm/data`` (FMUs in one process share the ``flexarm`` package imported first,
+    which need not carry this FMU's trajectory and gains), or None for the package's.
     """
     gains = None
     if mode != "ff":  # feedforward only needs no gains (the name is still checked by the caller)
         from flexarm.lqr import GainSchedule
 
-        gains = GainSchedule.load(name, schedule)
-    return TrackingController(default_trajectory_path(), gains, mode=mode, saturation=(tau1_max, tau2_max),
-                              omega7=omega7)
+        gains = GainSchedule.load(name, schedule, directory=None if data is None else Path(data) / "gains")
+    trajectory = default_trajectory_path() if data is None else Path(data) / "trajectory.npz"
+    return TrackingController(trajectory, gains, mode=mode, saturation=(tau1_max, tau2_max), omega7=omega7)
 
 
 class ControllerSlave(FeedthroughSlave):
@@ -159,7 +162,7 @@ class ControllerSlave(FeedthroughSlave):
         if self.law is not None and key == self._key:
             return
         try:
-            self.law = _tracking_controller(self.MODE, *key)
+            self.law = _tracking_controller(own_data_dir(self.resources), self.MODE, *key)
         except (ValueError, OSError) as exc:
             raise ValueError(f"gain_set = {self.value('gain_set')!r}, schedule_period = "
                              f"{self.value('schedule_period')!r} s: {exc}") from None
