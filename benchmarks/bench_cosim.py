@@ -11,15 +11,12 @@ start-up cost, reported separately; the timed runs reuse the loaded FMUs
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from scenarios import master  # noqa: E402
-from scenarios.config import load_scenario  # noqa: E402
-from scenarios.runner import DEFAULT_FMU_DIR, prepare, simulate_case  # noqa: E402
+from scenarios import master
+from scenarios.config import load_scenario
+from scenarios.runner import DEFAULT_FMU_DIR, prepare, simulate_case
 
 
 def main() -> None:

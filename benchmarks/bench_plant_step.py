@@ -102,8 +102,7 @@ def main() -> int:
     if "--child" in sys.argv:  # NumPy-only measurement, run by the parent with FLEXARM_NO_NUMBA=1
         print(json.dumps(measure(Path(sys.argv[sys.argv.index("--child") + 1]), n_lib=400, n_fmu=400)))
         return 0
-    sys.path.insert(0, str(ROOT))
-    from build_fmus import build_all
+    from fmu_build import build_all
 
     t_start = time.perf_counter()
     fmu_path = build_all(only="plant")["plant"]

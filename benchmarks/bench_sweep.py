@@ -16,15 +16,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from scenarios.runner import DEFAULT_FMU_DIR  # noqa: E402
-from scenarios.sweep import close_loaded, iter_dask, iter_serial, load_sweep, local_cluster, plan_sweep  # noqa: E402
+from scenarios.runner import DEFAULT_FMU_DIR
+from scenarios.sweep import close_loaded, iter_dask, iter_serial, load_sweep, local_cluster, plan_sweep
 
 SWEEP = """
 [sweep]

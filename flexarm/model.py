@@ -26,18 +26,15 @@ from .parameters import (
     ArmParameters,
     load_parameters,
 )
+from .signals import names as signal_names
 
 N = N_ELEMENTS
 N_STATE = 2 * N_ELEMENTS
 #: The accelerometer-carrying link ends, in ascending order (chain_kinematics needs that).
 _LINK_TIPS = np.array([LINK1_TIP_ELEMENT, LINK2_TIP_ELEMENT], dtype=np.int64)
 
-#: What :meth:`ArmModel.observables` returns, in order (the plant FMU's outputs).
-OBSERVABLE_NAMES = (
-    *(f"theta{i}" for i in range(1, N + 1)), *(f"omega{i}" for i in range(1, N + 1)),
-    "q1", "q2", "qd1", "qd2", *(f"eps{i}" for i in range(1, 7)),
-    "tip_x", "tip_y", "link1_tip_ax", "link1_tip_ay", "link2_tip_ax", "link2_tip_ay", "acc1_n", "acc2_n",
-)
+#: What :meth:`ArmModel.observables` returns, in order: the plant FMU's outputs in the signal catalogue.
+OBSERVABLE_NAMES = signal_names("plant", "output")
 
 
 class ArmModel:

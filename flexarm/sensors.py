@@ -65,6 +65,7 @@ from scipy import signal
 
 from .model import ArmModel, joint_angles, joint_velocities, strain_gauge_angles
 from .parameters import DATA_DIR, N_ELEMENTS, STRAIN_GAUGE_ELEMENTS, ArmParameters
+from .signals import signals as catalogue_signals
 
 DEFAULT_SENSOR_FILE = DATA_DIR / "sensors_default.toml"
 
@@ -77,31 +78,12 @@ class SignalInfo(NamedTuple):
     description: str
 
 
-_GAUGE_LABELS = ("1,1", "1,2", "1,3", "2,1", "2,2", "2,3")
-_GAUGE_ANGLES = ("θ3−θ2", "θ4−θ3", "θ5−θ4", "θ9−θ8", "θ10−θ9", "θ11−θ10")
-
-#: The plant's true signals, the bank's input vector, in order.
-TRUE_SIGNALS: tuple[SignalInfo, ...] = (
-    SignalInfo("q1", "rad", "joint-1 motor angle θ1"),
-    SignalInfo("q2", "rad", "joint-2 motor angle θ7 − θ6"),
-    SignalInfo("qd1", "rad/s", "joint-1 motor rate"),
-    SignalInfo("qd2", "rad/s", "joint-2 motor rate"),
-    *(SignalInfo(f"eps{i + 1}", "rad", f"strain gauge ε_{lab}: segment angle {ang}")
-      for i, (lab, ang) in enumerate(zip(_GAUGE_LABELS, _GAUGE_ANGLES))),
-    SignalInfo("acc1_n", "m/s2", "link-1 tip acceleration normal to the link"),
-    SignalInfo("acc2_n", "m/s2", "link-2 tip acceleration normal to the link"),
-)
-#: The bank's measured output vector, in order (same channels as TRUE_SIGNALS).
-MEASURED_SIGNALS: tuple[SignalInfo, ...] = (
-    SignalInfo("q1_m", "rad", "encoder 1"),
-    SignalInfo("q2_m", "rad", "encoder 2"),
-    SignalInfo("qd1_m", "rad/s", "tachometer 1"),
-    SignalInfo("qd2_m", "rad/s", "tachometer 2"),
-    *(SignalInfo(f"eps{i + 1}_m", "rad", f"strain gauge ε_{lab} as a segment angle")
-      for i, lab in enumerate(_GAUGE_LABELS)),
-    SignalInfo("acc1_m", "m/s2", "accelerometer at the link-1 tip (normal component)"),
-    SignalInfo("acc2_m", "m/s2", "accelerometer at the link-2 tip (normal component)"),
-)
+#: The plant's true signals, the bank's input vector, in order (the sensors FMU's inputs in the signal catalogue).
+TRUE_SIGNALS: tuple[SignalInfo, ...] = tuple(SignalInfo(s.name, s.unit, s.description)
+                                             for s in catalogue_signals("sensors", "input"))
+#: The bank's measured output vector, in order (same channels as TRUE_SIGNALS; the sensors FMU's outputs).
+MEASURED_SIGNALS: tuple[SignalInfo, ...] = tuple(SignalInfo(s.name, s.unit, s.description)
+                                                 for s in catalogue_signals("sensors", "output"))
 TRUE_SIGNAL_NAMES: tuple[str, ...] = tuple(s.name for s in TRUE_SIGNALS)
 MEASURED_SIGNAL_NAMES: tuple[str, ...] = tuple(s.name for s in MEASURED_SIGNALS)
 N_SIGNALS = len(TRUE_SIGNALS)

@@ -54,11 +54,11 @@ def main(argv=None) -> int:
     sweep.add_argument("--serial", action="store_true", help="run in this process, no Dask (debugging)")
     sweep.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
-    ssp = sub.add_parser("export-ssp", help="write a scenario as an SSP 1.0 package (.ssp) for other masters")
+    ssp = sub.add_parser("export-ssp", help="write a scenario's cases as SSP 1.0 packages (one .ssp per case)")
     ssp.add_argument("scenario", help="table1, table2, table3 or a path to a scenario file")
     ssp.add_argument("--out", type=Path, default=Path("build") / "ssp",
-                     help="folder for <name>.ssp, or a .ssp path, relative to the current directory "
-                          "(default: ./build/ssp)")
+                     help="folder for <scenario>/<case>.ssp, relative to the current directory (default: ./build/ssp)")
+    ssp.add_argument("--case", action="append", help="export only this case (repeatable; default: all)")
     ssp.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
     page = sub.add_parser("results-page", help="rewrite docs/results.md and the README's table from fresh runs")
     page.add_argument("--check", action="store_true",
@@ -97,15 +97,15 @@ def _dispatch(args) -> int:
 
         return sweep_cli(args)
     if args.command == "export-ssp":
-        from .ssp import SSPExportError, export_ssp, parameter_sets
+        from .ssp import SSPExportError, export_ssp
 
         try:
-            path = export_ssp(load_scenario(args.scenario), args.out, args.fmu_dir)
+            paths = export_ssp(load_scenario(args.scenario), args.out, args.fmu_dir, cases=args.case)
         except SSPExportError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return EXIT_REFUSED
-        sets = parameter_sets(path)
-        print(f"{path}: cases (parameter sets) {', '.join(sets)}")
+        for key, path in paths.items():
+            print(f"{key}: {path}")
         return EXIT_OK
     if args.command == "results-page":
         from . import results_page

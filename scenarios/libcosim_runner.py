@@ -2,7 +2,8 @@
 
 libcosim is the Open Simulation Platform's co-simulation library (C++), used
 here through its Python binding libcosimpy. :func:`run_case_libcosim` loads the
-archive, selects a case's parameter set, observes the requested variables with
+archive of one case (:func:`scenarios.ssp.export_ssp` writes one per case; its
+FMUs default to the case's values and its parameter bindings say the same), observes the requested variables with
 a time-series observer and steps the whole run.
 
 How libcosim's fixed-step algorithm exchanges values (libcosim 0.11,
@@ -64,7 +65,10 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
-from .ssp import NS, SSPExportError, case_ssd
+from flexarm.signals import names as signal_names
+
+from .compat import libcosim_last_error, libcosim_real_samples_reader
+from .ssp import DEFAULT_SSD, NS, SSPExportError
 
 NANO = 1_000_000_000
 
@@ -91,13 +95,11 @@ def _quiet_logging() -> None:
 
 
 def _last_error() -> str:
-    from libcosimpy._internal import get_last_error_message
-
-    return get_last_error_message() or "(no message)"
+    return libcosim_last_error()
 
 
 def default_record(ssd: bytes) -> list[tuple[str, str]]:
-    """The plant's 11 angles and rates, the tip, and the torques: the signals the table metrics need.
+    """The plant's state and tip outputs and the torques (signal catalogue): what the table metrics need.
 
     The plant is the component whose input ``tau1`` is connected; the driver (controller) its source.
     """
@@ -108,19 +110,13 @@ def default_record(ssd: bytes) -> list[tuple[str, str]]:
             break
     else:
         raise SSPExportError("no connection drives an input 'tau1' (the plant's torque)")
-    states = [f"theta{i}" for i in range(1, 12)] + [f"omega{i}" for i in range(1, 12)]
-    return [(plant, v) for v in states + ["tip_x", "tip_y"]] + [(driver, "tau1"), (driver, "tau2")]
+    return [(plant, v) for v in signal_names("plant", "output", ("state", "tip"))] + \
+        [(driver, v) for v in signal_names("controller", "output")]
 
 
-def _select_case(ssd: bytes, unpacked: Path, case_key: str, worker_threads: int | None) -> tuple[bytes, float, float]:
-    """The SSD with the case's bindings first in every component; also its step size and stop time."""
+def _prepare_ssd(ssd: bytes, worker_threads: int | None) -> tuple[bytes, float, float]:
+    """The SSD with libcosim's worker-thread count set; also its step size and run length."""
     doc = etree.parse(io.BytesIO(ssd))
-    for bindings in doc.iterfind("ssd:System/ssd:Elements/ssd:Component/ssd:ParameterBindings", NS):
-        chosen = [b for b in bindings if b.get("source") and
-                  etree.parse(str(unpacked / b.get("source"))).getroot().get("name") == case_key]
-        for b in reversed(chosen):
-            bindings.remove(b)
-            bindings.insert(0, b)
     algo = doc.find("ssd:DefaultExperiment/ssd:Annotations/ssc:Annotation/osp:Algorithm/osp:FixedStepAlgorithm", NS)
     exp = doc.find("ssd:DefaultExperiment", NS)
     if algo is None or exp is None or exp.get("stopTime") is None:
@@ -131,7 +127,7 @@ def _select_case(ssd: bytes, unpacked: Path, case_key: str, worker_threads: int 
         float(exp.get("stopTime")) - float(exp.get("startTime", 0.0))
 
 
-def run_case_libcosim(ssp_path: str | Path, case_key: str, n_steps: int | None = None,
+def run_case_libcosim(ssp_path: str | Path, n_steps: int | None = None,
                       record: list[tuple[str, str]] | list[str] | None = None,
                       worker_threads: int | None = 0) -> dict:
     """Run one case of an exported scenario in libcosim.
@@ -139,9 +135,7 @@ def run_case_libcosim(ssp_path: str | Path, case_key: str, n_steps: int | None =
     Parameters
     ----------
     ssp_path : path
-        Archive written by :func:`scenarios.ssp.export_ssp`.
-    case_key : str
-        The case (parameter set name), e.g. ``"none"``.
+        A case's archive, written by :func:`scenarios.ssp.export_ssp`.
     n_steps : int, optional
         Communication steps (default: the SSD's DefaultExperiment, i.e. the scenario's run length).
     record : list of (instance, variable) or "instance.variable", optional
@@ -157,17 +151,16 @@ def run_case_libcosim(ssp_path: str | Path, case_key: str, n_steps: int | None =
         (sample 0 = after initialisation, sample k = after the k-th step), ``step_size``.
     """
     CosimExecution, CosimObserver, CosimVariableType = _import_libcosimpy()
-    from libcosimpy._internal import libcosimc, wrap_function
 
     _quiet_logging()
 
     ssp_path = Path(ssp_path)
-    ssd_name = case_ssd(ssp_path, case_key)
+    ssd_name = DEFAULT_SSD
     with tempfile.TemporaryDirectory(prefix="flexarm-libcosim-") as tmp:
         unpacked = Path(tmp)
         with zipfile.ZipFile(ssp_path) as zf:
             zf.extractall(unpacked)
-        ssd, h, duration = _select_case((unpacked / ssd_name).read_bytes(), unpacked, case_key, worker_threads)
+        ssd, h, duration = _prepare_ssd((unpacked / ssd_name).read_bytes(), worker_threads)
         (unpacked / ssd_name).write_bytes(ssd)
         n = int(round(duration / h)) if n_steps is None else int(n_steps)
         if record is None:
@@ -198,15 +191,11 @@ def run_case_libcosim(ssp_path: str | Path, case_key: str, n_steps: int | None =
 
         if not execution.step(n):
             status = execution.status()
-            raise LibcosimError(f"{case_key}: stepping failed at t = {status.current_time / NANO:.3f} s: "
+            raise LibcosimError(f"{ssp_path.name}: stepping failed at t = {status.current_time / NANO:.3f} s: "
                                 f"{_last_error()}")
 
         # libcosimpy's sample reader drops sample 0 (it counts step number 0 as "missing"): read directly.
-        get_samples = wrap_function(
-            lib=libcosimc(), funcname="cosim_observer_slave_get_real_samples",
-            argtypes=[ctypes.c_void_p, ctypes.c_int, ctypes.c_uint32, ctypes.c_int64, ctypes.c_size_t,
-                      ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int64), ctypes.POINTER(ctypes.c_int64)],
-            restype=ctypes.c_int64)
+        get_samples = libcosim_real_samples_reader()
         values = np.empty(n + 1)
         steps = np.empty(n + 1, dtype=np.int64)
         times = np.empty(n + 1, dtype=np.int64)
@@ -229,7 +218,7 @@ def run_case_libcosim(ssp_path: str | Path, case_key: str, n_steps: int | None =
 
 
 def main(argv=None) -> int:
-    """``python -m scenarios.libcosim_runner SSP CASE [--steps N] [--out FILE.csv|.npz]``: one case in libcosim."""
+    """``python -m scenarios.libcosim_runner SSP [--steps N] [--out FILE.csv|.npz]``: one case in libcosim."""
     import argparse
     import sys
     import time
@@ -240,8 +229,8 @@ def main(argv=None) -> int:
 
     ap = argparse.ArgumentParser(prog="python -m scenarios.libcosim_runner",
                                  description="Run one case of an exported scenario (.ssp) in libcosim.")
-    ap.add_argument("ssp", type=Path, help="archive from `python -m scenarios export-ssp`")
-    ap.add_argument("case", help="case key (parameter set), e.g. none")
+    ap.add_argument("ssp", type=Path, help="a case's archive from `python -m scenarios export-ssp`, "
+                    "e.g. build/ssp/table2/none.ssp")
     ap.add_argument("--steps", type=int, help="communication steps (default: the scenario's run length)")
     ap.add_argument("--out", type=Path, help="write the time series: .csv (as `scenarios run`) or .npz")
     ap.add_argument("--worker-threads", type=int, default=0,
@@ -249,7 +238,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     try:
         t0 = time.perf_counter()
-        out = run_case_libcosim(args.ssp, args.case, args.steps,
+        out = run_case_libcosim(args.ssp, args.steps,
                                 worker_threads=None if args.worker_threads < 0 else args.worker_threads)
         wall = time.perf_counter() - t0
     except (LibcosimError, SSPExportError) as exc:
@@ -264,7 +253,7 @@ def main(argv=None) -> int:
             tmp.replace(args.out)
         else:
             write_csv(args.out, series)
-    print(f"{args.ssp} case {args.case}: {len(out['time']) - 1} steps of {out['step_size']} s in libcosim, "
+    print(f"{args.ssp}: {len(out['time']) - 1} steps of {out['step_size']} s in libcosim, "
           f"{wall:.2f} s wall time")
     sig = out["signals"]
     plant = next((k.split(".")[0] for k in sig if k.endswith(".theta1")), None)

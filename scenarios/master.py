@@ -23,6 +23,14 @@ It follows libcosim exactly, so that the two masters can be compared bit for
 bit: one exchange round per FMU during initialisation, and time points kept
 in integer nanoseconds (t_k = k·h_ns / 1e9, step t_k+1 − t_k).
 
+``algorithm="fmpy-ssp"`` steps as fmpy's ``simulate_ssp`` (fmpy 0.3.x,
+``fmpy/ssp/simulation.py``) does, so that the two can be compared bit for bit:
+Jacobi exchange as above, but no exchange during initialisation (every
+connected input is 0 over the first step), and time accumulated in doubles
+(t_k+1 = t_k + h, step h). ``simulate_ssp`` records the values read after
+each step, labelled with the time the step started: its row k is our sample
+k + 1.
+
 A :class:`Master` loads its FMUs once and can run many times (``fmi2Reset``
 between runs), which is what sweeps do; :func:`run` is the one-shot form.
 
@@ -40,6 +48,8 @@ Everything the master loads is freed, also when a step fails.
 
 from __future__ import annotations
 
+import functools
+import itertools
 import shutil
 import signal
 import threading
@@ -59,12 +69,28 @@ from fmpy.fmi2 import (
     fmi2ValueReference,
 )
 
+from .compat import fmu2_raw_functions
 from .fmu_files import read_description, unpack
 
-ALGORITHMS = ("gauss-seidel", "jacobi")
+ALGORITHMS = ("gauss-seidel", "jacobi", "fmpy-ssp")
 _STATUS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
 #: The outcomes of a run, in the order docs/outcomes.md explains them.
 OUTCOMES = ("ok", "unbounded", "error", "interrupted")
+
+
+#: How an Integer choice parameter lists its options in its description (docs/fmu-interface.md).
+CHOICES_MARK = "choices: "
+
+
+def parse_choices(description: str) -> dict[str, int]:
+    """{name: value} of a choice parameter, from its description (``...; choices: 1 = a, 2 = b``); {} if none."""
+    if CHOICES_MARK not in description:
+        return {}
+    out = {}
+    for part in description.rsplit(CHOICES_MARK, 1)[1].split(", "):
+        value, _, name = part.partition(" = ")
+        out[name.strip()] = int(value)
+    return out
 
 
 class CoSimulationError(RuntimeError):
@@ -201,9 +227,7 @@ class _Unit:
         self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
         # fmpy's getReal/setReal allocate arrays and log each call; the stepping
         # loop calls the library functions directly with preallocated buffers.
-        self.get_real = self.slave._functions["fmi2GetReal"]
-        self.set_real = self.slave._functions["fmi2SetReal"]
-        self.do_step = self.slave._functions["fmi2DoStep"]
+        self.get_real, self.set_real, self.do_step = fmu2_raw_functions(self.slave)
 
     def reinstantiate(self) -> None:
         """Free the instance and make a new one (after an FMU failed and refuses reset)."""
@@ -221,11 +245,24 @@ class _Unit:
         if v.type == "Real":
             self.slave.setReal([v.valueReference], [float(value)])
         elif v.type in ("Integer", "Enumeration"):
-            self.slave.setInteger([v.valueReference], [int(value)])
+            self.slave.setInteger([v.valueReference], [self.choice(var, value)])
         elif v.type == "Boolean":
             self.slave.setBoolean([v.valueReference], [bool(value)])
         else:
             self.slave.setString([v.valueReference], [str(value)])
+
+    def choice(self, var: str, value) -> int:
+        """The integer of a choice parameter's option, given by its name (as scenario files write it)."""
+        items = parse_choices(self.vars[var].description or "")
+        if isinstance(value, str):
+            if value not in items:
+                raise CoSimulationError(f"{self.name}: {var} = {value!r} is not one of its choices "
+                                        f"{', '.join(items) or '(none: an Integer without named choices)'}")
+            return items[value]
+        if isinstance(value, bool) or int(value) != value or (items and int(value) not in items.values()):
+            raise CoSimulationError(f"{self.name}: {var} = {value!r} is not one of its choices "
+                                    + ", ".join(f"{n} ({v})" for n, v in items.items()))
+        return int(value)
 
     def _free_instance(self) -> None:
         if self.slave is None:
@@ -272,8 +309,8 @@ class _Link:
         self.buffer = (fmi2Real * n)()
         self.values = np.frombuffer(self.buffer, dtype=np.float64)
 
-    def write(self) -> None:
-        self.values[:] = self.port.values[self.index]
+    def write(self, zero: bool = False) -> None:
+        self.values[:] = 0.0 if zero else self.port.values[self.index]
         status = self.dst.set_real(self.dst.slave.component, self.dst_vrs, self.n, self.buffer)
         if status > 1:
             raise self.dst.error("fmi2SetReal", status)
@@ -370,7 +407,7 @@ class Master:
             link = _Link(ports[s], [p[0] for p in pairs], self.units[d], [p[1] for p in pairs])
             (forward[d] if rank[s] < rank[d] else feedback).append(link)
         again: dict[str, _Port] = {}
-        if self.algorithm == "jacobi":  # every value as it was before any input changed, then all inputs set
+        if self.algorithm in ("jacobi", "fmpy-ssp"):  # every value as it was before any input changed, then all set
             ops = [port.read for port in ports.values()]
             ops += [link.write for name in self.order for link in forward[name]] + [link.write for link in feedback]
         else:
@@ -493,6 +530,8 @@ class Master:
         n, h = int(n_steps), float(step_size)
         if self.algorithm == "jacobi":  # libcosim's clock: integer nanoseconds, converted per point
             time = np.arange(n + 1) * round(h * 1e9) / 1e9
+        elif self.algorithm == "fmpy-ssp":  # fmpy's simulate_ssp: time += h
+            time = np.array(list(itertools.accumulate([0.0] + [h] * n)))
         else:
             time = np.arange(n + 1) * h
         steps = np.diff(time) if self.algorithm == "jacobi" else np.full(n, h)
@@ -500,6 +539,11 @@ class Master:
         names = [f"{f}.{v}" for f, v in record]
         data = np.full((n + 1, len(record)), np.nan)
         ops, sources = self._plan(record)  # names unknown records before anything runs
+        first_ops = ops
+        if self.algorithm == "fmpy-ssp":  # the first step with every connected input at 0
+            links = [op.__self__ for op in ops if getattr(op, "__func__", None) is _Link.write]
+            first_ops = [op for op in ops if getattr(op, "__func__", None) is not _Link.write]
+            first_ops += [functools.partial(link.write, True) for link in links]
         # data[k] is gathered from the ports' buffers: one fancy-index per port.
         gathers = {}
         for col, (port, pos) in enumerate(sources):
@@ -519,7 +563,7 @@ class Master:
             steppers = [(u.do_step, u.slave.component, u) for u in (self.units[name] for name in self.order)]
             try:
                 for k in range(n + 1):
-                    for op in ops:
+                    for op in (ops if k else first_ops):
                         op()
                     row = data[k]
                     for port, cols, pos in gathers:

@@ -21,6 +21,7 @@ import numpy as np
 
 from flexarm.parameters import DEFAULT_PARAMETER_FILE
 from flexarm.provenance import git_commit, sha256_file, write_json
+from flexarm.signals import names as signal_names
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
 from . import master
@@ -32,9 +33,10 @@ from .results import write_csv
 from .values import check_parameters
 
 REPO = Path(__file__).resolve().parent.parent
-DEFAULT_FMU_DIR = REPO / "build" / "fmus"
+DEFAULT_FMU_DIR = Path("build") / "fmus"  # relative to the current directory, as fmu_build's default
 N_EL = 11
-PLANT_STATE = [f"theta{i}" for i in range(1, N_EL + 1)] + [f"omega{i}" for i in range(1, N_EL + 1)]
+#: The plant's state outputs (theta1..11, omega1..11), from the signal catalogue.
+PLANT_STATE = list(signal_names("plant", "output", "state"))
 #: Bytes a case's CSV and JSON take per sample (about 50 columns of 20 characters), for the free-space check.
 BYTES_PER_SAMPLE = 1200
 
@@ -56,17 +58,12 @@ class CaseResult:
 
 
 def _build_tool():
-    """The ``build_fmus`` module, or None where it is not installed (a non-editable install)."""
+    """The packaged build tooling (:mod:`fmu_build`), or None where it is not installed."""
     try:
-        import build_fmus
+        import fmu_build
     except ImportError:
-        if str(REPO) not in sys.path:  # build_fmus.py is not packaged yet (see issue 17)
-            sys.path.insert(0, str(REPO))
-        try:
-            import build_fmus
-        except ImportError:
-            return None
-    return build_fmus
+        return None
+    return fmu_build
 
 
 def known_fmu_names() -> list[str]:

@@ -1,50 +1,43 @@
-"""Export a scenario as an SSP 1.0 package (``.ssp``) that other co-simulation masters can run.
+"""Export a scenario as SSP 1.0 packages (``.ssp``), one per case, that any SSP master runs as we do.
 
-``python -m scenarios export-ssp table2`` writes ``build/ssp/table2.ssp``, a zip holding
+``python -m scenarios export-ssp table2`` writes ``build/ssp/table2/<case>.ssp``
+(``none.ssp``, ``tip.ssp``, ...), each a zip holding
 
 * ``SystemStructure.ssd``: the system (SSP 1.0 SystemStructureDescription). One
-  ``ssd:Component`` per FMU instance of the scenario, ``source="resources/<fmu>.fmu"``,
+  ``ssd:Component`` per FMU instance of the case, ``source="resources/<instance>.fmu"``,
   with every input, output and parameter of the FMU as a typed ``ssd:Connector``
-  (Reals with their unit, defined in ``ssd:Units``); ``ssd:Connections`` as the
-  master wires them (:func:`scenarios.runner.connect_by_name`, or the scenario's
-  explicit list); ``ssd:DefaultExperiment`` from 0 to the scenario's run length
-  (``samples`` × ``step_size``), with the step in the Open Simulation Platform's
-  annotation ``<osp:FixedStepAlgorithm baseStepSize="0.001"/>`` that libcosim reads;
-* ``resources/<fmu>.fmu``: the FMUs, as built (stored, not recompressed);
-* ``resources/<case>/<instance>.ssv``: one SSP ParameterValues file per case and
-  FMU instance, ``<ssv:ParameterSet name="<case>">``: the case's parameters (the
-  scenario's, with the case's overrides) and, for the plant, its start angles
-  on the trajectory (:func:`scenarios.runner.start_parameters`).
+  (Reals with their unit, defined in ``ssd:Units``); ``ssd:Connections`` as the master wires them
+  (:func:`scenarios.runner.connect_by_name`, or the scenario's explicit list);
+  ``ssd:DefaultExperiment`` from 0 to the scenario's run length (``samples`` ×
+  ``step_size``), with the step in the Open Simulation Platform's annotation
+  ``<osp:FixedStepAlgorithm baseStepSize="0.001"/>`` that libcosim reads;
+* ``resources/<instance>.fmu``: **the case's own copy of each FMU**, whose
+  default values are the case's parameter values: the ``start`` attributes of
+  its modelDescription.xml are rewritten, and ``resources/flexarm_start_values.json``
+  inside it, read by the FMU when it is instantiated, carries the same values.
+  The plant's start angles on the trajectory are among them
+  (:func:`scenarios.runner.start_parameters`). So a master that applies no
+  parameter set at all (fmpy's ``simulate_ssp``, which ignores parameter
+  bindings; a native SSP engine without a parameter set named on its command
+  line) still runs the case;
+* ``resources/<instance>.ssv``: the same values as an SSP ParameterValues file,
+  bound to the component with one ``ssd:ParameterBinding`` (for masters that
+  apply bindings: libcosim applies it, with the same result).
 
-**Choosing a case.** Each component lists one ``ssd:ParameterBinding`` per case, in
-the scenario's order, each pointing at that case's ``.ssv``. This is the
-convention of libcosim (Open Simulation Platform): the ParameterSets of all
-components that share a name form one selectable parameter set ("none",
-"noise", ...), and without a choice the *first* binding of each component
-applies, i.e. the scenario's first case. libcosim's C API (and so libcosimpy
-0.0.6) always applies the first; :mod:`scenarios.libcosim_runner` selects another
-case by putting its bindings first in an unpacked copy. The parameter files are
-per component because libcosim reads bindings only on components (not on the
-system) and resolves the names in a set against that component.
-(A generic SSP 1.0 tool applies *all* bindings in order, so the last case would
-win there: select a case by deleting the other bindings.)
+A case that swaps an FMU (``fmus.controller = "controller_ff"``) simply has
+that FMU in its archive. Each archive is written to a temporary file beside
+the target and renamed, so a reader never sees half a file.
+:func:`validate_ssp` checks the SSD and SSV against the SSP 1.0 schemas that
+ship with fmpy (``fmpy/ssp/schema``) and every reference they make.
 
-**Cases that swap FMUs** (``fmus.controller = "controller_ff"`` in a case) cannot
-share a system structure with the others: each distinct FMU set gets its own
-SSD in the same archive (SSP allows several; ``SystemStructure.ssd`` is the
-default and holds the cases that use the scenario's ``[fmus]``), named
-``SystemStructure_<swapped fmus>.ssd``. :func:`case_ssd` finds a case's SSD.
-
-The archive is written to a temporary file beside the target and renamed, so a
-reader never sees half a file. :func:`validate_ssp` checks every SSD and SSV
-against the SSP 1.0 schemas that ship with fmpy (``fmpy/ssp/schema``).
+The FMU copies keep their GUID: only start values change, which FMI lets a
+tool override anyway; the GUID still identifies the interface (variables,
+value references, types).
 """
 
 from __future__ import annotations
 
 import io
-import os
-import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,8 +45,12 @@ from pathlib import Path
 from fmpy import read_model_description
 from lxml import etree
 
+from flexarm.lqg import with_loop_delay
+from flexarm.provenance import write_atomic
+
 from . import runner
 from .config import Scenario
+from .master import parse_choices
 
 NS = {
     "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
@@ -62,6 +59,8 @@ NS = {
     "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
 }
 DEFAULT_SSD = "SystemStructure.ssd"
+#: In an FMU's resources: the case's start values (read by fmus/common/flexarm_fmu_base.py, START_VALUES).
+START_VALUES = "flexarm_start_values.json"
 DEFAULT_SSP_DIR = runner.REPO / "build" / "ssp"
 #: FMI causality -> SSP 1.0 connector kind (other causalities are not exported).
 _KINDS = {"input": "input", "output": "output", "parameter": "parameter", "calculatedParameter": "calculatedParameter"}
@@ -74,16 +73,14 @@ class SSPExportError(ValueError):
 
 
 @dataclass
-class SystemPlan:
-    """One SSD of the archive: the FMUs of a group of cases, their wiring and the cases' parameters."""
+class CasePlan:
+    """One archive: a case's FMUs, their wiring and the case's parameter values."""
 
-    ssd_name: str
+    key: str
+    label: str
     setup: runner.Setup
-    #: instance -> resource path inside the archive ("resources/plant.fmu")
-    sources: dict[str, str]
-    #: case key -> {instance: {variable: value}} (plant start angles included)
-    parameters: dict[str, dict[str, dict]]
-    labels: dict[str, str]
+    #: instance -> {variable: value} (plant start angles included; Enumerations by item name)
+    parameters: dict[str, dict]
 
 
 def _q(prefix: str, tag: str) -> str:
@@ -95,89 +92,139 @@ def _fmt_real(x: float) -> str:
     return repr(float(x))
 
 
-def _var_type(v) -> str:
-    return "Enumeration" if v.type == "Enumeration" else v.type
-
-
-def plan_systems(scenario: Scenario, fmu_dir: Path = runner.DEFAULT_FMU_DIR, build: bool = True) -> list[SystemPlan]:
-    """Group the scenario's cases by FMU set and prepare each group as the runner would (FMUs built if needed)."""
-    groups: dict[tuple, list] = {}
+def plan_cases(scenario: Scenario, fmu_dir: Path = runner.DEFAULT_FMU_DIR, build: bool = True,
+               cases: list[str] | None = None) -> list[CasePlan]:
+    """Prepare each case as the runner would (FMUs built if needed); `cases` selects by key (default all)."""
+    keys = [c.key for c in scenario.cases]
+    unknown = sorted(set(cases or ()) - set(keys))
+    if unknown:
+        raise SSPExportError(f"cases: {unknown} not in scenario {scenario.name} (has: {', '.join(keys)})")
+    setups: dict[tuple, runner.Setup] = {}
+    plans = []
     for case in scenario.cases:
-        groups.setdefault(tuple(sorted((case.fmus or scenario.fmus).items())), []).append(case)
-    default_key = tuple(sorted(scenario.fmus.items()))
-    keys = sorted(groups, key=lambda k: (k != default_key, list(groups).index(k)))
-    plans, resources, used_names = [], {}, set()
-    for i, key in enumerate(keys):
-        names = dict(key)
-        setup = runner.prepare(scenario, fmu_dir, names=names, build=build)
-        if i == 0:
-            ssd_name = DEFAULT_SSD
-        else:
-            swapped = [Path(n).stem for inst, n in sorted(names.items()) if scenario.fmus.get(inst) != n]
-            ssd_name = f"SystemStructure_{'_'.join(swapped) or i}.ssd"
-            while ssd_name in used_names:
-                ssd_name = ssd_name[:-4] + "_.ssd"
-        used_names.add(ssd_name)
-        sources = {}
-        for inst in scenario.order:
-            path = Path(setup.paths[inst]).resolve()
-            if path not in resources:
-                stem, taken = path.stem, set(resources.values())
-                res = f"resources/{stem}.fmu"
-                n = 2
-                while res in taken:
-                    res, n = f"resources/{stem}_{n}.fmu", n + 1
-                resources[path] = res
-            sources[inst] = resources[path]
-        params = {c.key: setup.case_parameters(c.parameters) for c in groups[key]}
-        plans.append(SystemPlan(ssd_name, setup, sources, params, {c.key: c.label for c in groups[key]}))
+        if cases is not None and case.key not in cases:
+            continue
+        names = case.fmus or scenario.fmus
+        key = tuple(sorted(names.items()))
+        if key not in setups:
+            setups[key] = runner.prepare(scenario, fmu_dir, names=dict(names), build=build)
+        setup = setups[key]
+        plans.append(CasePlan(case.key, case.label, setup, setup.case_parameters(case.parameters)))
     return plans
+
+
+def typed_values(values: dict, variables: dict, where: str) -> dict:
+    """`values` as the FMU's types want them: choice names -> integers (from the description); unknown refused."""
+    out = {}
+    for var, value in values.items():
+        v = variables.get(var)
+        if v is None:
+            raise SSPExportError(f"{where}: the FMU has no variable '{var}'")
+        if v.causality not in ("parameter", "input"):
+            raise SSPExportError(f"{where}: '{var}' is an {v.causality}, not a parameter or input")
+        choices = parse_choices(v.description or "") if v.type == "Integer" else {}
+        if choices:
+            if isinstance(value, str):
+                if value not in choices:
+                    raise SSPExportError(f"{where}: {var} = {value!r} is not one of {', '.join(choices)}")
+                value = choices[value]
+            elif int(value) not in choices.values():
+                raise SSPExportError(f"{where}: {var} = {value!r} is not one of {choices}")
+            out[var] = int(value)
+        elif v.type == "Real":
+            out[var] = float(value)
+        elif v.type == "Integer":
+            out[var] = int(value)
+        elif v.type == "Boolean":
+            out[var] = bool(value)
+        else:
+            raise SSPExportError(f"{where}: '{var}' has type {v.type}, which the export does not write")
+    return out
+
+
+def _start_text(typ: str, value) -> str:
+    if typ == "Real":
+        return _fmt_real(value)
+    if typ == "Boolean":
+        return "true" if value else "false"
+    return str(int(value))
+
+
+def case_fmu(fmu: Path, values: dict) -> bytes:
+    """A copy of `fmu` whose default values are `values` (typed, see :func:`typed_values`).
+
+    The ``start`` attributes in modelDescription.xml are rewritten and the
+    values written to ``resources/flexarm_start_values.json``, which the FMU
+    applies when it is instantiated (and again at ``fmi2Reset``).
+    """
+    import json
+
+    out = io.BytesIO()
+    with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as dst:
+        md = etree.fromstring(src.read("modelDescription.xml"))
+        seen = set()
+        for sv in md.iterfind("ModelVariables/ScalarVariable"):
+            name = sv.get("name")
+            if name in values:
+                sv[0].set("start", _start_text(sv[0].tag, values[name]))
+                seen.add(name)
+        missing = sorted(set(values) - seen)
+        if missing:
+            raise SSPExportError(f"{fmu.name}: no variables {missing} in its modelDescription.xml")
+        for info in src.infolist():
+            if info.filename == "modelDescription.xml" or info.filename == f"resources/{START_VALUES}":
+                continue
+            dst.writestr(info, src.read(info))
+        dst.writestr(_member("modelDescription.xml"),
+                     etree.tostring(md, xml_declaration=True, encoding="UTF-8"))
+        dst.writestr(_member(f"resources/{START_VALUES}"), json.dumps(values, indent=1) + "\n")
+    return out.getvalue()
+
+
+def _member(name: str) -> zipfile.ZipInfo:
+    info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
+    info.external_attr = 0o644 << 16
+    info.compress_type = zipfile.ZIP_DEFLATED
+    return info
 
 
 def parameter_set_xml(name: str, values: dict, variables: dict, description: str | None = None) -> bytes:
     """An SSP 1.0 ParameterValues document (``.ssv``) for one FMU instance.
 
-    `variables` (name -> fmpy ScalarVariable) gives each value its type; every
-    name must be a parameter or input of the FMU.
+    `values` are typed (:func:`typed_values`); `variables` (name -> fmpy
+    ScalarVariable) gives each its type.
     """
     root = etree.Element(_q("ssv", "ParameterSet"), nsmap={"ssv": NS["ssv"]}, version="1.0", name=name)
     if description:
         root.set("description", description)
     params = etree.SubElement(root, _q("ssv", "Parameters"))
     for var, value in values.items():
-        v = variables.get(var)
-        if v is None:
-            raise SSPExportError(f"parameter set '{name}': the FMU has no variable '{var}'")
-        if v.causality not in ("parameter", "input"):
-            raise SSPExportError(f"parameter set '{name}': '{var}' is an {v.causality}, not a parameter or input")
+        v = variables[var]
         p = etree.SubElement(params, _q("ssv", "Parameter"), name=var)
         if v.type == "Real":
             e = etree.SubElement(p, _q("ssv", "Real"), value=_fmt_real(value))
             if v.unit:
                 e.set("unit", v.unit)
-        elif v.type == "Integer":
-            etree.SubElement(p, _q("ssv", "Integer"), value=str(int(value)))
-        elif v.type == "Boolean":
-            etree.SubElement(p, _q("ssv", "Boolean"), value="true" if bool(value) else "false")
-        elif v.type == "String":
-            etree.SubElement(p, _q("ssv", "String"), value=str(value))
         else:
-            raise SSPExportError(f"parameter set '{name}': '{var}' has type {v.type}, which the export does not write")
+            etree.SubElement(p, _q("ssv", v.type), value=_start_text(v.type, value))
     return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
 
 
-def _ssv_path(case: str, instance: str) -> str:
-    return f"resources/{case}/{instance}.ssv"
+def _ssv_path(instance: str) -> str:
+    return f"resources/{instance}.ssv"
 
 
-def system_structure_xml(scenario: Scenario, plan: SystemPlan) -> bytes:
-    """The SSD (SSP 1.0 SystemStructureDescription) of one plan."""
+def _fmu_path(instance: str) -> str:
+    return f"resources/{instance}.fmu"
+
+
+def system_structure_xml(scenario: Scenario, plan: CasePlan) -> bytes:
+    """The SSD (SSP 1.0 SystemStructureDescription) of one case."""
     setup = plan.setup
     mds = {inst: read_model_description(str(setup.paths[inst])) for inst in scenario.order}
-    root = etree.Element(_q("ssd", "SystemStructureDescription"), nsmap=NS, version="1.0", name=scenario.name,
-                         generationTool="flexarm-fmi scenarios.ssp")
-    if scenario.description:
-        root.set("description", scenario.description)
+    root = etree.Element(_q("ssd", "SystemStructureDescription"), nsmap=NS, version="1.0",
+                         name=f"{scenario.name}_{plan.key}", generationTool="flexarm-fmi scenarios.ssp")
+    root.set("description", f"{scenario.description} -- case {plan.key}: {plan.label}".strip(" -"))
     system = etree.SubElement(root, _q("ssd", "System"), name=scenario.name)
     elements = etree.SubElement(system, _q("ssd", "Elements"))
     units = {}
@@ -185,7 +232,7 @@ def system_structure_xml(scenario: Scenario, plan: SystemPlan) -> bytes:
         md = mds[inst]
         for u in md.unitDefinitions:
             units.setdefault(u.name, u)
-        comp = etree.SubElement(elements, _q("ssd", "Component"), name=inst, source=plan.sources[inst],
+        comp = etree.SubElement(elements, _q("ssd", "Component"), name=inst, source=_fmu_path(inst),
                                 type="application/x-fmu-sharedlibrary", implementation="CoSimulation")
         connectors = etree.SubElement(comp, _q("ssd", "Connectors"))
         for v in md.modelVariables:
@@ -195,15 +242,12 @@ def system_structure_xml(scenario: Scenario, plan: SystemPlan) -> bytes:
             c = etree.SubElement(connectors, _q("ssd", "Connector"), name=v.name, kind=kind)
             if v.description:
                 c.set("description", v.description)
-            t = etree.SubElement(c, _q("ssc", _var_type(v)))
+            t = etree.SubElement(c, _q("ssc", v.type))
             if v.type == "Real" and v.unit:
                 t.set("unit", v.unit)
-            elif v.type == "Enumeration":
-                t.set("name", v.declaredType.name)
         bindings = etree.SubElement(comp, _q("ssd", "ParameterBindings"))
-        for case in plan.parameters:
-            etree.SubElement(bindings, _q("ssd", "ParameterBinding"), type="application/x-ssp-parameter-set",
-                             source=_ssv_path(case, inst))
+        etree.SubElement(bindings, _q("ssd", "ParameterBinding"), type="application/x-ssp-parameter-set",
+                         source=_ssv_path(inst))
     conns = etree.SubElement(system, _q("ssd", "Connections"))
     for c in setup.connections:
         etree.SubElement(conns, _q("ssd", "Connection"), startElement=c.src_fmu, startConnector=c.src_var,
@@ -232,50 +276,50 @@ def system_structure_xml(scenario: Scenario, plan: SystemPlan) -> bytes:
     return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
 
 
-def export_ssp(scenario: Scenario, out_path: str | Path, fmu_dir: str | Path = runner.DEFAULT_FMU_DIR,
-               build: bool = True) -> Path:
-    """Write the scenario as an SSP archive at `out_path` (a ``.ssp`` file, or a folder for ``<name>.ssp``).
+def export_ssp(scenario: Scenario, out_dir: str | Path = DEFAULT_SSP_DIR,
+               fmu_dir: str | Path = runner.DEFAULT_FMU_DIR, build: bool = True,
+               cases: list[str] | None = None) -> dict[str, Path]:
+    """Write one archive per case, ``<out_dir>/<scenario>/<case>.ssp``; return {case key: path}.
 
     FMUs are built into `fmu_dir` if needed (as ``python -m scenarios run`` does).
-    Returns the path written.
+    `cases` selects cases by key (default: all).
     """
-    out = Path(out_path)
-    if out.suffix != ".ssp":
-        out = out / f"{scenario.name}.ssp"
-    plans = plan_systems(scenario, Path(fmu_dir), build)
-    members: dict[str, bytes | Path] = {}
-    for plan in plans:
-        members[plan.ssd_name] = system_structure_xml(scenario, plan)
+    folder = Path(out_dir) / scenario.name
+    written = {}
+    for plan in plan_cases(scenario, Path(fmu_dir), build, cases):
+        members: dict[str, bytes] = {DEFAULT_SSD: system_structure_xml(scenario, plan)}
         for inst in scenario.order:
-            members.setdefault(plan.sources[inst], Path(plan.setup.paths[inst]))
-            variables = {v.name: v for v in read_model_description(str(plan.setup.paths[inst])).modelVariables}
-            for case, params in plan.parameters.items():
-                members[_ssv_path(case, inst)] = parameter_set_xml(case, params.get(inst, {}), variables,
-                                                                   plan.labels[case])
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f, zipfile.ZipFile(f, "w") as zf:
+            path = Path(plan.setup.paths[inst])
+            variables = {v.name: v for v in read_model_description(str(path)).modelVariables}
+            params = plan.parameters.get(inst, {})
+            if "loop_delay_samples" in variables:  # a predictive controller: set for the masters that read SSPs
+                params = with_loop_delay(params, "jacobi", _feedthrough_fmus(scenario))
+            values = typed_values(params, variables, f"case {plan.key}, {inst}")
+            members[_fmu_path(inst)] = case_fmu(path, values)
+            members[_ssv_path(inst)] = parameter_set_xml(plan.key, values, variables, plan.label)
+        written[plan.key] = _write_zip(folder / f"{plan.key}.ssp", members)
+    return written
+
+
+def _feedthrough_fmus(scenario: Scenario) -> int:
+    """Direct-feedthrough FMUs between the plant and the torques: the sensors (if any) and the controller.
+
+    A Jacobi-stepping master (libcosim, most SSP engines) adds one sample of delay through each.
+    """
+    return 1 + int("sensors" in scenario.order)
+
+
+def _write_zip(out: Path, members: dict[str, bytes]) -> Path:
+    """Write the archive atomically (:func:`flexarm.provenance.write_atomic`: readable by everyone)."""
+    def write(f) -> None:
+        with zipfile.ZipFile(f, "w") as zf:
             for name in sorted(members, key=lambda n: (not n.endswith(".ssd"), n)):
-                data = members[name]
-                info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
-                info.external_attr = 0o644 << 16
-                if isinstance(data, Path):
+                info = _member(name)
+                if name.endswith(".fmu"):
                     info.compress_type = zipfile.ZIP_STORED  # an FMU is already a zip
-                    with zf.open(info, "w") as dst, open(data, "rb") as src:
-                        while chunk := src.read(1 << 20):
-                            dst.write(chunk)
-                else:
-                    info.compress_type = zipfile.ZIP_DEFLATED
-                    zf.writestr(info, data)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would make the archive private
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return out
+                zf.writestr(info, members[name])
+
+    return write_atomic(out, write)
 
 
 def _schema(name: str) -> etree.XMLSchema:
@@ -321,28 +365,3 @@ def validate_ssp(ssp_path: str | Path) -> list[str]:
                     if c.get(con) not in connectors.get(c.get(el), ()):
                         problems.append(f"{name}: connection names unknown connector {c.get(el)}.{c.get(con)}")
     return problems
-
-
-def parameter_sets(ssp_path: str | Path) -> dict[str, str]:
-    """Case (parameter set name) -> the SSD in the archive that holds it."""
-    out = {}
-    with zipfile.ZipFile(ssp_path) as zf:
-        for name in sorted(zf.namelist(), key=lambda n: n != DEFAULT_SSD):
-            if not name.endswith(".ssd"):
-                continue
-            doc = etree.parse(io.BytesIO(zf.read(name)))
-            for b in doc.iterfind("ssd:System/ssd:Elements/ssd:Component/ssd:ParameterBindings/"
-                                  "ssd:ParameterBinding", NS):
-                src = b.get("source")
-                if src:
-                    set_name = etree.parse(io.BytesIO(zf.read(src))).getroot().get("name")
-                    out.setdefault(set_name, name)
-    return out
-
-
-def case_ssd(ssp_path: str | Path, case_key: str) -> str:
-    """The SSD of the archive that holds the case's parameter set."""
-    sets = parameter_sets(ssp_path)
-    if case_key not in sets:
-        raise SSPExportError(f"case '{case_key}': no such parameter set in {ssp_path} (has: {', '.join(sets)})")
-    return sets[case_key]

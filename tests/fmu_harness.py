@@ -51,10 +51,13 @@ class Slave:
         self.time = 0.0
 
     def set(self, **values):
+        """Set variables by name; a choice parameter takes its option's name (as scenario files write it)."""
         for name, value in values.items():
             var = self.vars[name]
-            setter = {"Real": self.fmu.setReal, "Integer": self.fmu.setInteger, "Boolean": self.fmu.setBoolean,
-                      "String": self.fmu.setString}[var.type]
+            if isinstance(value, str) and var.type == "Integer":
+                value = choice(var, value)
+            setter = {"Real": self.fmu.setReal, "Integer": self.fmu.setInteger,
+                      "Boolean": self.fmu.setBoolean, "String": self.fmu.setString}[var.type]
             setter([var.valueReference], [value])
 
     def set_vector(self, names, values):
@@ -96,20 +99,28 @@ def rss_mb() -> float:
     return int(re.search(r"^VmRSS:\s+(\d+)\s+kB", text, re.M).group(1)) / 1024.0
 
 
+def choice(var, name: str) -> int:
+    """The integer of choice parameter `var`'s option `name` (listed in its description)."""
+    from scenarios.master import parse_choices
+
+    items = parse_choices(var.description or "")
+    if name not in items:
+        raise ValueError(f"{var.name}: {name!r} is not one of {list(items)}")
+    return items[name]
+
+
 # -- every FMU of the project, built once per test process ----------------------------------------
 _BUILT: dict[str, Path] = {}
 
 
 def built_fmus() -> dict[str, Path]:
-    """Every FMU of build_fmus.FMUS, freshly built (force) into a temporary folder once per process."""
+    """Every FMU of fmu_build.FMUS, freshly built (force) into a temporary folder once per process."""
     import atexit
     import shutil
-    import sys
     import tempfile
 
     if not _BUILT:
-        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-        from build_fmus import build_all
+        from fmu_build import build_all
 
         out = Path(tempfile.mkdtemp(prefix="flexarm_fmus_"))
         atexit.register(shutil.rmtree, out, True)
@@ -143,7 +154,7 @@ SCENARIOS: dict[str, dict] = {
     "sensors": {"params": {"noise_enabled": True, "noise_seed": 11, "accelerometer_noise_m_per_s2": 0.05,
                            "strain_gauge_filter": True, "accelerometer_filter": True, "adc_quantization": True},
                 "inputs": _sensor_inputs},
-    **{name: {"params": {"gain_set": "gamma0.1" if name != "controller_dlqr" else "dlqr-gamma0.1"},
+    **{name: {"params": {"gain_set": "gamma0.1"},
               "inputs": _controller_inputs}
        for name in ("controller", "controller_ff", "controller_fb", "controller_dlqr")},
     "controller_lqg": {"params": {"gain_set": "gamma0.1", "loop_delay_samples": 2, "integral_action": True,

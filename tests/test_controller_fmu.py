@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +15,10 @@ from flexarm.control import TrackingController, tracking_errors
 from flexarm.lqr import DEFAULT_GAIN_DIR, GainSchedule, as_trajectory, default_trajectory_path, desired_states
 from flexarm.model import N, joint_angles, joint_velocities, strain_gauge_angles
 from flexarm.sensors import MEASURED_SIGNAL_NAMES
+from fmu_build import build_all
+from scenarios.master import parse_choices
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from build_fmus import build_all  # noqa: E402
 
 DT = 1e-3
 PAYLOAD = 0.275
@@ -86,7 +85,18 @@ def test_inputs_are_the_sensor_outputs_and_outputs_the_plant_inputs(fmus):
     assert all(by_name[n].unit == "N.m" for n in outputs)
     for unknown in md.outputs:  # direct feedthrough from the ten used measurements, not the accelerometers
         assert [v.name for v in unknown.dependencies] == list(USED)
-    assert by_name["gain_set"].type == "String" and by_name["schedule_period"].unit == "s"
+    assert by_name["schedule_period"].unit == "s"
+    # No String parameters (issue 12): the choices are Integers listing their options in the description
+    assert not [v.name for v in md.modelVariables if v.type == "String"]
+    for name, items, start in (("gain_set", ["gamma1", "gamma0.1", "gamma0", "eq32"], "2"),
+                               ("omega7_estimate", ["tachometer", "rigid"], "1")):
+        var = by_name[name]
+        assert var.type == "Integer" and str(var.start) == start
+        assert parse_choices(var.description) == {n: i + 1 for i, n in enumerate(items)}
+        assert (int(var.min), int(var.max)) == (1, len(items))
+    # No parameter named like another FMU's variable
+    others = {v.name for v in [*sensors.modelVariables, *plant.modelVariables]}
+    assert not [v.name for v in md.modelVariables if v.causality == "parameter" and v.name in others]
     assert (float(by_name["tau1_max"].start), float(by_name["tau2_max"].start)) == (7.0, 2.25)
 
 
@@ -98,13 +108,13 @@ def test_docs_name_every_controller(fmus):
 
 # -- numbers ---------------------------------------------------------------------------
 CASES = [
-    ("controller", dict(gain_set="gamma_1", schedule_period=0.2), "gamma1", "200ms", "ff+fb"),
-    ("controller", dict(gain_set="gamma_0", schedule_period=0.02, tau1_max=3.0, tau2_max=1.0),
+    ("controller", dict(gain_set="gamma1", schedule_period=0.2), "gamma1", "200ms", "ff+fb"),
+    ("controller", dict(gain_set="gamma0", schedule_period=0.02, tau1_max=3.0, tau2_max=1.0),
      "gamma0", "20ms", "ff+fb"),
-    ("controller", dict(gain_set="experimental", schedule_period=0.0, omega7="rigid"), "eq32", "single", "ff+fb"),
-    ("controller_ff", dict(gain_set="gamma_0.1"), None, None, "ff"),
-    ("controller_fb", dict(gain_set="gamma_0.1", schedule_period=0.2), "gamma0.1", "200ms", "fb"),
-    ("controller_dlqr", dict(gain_set="gamma_0.1", schedule_period=0.2), "dlqr-gamma0.1", "200ms", "ff+fb"),
+    ("controller", dict(gain_set="eq32", schedule_period=0.0, omega7_estimate="rigid"), "eq32", "single", "ff+fb"),
+    ("controller_ff", dict(gain_set="gamma0.1"), None, None, "ff"),
+    ("controller_fb", dict(gain_set="gamma0.1", schedule_period=0.2), "gamma0.1", "200ms", "fb"),
+    ("controller_dlqr", dict(gain_set="gamma0.1", schedule_period=0.2), "dlqr-gamma0.1", "200ms", "ff+fb"),
 ]
 
 
@@ -114,7 +124,7 @@ def test_torques_equal_flexarm_control_bit_for_bit(fmus, unzipped, trajectory, f
         pytest.skip(f"gain file {gains}_{schedule} not generated")
     law = TrackingController(default_trajectory_path(), GainSchedule.load(gains, schedule) if gains else None,
                              mode=mode, saturation=(params.get("tau1_max", 7.0), params.get("tau2_max", 2.25)),
-                             omega7=params.get("omega7", "tachometer"))
+                             omega7=params.get("omega7_estimate", "tachometer"))
     rng = np.random.default_rng(0)
     n = trajectory.n_samples + 200  # past the slew: the hold
     ctrl = Slave(fmus[fmu], unzipped[fmu], fmu, **params)
@@ -138,7 +148,7 @@ def test_outputs_follow_the_inputs_set_at_the_same_point(fmus, unzipped, traject
     # a sample where the feedforward is well inside the torque limits
     margin = np.max(np.abs(trajectory.tau[:-1]) / [7.0, 2.25], axis=1)
     k = int(np.argmin(margin[100:-100])) + 100
-    ctrl = Slave(fmus["controller"], unzipped["controller"], "ctrl", gain_set="gamma_1")
+    ctrl = Slave(fmus["controller"], unzipped["controller"], "ctrl", gain_set="gamma1")
     try:
         for _ in range(k):
             ctrl.step()
@@ -188,7 +198,7 @@ def closed_loop(fmus, unzipped, trajectory, controller: str, n: int, **params) -
 def test_closed_loop_with_payload_tracks_better_than_feedforward(fmus, unzipped, trajectory):
     n = trajectory.n_samples
     np.testing.assert_allclose(desired_states(trajectory)[0, N:], 0.0, atol=1e-12)  # starts at rest
-    fb = tracking_errors(closed_loop(fmus, unzipped, trajectory, "controller", n, gain_set="gamma_0.1"), trajectory)
+    fb = tracking_errors(closed_loop(fmus, unzipped, trajectory, "controller", n, gain_set="gamma0.1"), trajectory)
     ff = tracking_errors(closed_loop(fmus, unzipped, trajectory, "controller_ff", n), trajectory)
     print(f"\n0.275 kg payload, {n} steps: pos rms ff+fb {fb['pos_rms']:.3f} deg, ff {ff['pos_rms']:.3f} deg; "
           f"pos peak {fb['pos_peak']:.3f} / {ff['pos_peak']:.3f} deg")
@@ -197,10 +207,7 @@ def test_closed_loop_with_payload_tracks_better_than_feedforward(fmus, unzipped,
 
 # -- errors ----------------------------------------------------------------------------
 @pytest.mark.parametrize("params,word", [
-    (dict(gain_set="gamma_7"), "gain_set"),
-    (dict(gain_set="nonsense"), "gain_set"),
     (dict(schedule_period=0.1), "schedule_period"),
-    (dict(omega7="estimated"), "omega7"),
 ])
 def test_bad_parameters_fail_initialisation_with_their_name(fmus, unzipped, params, word):
     ctrl = Slave(fmus["controller"], unzipped["controller"], "bad", start=False)
@@ -213,6 +220,22 @@ def test_bad_parameters_fail_initialisation_with_their_name(fmus, unzipped, para
         assert exc.value.status == 3  # fmi2Error
         assert any(word in m for m in ctrl.errors()), ctrl.errors()
         assert ctrl.status("doStep", 0.0, DT) == 3  # still in initialisation mode
+    finally:
+        ctrl.close()
+
+
+@pytest.mark.parametrize("name,value,allowed", [("gain_set", 5, "1 (gamma1), 2 (gamma0.1), 3 (gamma0), 4 (eq32)"),
+                                                 ("gain_set", 0, "4 (eq32)"),
+                                                 ("omega7_estimate", 3, "1 (tachometer), 2 (rigid)")])
+def test_choices_outside_the_options_are_rejected(fmus, unzipped, name, value, allowed):
+    ctrl = Slave(fmus["controller"], unzipped["controller"], "bad", start=False)
+    try:
+        ctrl.fmu.setupExperiment(startTime=0.0)
+        ctrl.fmu.enterInitializationMode()
+        with pytest.raises(FMICallException, match="fmi2SetInteger") as exc:
+            ctrl.set(**{name: value})
+        assert exc.value.status == 3  # fmi2Error
+        assert any(name in m and allowed in m for m in ctrl.errors()), ctrl.errors()
     finally:
         ctrl.close()
 

@@ -22,11 +22,10 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions
 from fmu_harness import DT, ERROR, OK, SCENARIOS, Slave, built_fmus, drive, rss_mb
 
+from fmu_build import FMUS
 from scenarios.master import logging_callbacks
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from build_fmus import FMUS  # noqa: E402
 
 NAMES = list(FMUS)
 #: fmi2StatusKind values.
@@ -57,7 +56,8 @@ def _set_status(slave: Slave, var, value) -> int:
 
 
 def _start_value(var):
-    return {"Real": float, "Integer": int, "Boolean": lambda s: s == "true", "String": str}[var.type](var.start)
+    return {"Real": float, "Integer": int, "Enumeration": int, "Boolean": lambda s: s == "true",
+            "String": str}[var.type](var.start)
 
 
 # -- the FMI 2.0 state machine ---------------------------------------------------------------------
@@ -291,7 +291,6 @@ def test_slave_modules_are_unique_and_every_fmu_loads_into_one_process(fmus, unz
 
 _SIMULATE_TWICE = r"""
 import json, sys
-sys.path.extend(json.loads(sys.argv[1]))  # site-packages as plain paths: no editable 'flexarm' (see below)
 import importlib.util
 assert importlib.util.find_spec("flexarm") is None, "flexarm importable outside the FMU"
 from fmpy import simulate_fmu
@@ -304,7 +303,7 @@ print(json.dumps(out))
 """
 
 
-def test_fmpy_simulate_fmu_runs_fmus_again_in_one_process(fmus):
+def test_fmpy_simulate_fmu_runs_fmus_again_in_one_process(fmus, tmp_path):
     """fmpy's simulate_fmu deletes each unpacked FMU afterwards; the next FMU must not use its modules.
 
     With pythonfmu alone the second run crashed the process (the slave module cached from the deleted
@@ -319,10 +318,11 @@ def test_fmpy_simulate_fmu_runs_fmus_again_in_one_process(fmus):
 
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
     env["FLEXARM_NO_NUMBA"] = "1"
-    paths = [p for p in site.getsitepackages() if not Path(p).resolve().is_relative_to(ROOT)]
-    proc = subprocess.run([sys.executable, "-I", "-S", "-c", _SIMULATE_TWICE, json.dumps(paths),
+    # -S: no site, so no .pth (the editable 'flexarm'); site-packages as plain PYTHONPATH entries
+    env["PYTHONPATH"] = os.pathsep.join(p for p in site.getsitepackages() if not Path(p).resolve().is_relative_to(ROOT))
+    proc = subprocess.run([sys.executable, "-S", "-s", "-c", _SIMULATE_TWICE, "[]",
                            json.dumps({k: str(v) for k, v in fmus.items()})],
-                          env=env, capture_output=True, text=True, timeout=300)
+                          env=env, capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     assert len(out["plant"]) == 3 and out["plant"][0] == out["plant"][1] == out["plant"][2]

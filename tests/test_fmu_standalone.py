@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import fcntl
+import hashlib
 import json
 import os
 import re
@@ -41,7 +42,7 @@ import numpy as np
 import pytest
 import scipy
 from fmpy import read_model_description
-from fmu_harness import DT, SCENARIOS, built_fmus
+from fmu_harness import DT, SCENARIOS, built_fmus, choice
 
 ROOT = Path(__file__).resolve().parents[1]
 HOST_SOURCE = ROOT / "tests" / "native_host" / "fmi2_host.c"
@@ -145,11 +146,13 @@ def _alone(fmu: Path, folder: Path) -> Path:
 
 def _scenario_files(name: str, md, folder: Path) -> tuple[list[str], Path]:
     """The --set arguments and the inputs CSV of SCENARIOS[name] for N_STEPS points."""
-    types = {v.name: v.type for v in md.modelVariables}
+    variables = {v.name: v for v in md.modelVariables}
     sets = []
     for key, value in SCENARIOS[name]["params"].items():
+        if isinstance(value, str) and variables[key].type == "Integer":
+            value = choice(variables[key], value)
         text = {"Real": repr, "Integer": str, "Boolean": lambda b: "true" if b else "false",
-                "String": str}[types[key]](value)
+                "String": str}[variables[key].type](value)
         sets += ["--set", f"{key}={text}"]
     rows = [SCENARIOS[name]["inputs"](k) for k in range(N_STEPS)]
     path = folder / "inputs.csv"
@@ -181,7 +184,6 @@ def _read_csv(text: str) -> tuple[list[str], np.ndarray]:
 _FMPY_RUN = r"""
 import csv, json, sys
 args = json.loads(sys.argv[1])
-sys.path.extend(args["paths"])
 import importlib.util
 assert importlib.util.find_spec("flexarm") is None, "flexarm importable outside the FMU"
 from fmpy import read_model_description
@@ -221,10 +223,11 @@ with open(args["out"], "w") as f:
 def _fmpy_reference(unpacked: Path, params: dict, inputs: Path, out: Path) -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
     env["FLEXARM_NO_NUMBA"] = "1"
-    paths = [p for p in site.getsitepackages() if not Path(p).resolve().is_relative_to(ROOT)]
-    args = {"paths": paths, "dir": str(unpacked), "params": params, "inputs": str(inputs), "steps": N_STEPS,
+    # -S: no site, so no .pth (the editable 'flexarm'); site-packages as plain PYTHONPATH entries
+    env["PYTHONPATH"] = os.pathsep.join(p for p in site.getsitepackages() if not Path(p).resolve().is_relative_to(ROOT))
+    args = {"dir": str(unpacked), "params": params, "inputs": str(inputs), "steps": N_STEPS,
             "dt": DT, "out": str(out)}
-    proc = subprocess.run([sys.executable, "-I", "-S", "-c", _FMPY_RUN, json.dumps(args)], cwd=unpacked.parent,
+    proc = subprocess.run([sys.executable, "-S", "-s", "-c", _FMPY_RUN, json.dumps(args)], cwd=unpacked.parent,
                           env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(out.read_text())
@@ -266,7 +269,9 @@ def test_fmu_alone_in_a_native_host_equals_fmpy(name, host, venv_site_packages, 
     assert not outside, f"imported from outside the FMU, the venv and the standard library: {outside[:5]}"
 
     names, native = _read_csv(proc.stdout)
-    reference = _fmpy_reference(unpacked, SCENARIOS[name]["params"], inputs, tmp_path / "fmpy.json")
+    variables = {v.name: v for v in read_model_description(str(unpacked)).modelVariables}
+    params = {k: choice(variables[k], v) if isinstance(v, str) else v for k, v in SCENARIOS[name]["params"].items()}
+    reference = _fmpy_reference(unpacked, params, inputs, tmp_path / "fmpy.json")
     assert reference["numba"] is False
     assert names == reference["names"]
     expected = np.array(reference["rows"])
@@ -315,3 +320,46 @@ def test_a_broken_python_environment_is_an_error_not_a_crash(host, python_home, 
                              capture_output=True, text=True, timeout=120)
     assert no_home.returncode == 2, (no_home.returncode, no_home.stderr[-2000:])
     assert "is not the prefix of a Python 3.11" in no_home.stderr, no_home.stderr
+
+
+@pytest.mark.parametrize("damage", ["runtime", "missing", "altered", "chain"])
+def test_an_fmu_that_cannot_start_says_why_at_error_level(host, venv_site_packages, python_home, tmp_path, damage):
+    """Issue 12: fmi2Instantiate returns NULL after an fmi2Error message naming what is missing and the remedy.
+
+    With loggingOn = false: the message must not depend on the host's debug setting.
+    """
+    name = "controller" if damage == "chain" else "plant"
+    unpacked = _alone(built_fmus()[name], tmp_path / "alone")
+    libpython = _libpython()
+    env = _native_env(libpython, python_home, venv_site_packages, tmp_path)
+    data = unpacked / "resources" / "flexarm" / "data"
+    if damage == "runtime":
+        env = _native_env(libpython, python_home, venv_site_packages, tmp_path, LD_PRELOAD=None,
+                          FLEXARM_FMU_LIBPYTHON="/nonexistent/libpython.so")
+        expected = ["/nonexistent/libpython.so", "LD_PRELOAD", "FLEXARM_FMU_LIBPYTHON"]
+    elif damage == "missing":
+        (data / "sandia_arm.toml").unlink()
+        expected = ["resources/flexarm/data/sandia_arm.toml is missing", "build_fmus.py"]
+    elif damage == "altered":
+        path = data / "sandia_arm.toml"
+        path.write_text(path.read_text() + "\n# edited\n")
+        expected = ["resources/flexarm/data/sandia_arm.toml differs", "flexarm_bundle.json", "build_fmus.py"]
+    else:  # a gain file recording another trajectory than the one bundled, and a manifest that agrees with both
+        gains = data / "gains" / "gamma0.1_200ms.json"
+        meta = json.loads(gains.read_text())
+        meta["trajectory_sha256"] = "0" * 64
+        gains.write_text(json.dumps(meta))
+        manifest = unpacked / "resources" / "flexarm_bundle.json"
+        info = json.loads(manifest.read_text())
+        info["data_sha256"]["gains/gamma0.1_200ms.json"] = hashlib.sha256(gains.read_bytes()).hexdigest()
+        manifest.write_text(json.dumps(info))
+        expected = ["gains/gamma0.1_200ms.json records trajectory_sha256", "flexarm/data/trajectory.npz",
+                    "python -m flexarm.lqr --write", "build_fmus.py"]
+    proc = subprocess.run([str(host), str(unpacked), "--steps", "2", "--out", "tau1" if name != "plant" else "q1",
+                           "--logging-off"], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])  # NULL from fmi2Instantiate, not a crash
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("[Error]") and "(logStatusError)" in ln]
+    assert errors, proc.stderr[-2000:]
+    text = "\n".join(proc.stderr.splitlines())
+    assert all(e in text for e in expected), proc.stderr[-3000:]
+    assert "fmi2Instantiate failed" in proc.stderr

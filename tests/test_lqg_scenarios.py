@@ -58,8 +58,13 @@ def test_exported_lqg_runs_closed_loop_in_libcosim(runs, tmp_path):
     from scenarios.ssp import export_ssp
 
     _, lqg = runs
-    ssp = export_ssp(load_scenario("lqg_jacobi"), tmp_path)
-    out = run_case_libcosim(ssp, "tip")
+    sc = load_scenario("lqg_jacobi")
+    sc.cases = [c for c in sc.cases if c.key == "tip"]
+    plain = next(c for c in load_scenario("lqg").cases if c.key == "tip")  # delay 0: the export must set 2
+    assert plain.parameters["controller"].get("loop_delay_samples", 0) == 0
+    sc.cases[0].parameters["controller"].pop("loop_delay_samples", None)
+    ssp = export_ssp(sc, tmp_path)["tip"]
+    out = run_case_libcosim(ssp)
     theta = np.column_stack([out["signals"][f"plant.theta{i}"] for i in range(1, 12)])
     ours = np.column_stack([lqg["tip"].series[f"plant.theta{i}"] for i in range(1, 12)])
     n = min(len(theta), len(ours))

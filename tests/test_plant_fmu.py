@@ -6,7 +6,6 @@ Running it alone outside the project: tests/test_fmu_standalone.py.
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,10 +20,9 @@ from flexarm.integrator import DEFAULT_SUBSTEPS, simulate
 from flexarm.model import N
 from flexarm.modes import modal_analysis
 from flexarm.parameters import load_parameters
+from fmu_build import build_all
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from build_fmus import build_all  # noqa: E402
 
 DT = 1e-3
 
@@ -43,6 +41,9 @@ class Plant(Slave):
     """The plant FMU through the shared harness, its outputs read by name."""
 
     def __init__(self, fmu_path, unzipdir, name="plant", *, start=True, **params):
+        # These tests start from the textbook pose (0, 90 deg) unless they say otherwise; the FMU's own
+        # default, the trajectory's first state, is checked in test_default_start_is_the_trajectory_start.
+        params = {"q1_0": 0.0, "q2_0": math.pi / 2, **params} if start else params
         super().__init__(fmu_path, unzipdir, name, start=start, **params)
         self.vr = {n: v.valueReference for n, v in self.vars.items()}
         self.output_names = [v.name for v in self.md.modelVariables if v.causality == "output"]
@@ -330,3 +331,24 @@ def test_integrator_and_damping_parameters(fmu_path, unzipped):
             plant.close()
     undamped = simulate(ArmModel(), z0, torques, DT, DEFAULT_SUBSTEPS, "exponential")[-1]
     assert not np.allclose(undamped, reference[-1], rtol=0, atol=1e-6)  # the damping does something
+
+
+def test_default_start_is_the_trajectory_start(fmu_path, unzipped):
+    """Nothing set: the arm starts at rest and undeformed on the committed trajectory's first state."""
+    from flexarm import joint_angles
+    from flexarm.trajectory import load_trajectory
+
+    traj = load_trajectory()
+    md = read_model_description(str(fmu_path))
+    starts = {v.name: float(v.start) for v in md.modelVariables if v.name in ("q1_0", "q2_0")}
+    q = joint_angles(traj.theta[0])
+    assert starts == {"q1_0": float(q[0]), "q2_0": float(q[1])}  # bit for bit, from the data file
+    plant = Plant(fmu_path, unzipped, start=False)
+    try:
+        plant.start()
+        np.testing.assert_allclose(plant.state()[:N], traj.theta[0], rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(plant.state()[N:], 0.0)
+    finally:
+        plant.close()
+    e = md.defaultExperiment
+    assert (float(e.startTime), float(e.stopTime), float(e.stepSize)) == (0.0, float(traj.t[-1]), 1e-3)

@@ -75,51 +75,41 @@ one process).
 
 from __future__ import annotations
 
-import ctypes
-import hashlib
 import json
 import math
 import sys
 import traceback
 from abc import abstractmethod
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
-from xml.etree.ElementTree import Element, SubElement
+from xml.etree.ElementTree import Element
 
-from pythonfmu import Fmi2Slave
+from flexarm_fmu_interface import (
+    CHOICES_MARK,
+    UNITS,
+    Var,
+    blank_value,
+    check_value,
+    complete_model_description,
+    own_data_dir,
+    slew,
+    slew_experiment,
+    variable_table,
+)
+from flexarm_fmu_preflight import BUNDLE_MANIFEST, bundle_files, tree_sha256
+from flexarm_fmu_pythonfmu import PythonfmuSlave, pin_module_namespace
 from pythonfmu.enums import Fmi2Causality, Fmi2Status, Fmi2Variability
 from pythonfmu.variables import Boolean, Integer, Real, String
 
-__all__ = ["BUNDLE_MANIFEST", "UNITS", "FlexarmSlave", "StepDiscarded", "Var", "bundle_files",
-           "complete_model_description", "pin_module_namespace", "tree_sha256", "variable_table"]
+__all__ = ["BUNDLE_MANIFEST", "CHOICES_MARK", "START_VALUES", "UNITS", "FlexarmSlave", "StepDiscarded", "Var",
+           "bundle_files", "complete_model_description", "own_data_dir", "pin_module_namespace", "slew",
+           "slew_experiment", "tree_sha256", "variable_table"]
 
-#: File (in an FMU's resources) describing the bundled sources.
-BUNDLE_MANIFEST = "flexarm_bundle.json"
-
-#: Known units: name -> SI base-unit exponents (FMI 2.0 <BaseUnit> attributes)
-#: and optional display units {name: factor}. Extend per FMU via ``EXTRA_UNITS``.
-UNITS: dict[str, dict[str, Any]] = {
-    "1": {"base": {}},
-    "s": {"base": {"s": 1}},
-    "Hz": {"base": {"s": -1}},
-    "m": {"base": {"m": 1}},
-    "m/s": {"base": {"m": 1, "s": -1}},
-    "m/s2": {"base": {"m": 1, "s": -2}},
-    "kg": {"base": {"kg": 1}},
-    "rad": {"base": {"rad": 1}, "display": {"deg": 180.0 / math.pi}},
-    "rad/s": {"base": {"rad": 1, "s": -1}, "display": {"deg/s": 180.0 / math.pi}},
-    "rad/s2": {"base": {"rad": 1, "s": -2}, "display": {"deg/s2": 180.0 / math.pi}},
-    "N.m": {"base": {"kg": 1, "m": 2, "s": -2}},
-    "V": {"base": {"kg": 1, "m": 2, "s": -3, "A": -1}},
-}
-
-_CAUSALITIES = {c.name: c for c in Fmi2Causality}
-_VARIABILITIES = {v.name: v for v in Fmi2Variability}
-_TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean, "String": String}
+#: Optional file (in an FMU's resources): {variable: start value} of a case's copy of the FMU.
+START_VALUES = "flexarm_start_values.json"
 
 #: SHA-256 of the imported `flexarm` folder, by path (see FlexarmSlave._check_vendored_modules).
-_LOADED_TREE_SHA256: dict[Path, str] = {}
+_LOADED_TREE_SHA256: dict[tuple[Path, str], str] = {}
 
 # Lifecycle of an instance (FMI 2.0 co-simulation state machine, simplified).
 _INSTANTIATED, _INITIALIZATION, _STEPPING, _TERMINATED = "instantiated", "initialization", "stepping", "terminated"
@@ -133,107 +123,13 @@ class StepDiscarded(Exception):
     """
 
 
-@dataclass(frozen=True)
-class Var:
-    """One scalar variable of an FMU interface.
-
-    Parameters
-    ----------
-    name : str
-        FMI name (structured naming convention: letters, digits, '_').
-    causality : {'parameter', 'input', 'output', 'local', 'calculatedParameter'}
-    variability : {'constant', 'fixed', 'tunable', 'discrete', 'continuous'}
-    unit : str or None
-        Unit name; must be a key of :data:`UNITS` (or the class's
-        ``EXTRA_UNITS``). Ignored in the XML for non-Real types, which FMI
-        2.0 does not give a unit.
-    description : str
-        One line, written into modelDescription.xml.
-    start : float, int, bool, str or None
-        Start value; required for parameters and inputs, must be None for
-        calculated outputs.
-    min, max : float, optional
-        Allowed range (inclusive), checked at every set and written to the
-        XML. Real values must always be finite.
-    type : {'Real', 'Integer', 'Boolean', 'String'}
-    depends_on : tuple of str, optional
-        Outputs only: the inputs an output depends on *directly* at a
-        communication point (its ``<Outputs>`` dependencies). ``()`` means
-        no direct feedthrough; None (default) writes no attribute, i.e.
-        "may depend on every input".
-    """
-
-    name: str
-    causality: str
-    variability: str
-    unit: str | None
-    description: str
-    start: float | int | bool | str | None = None
-    min: float | None = None
-    max: float | None = None
-    type: str = "Real"
-    depends_on: tuple[str, ...] | None = None
-
-    def __post_init__(self):
-        if self.causality not in _CAUSALITIES:
-            raise ValueError(f"{self.name}: causality must be one of {sorted(_CAUSALITIES)}, got {self.causality!r}")
-        if self.variability not in _VARIABILITIES:
-            raise ValueError(f"{self.name}: variability must be one of {sorted(_VARIABILITIES)}, "
-                             f"got {self.variability!r}")
-        if self.type not in _TYPES:
-            raise ValueError(f"{self.name}: type must be one of {sorted(_TYPES)}, got {self.type!r}")
-        needs_start = self.causality in ("parameter", "input") or self.variability == "constant"
-        if needs_start and self.start is None:
-            raise ValueError(f"{self.name}: a {self.causality} needs a start value")
-        if self.causality == "output" and self.start is not None:
-            raise ValueError(f"{self.name}: outputs are calculated and take no start value")
-        if self.depends_on is not None and self.causality != "output":
-            raise ValueError(f"{self.name}: depends_on applies to outputs only")
-
-    @property
-    def range_text(self) -> str:
-        """Allowed range as text, e.g. '[0, 10] kg' or 'any finite value'."""
-        if self.min is None and self.max is None:
-            body = "any finite value" if self.type == "Real" else "any value"
-        else:
-            lo = "-inf" if self.min is None else f"{self.min:g}"
-            hi = "inf" if self.max is None else f"{self.max:g}"
-            body = f"[{lo}, {hi}]"
-        return f"{body} {self.unit}" if self.unit and self.unit != "1" else body
+#: pythonfmu's variable class of each FMI type.
+_PYTHONFMU_TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean, "String": String}
+_CAUSALITIES = {c.name: c for c in Fmi2Causality}
+_VARIABILITIES = {v.name: v for v in Fmi2Variability}
 
 
-def variable_table(rows) -> tuple[Var, ...]:
-    """Build :class:`Var` objects from compact rows.
-
-    Each row is either a :class:`Var` or a tuple
-    ``(name, causality, variability, unit, description, start[, (min, max)])``;
-    the type is inferred from ``start`` (bool -> Boolean, int -> Integer,
-    str -> String, otherwise Real).
-    """
-    out = []
-    for row in rows:
-        if isinstance(row, Var):
-            out.append(row)
-            continue
-        name, causality, variability, unit, description, start, *rest = row
-        lo, hi = rest[0] if rest else (None, None)
-        if isinstance(start, bool):
-            typ = "Boolean"
-        elif isinstance(start, int):
-            typ = "Integer"
-        elif isinstance(start, str):
-            typ = "String"
-        else:
-            typ = "Real"
-        out.append(Var(name, causality, variability, unit, description, start, lo, hi, typ))
-    names = [v.name for v in out]
-    dup = {n for n in names if names.count(n) > 1}
-    if dup:
-        raise ValueError(f"variable names must be unique, repeated: {sorted(dup)}")
-    return tuple(out)
-
-
-class FlexarmSlave(Fmi2Slave):
+class FlexarmSlave(PythonfmuSlave):
     """Base class of this project's FMUs (FMI 2.0 co-simulation via pythonfmu).
 
     Subclasses set ``VARIABLES`` (see :func:`variable_table`) and implement
@@ -282,19 +178,20 @@ class FlexarmSlave(Fmi2Slave):
         contiguous = self._output_vrs == list(range(self._output_vrs[0], self._output_vrs[-1] + 1)) \
             if self._output_vrs else False
         self._output_slice = slice(self._output_vrs[0], self._output_vrs[-1] + 1) if contiguous else None
-        self._drop_repeated_resources_path()
         self._check_vendored_modules()
+        self._apply_start_values()
+        self._constructed()
 
     # -- variable table --------------------------------------------------------
     def _register(self, var: Var) -> None:
         vr = len(self._vars)
         self._vars.append(var)
         self._vr[var.name] = vr
-        self._values.append(var.start if var.start is not None else _blank(var.type))
+        self._values.append(var.start if var.start is not None else blank_value(var.type))
         values = self._values
-        sv = _TYPES[var.type](
+        sv = _PYTHONFMU_TYPES[var.type](
             var.name, start=var.start, causality=_CAUSALITIES[var.causality],
-            variability=_VARIABILITIES[var.variability], description=var.description,
+            variability=_VARIABILITIES[var.variability], description=var.full_description,
             getter=lambda: values[vr], setter=lambda v: values.__setitem__(vr, v),
         )
         self.register_variable(sv, nested=False)
@@ -482,7 +379,7 @@ class FlexarmSlave(Fmi2Slave):
                 problem = self._settable(var)
                 if problem is None:
                     value = convert(raw)
-                    problem = _check_value(var, value)
+                    problem = check_value(var, value)
                 if problem is None:
                     accepted.append((vr, var, value))
                 else:
@@ -589,32 +486,30 @@ class FlexarmSlave(Fmi2Slave):
         except Exception as exc:
             self._exception("setFMUstate", exc, "state")
 
-    @staticmethod
-    def _fmu_state_from_bytes(state: bytes) -> dict:
-        # pythonfmu turns an exception here into fmi2Fatal; the shim only passes bytes it
-        # serialized (header and checksum), so this is a second line of defence.
-        try:
-            out = json.loads(state.decode("utf-8"))
-            return out if isinstance(out, dict) else {"invalid": True}
-        except Exception:
-            return {"invalid": True}
+    def _apply_start_values(self) -> None:
+        """Start values of a case's copy of this FMU (:data:`START_VALUES`, written by the SSP export).
 
-    def _drop_repeated_resources_path(self) -> None:
-        """Keep one copy of this FMU's resources folder in sys.path.
-
-        pythonfmu 0.7.0 inserts it at the front at every fmi2Instantiate, so a
-        long-running host (a sweep instantiating thousands of times) would
-        otherwise search an ever longer sys.path on every import.
+        The export also writes them as the ``start`` attributes of modelDescription.xml, so the copy
+        runs its case in any master, with nothing set. A value that does not fit its variable is an
+        error that keeps initialisation refused.
         """
         try:
-            path = sys.path
-            if self.resources and path.count(self.resources) > 1:
-                first = path.index(self.resources)
-                path[first + 1:] = [p for p in path[first + 1:] if p != self.resources]
-        except Exception as exc:  # a tidy-up only: never fail instantiation for it
-            self.log(f"{self.instance_name}: sys.path clean-up skipped: {exc}", Fmi2Status.warning)
+            path = Path(self.resources) / START_VALUES if self.resources else None
+            if path is None or not path.is_file():
+                return
+            for name, value in json.loads(path.read_text()).items():
+                vr = self._vr.get(name)
+                if vr is not None and self._vars[vr].type in ("Real", "Integer") \
+                        and not isinstance(value, bool) and isinstance(value, int | float):
+                    value = float(value) if self._vars[vr].type == "Real" else value
+                problem = f"{name}: no such variable" if vr is None else check_value(self._vars[vr], value)
+                if problem is not None:
+                    self._error(f"{START_VALUES}: {problem}", f"value:{name}")
+                else:
+                    self._values[vr] = value
+        except Exception as exc:
+            self._exception(f"reading {START_VALUES}", exc, "start_values")
 
-    # -- vendored-module check ---------------------------------------------------------
     def _check_vendored_modules(self) -> None:
         """Warn if the imported `flexarm` differs from the copy bundled in this FMU."""
         try:
@@ -627,10 +522,12 @@ class FlexarmSlave(Fmi2Slave):
             loaded = Path(flexarm.__file__).resolve().parent
             if loaded == (Path(self.resources) / "flexarm").resolve():
                 return
-            expected = json.loads(manifest.read_text())["flexarm_sha256"]
-            if loaded not in _LOADED_TREE_SHA256:  # hashed once per process, not per instantiation
-                _LOADED_TREE_SHA256[loaded] = tree_sha256(loaded)
-            if _LOADED_TREE_SHA256[loaded] != expected:
+            info = json.loads(manifest.read_text())
+            expected, files = info["flexarm_sha256"], info["flexarm_files"]
+            key = (loaded, expected)
+            if key not in _LOADED_TREE_SHA256:  # hashed once per process and build, not per instantiation
+                _LOADED_TREE_SHA256[key] = tree_sha256(loaded, files)  # the files this FMU bundles
+            if _LOADED_TREE_SHA256[key] != expected:
                 self.log(f"{self.instance_name}: using 'flexarm' already imported from {loaded}, which differs "
                          f"from the copy bundled in this FMU (sha256 {expected[:12]}); results follow the "
                          "imported copy", Fmi2Status.warning)
@@ -645,135 +542,3 @@ class FlexarmSlave(Fmi2Slave):
         return root
 
 
-def pin_module_namespace(namespace: dict) -> None:
-    """Add one reference to a slave module's namespace; call as ``pin_module_namespace(globals())``.
-
-    Work-around for pythonfmu 0.7.0: its ``findClass`` (``PySlaveInstance.cpp``)
-    imports the slave module, *re-executes* the module's code with the
-    module's ``__dict__`` as globals, and then calls ``Py_DECREF`` on that
-    ``__dict__``, a borrowed reference from ``PyModule_GetDict``. Every
-    ``fmi2Instantiate`` thus removes one reference from the namespace. It
-    survives only while other references (functions defined in the module,
-    leaked along with the re-executed classes) outnumber the instantiations:
-    a slave module that defines no function, like the controller variants,
-    loses its namespace at the first instantiation, and the second one fails
-    (``module has no attribute ...``) or crashes the host.
-
-    Called at module level, this runs at the import *and* at every
-    re-execution, i.e. once before each of pythonfmu's decrements, so the
-    namespace never drops below the reference the module itself holds. (A
-    builder or test import adds a reference too; a namespace that lives as
-    long as the process anyway is the only thing leaked.)
-    """
-    ctypes.pythonapi.Py_IncRef(ctypes.py_object(namespace))
-
-
-def complete_model_description(root: Element, variables: list[Var], units: dict[str, dict]) -> None:
-    """Add what pythonfmu 0.7.0 leaves out of modelDescription.xml (in place).
-
-    * ``unit``, ``min``, ``max`` on each ``<Real>``; ``min``/``max`` on ``<Integer>``;
-    * ``<UnitDefinitions>`` for every unit used;
-    * ``<ModelStructure>``: ``<Outputs>`` with the declared dependencies and
-      ``<InitialUnknowns>`` (every output, whose ``initial`` defaults to
-      "calculated" in co-simulation, and every calculated parameter).
-
-    Parameters
-    ----------
-    root : Element
-        ``<fmiModelDescription>``; its ``<ModelVariables>`` must list
-        `variables` in order (value reference = index).
-    variables : list of Var
-    units : dict
-        Unit table as :data:`UNITS`.
-    """
-    mv = root.find("ModelVariables")
-    scalars = list(mv)
-    if len(scalars) != len(variables):
-        raise ValueError(f"ModelVariables has {len(scalars)} entries, the table {len(variables)}")
-    used = []
-    for sv, var in zip(scalars, variables):
-        if sv.get("name") != var.name:
-            raise ValueError(f"ModelVariables order differs from the table at {var.name!r}")
-        typed = sv[0]
-        if var.type == "Real" and var.unit is not None:
-            if var.unit not in units:
-                raise ValueError(f"{var.name}: unit {var.unit!r} is not defined; known units: {sorted(units)} "
-                                 "(add it to EXTRA_UNITS)")
-            typed.set("unit", var.unit)
-            if var.unit not in used:
-                used.append(var.unit)
-        if var.type in ("Real", "Integer"):
-            fmt = (lambda x: f"{float(x):.16g}") if var.type == "Real" else (lambda x: str(int(x)))
-            if var.min is not None:
-                typed.set("min", fmt(var.min))
-            if var.max is not None:
-                typed.set("max", fmt(var.max))
-
-    # <UnitDefinitions> goes right after <CoSimulation> (schema order).
-    for old in root.findall("UnitDefinitions"):
-        root.remove(old)
-    if used:
-        unit_defs = Element("UnitDefinitions")
-        for name in used:
-            u = SubElement(unit_defs, "Unit", name=name)
-            SubElement(u, "BaseUnit", {k: str(v) for k, v in units[name].get("base", {}).items()})
-            for disp, factor in units[name].get("display", {}).items():
-                SubElement(u, "DisplayUnit", name=disp, factor=f"{factor:.16g}")
-        children = list(root)
-        root.insert(children.index(root.find("CoSimulation")) + 1, unit_defs)
-
-    structure = root.find("ModelStructure")
-    for child in list(structure):
-        structure.remove(child)
-    index = {v.name: i + 1 for i, v in enumerate(variables)}
-    outputs = [v for v in variables if v.causality == "output"]
-    if outputs:
-        node = SubElement(structure, "Outputs")
-        for v in outputs:
-            attrib = {"index": str(index[v.name])}
-            if v.depends_on is not None:
-                for dep in v.depends_on:
-                    if dep not in index:
-                        raise ValueError(f"{v.name}: depends_on names unknown variable {dep!r}")
-                attrib["dependencies"] = " ".join(str(index[d]) for d in v.depends_on)
-            SubElement(node, "Unknown", attrib)
-    initial = [v for v in variables if v.causality in ("output", "calculatedParameter")]
-    if initial:
-        node = SubElement(structure, "InitialUnknowns")
-        for v in initial:  # table order = value-reference order, as FMI 2.0 requires
-            SubElement(node, "Unknown", index=str(index[v.name]))
-
-
-def bundle_files(package_dir: Path) -> list[Path]:
-    """Files of a package that go into an FMU: no caches, compiled files or hidden files."""
-    out = []
-    for p in sorted(Path(package_dir).rglob("*")):
-        rel = p.relative_to(package_dir).parts
-        if p.is_file() and "__pycache__" not in rel and not any(s.startswith(".") for s in rel) \
-                and p.suffix not in (".pyc", ".pyo", ".tmp"):
-            out.append(p)
-    return out
-
-
-def tree_sha256(package_dir: Path) -> str:
-    """SHA-256 over :func:`bundle_files` (relative path and content): identifies a copy of a package."""
-    h = hashlib.sha256()
-    for f in bundle_files(package_dir):
-        h.update(f.relative_to(package_dir).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
-    return h.hexdigest()
-
-
-def _blank(typ: str):
-    return {"Real": math.nan, "Integer": 0, "Boolean": False, "String": ""}[typ]
-
-
-def _check_value(var: Var, value) -> str | None:
-    """None if `value` is allowed for `var`, else a message naming the variable and range."""
-    if var.type == "Real" and not math.isfinite(value):
-        where = "" if var.min is None and var.max is None else f" in {var.range_text}"
-        unit = f" ({var.unit})" if not where and var.unit not in (None, "1") else ""
-        return f"{var.name}: must be a finite number{where}{unit}, got {value!r}"
-    if var.type in ("Real", "Integer"):
-        if (var.min is not None and value < var.min) or (var.max is not None and value > var.max):
-            return f"{var.name}: {value!r} is outside the allowed range {var.range_text}"
-    return None

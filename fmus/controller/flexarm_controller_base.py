@@ -17,7 +17,15 @@ FMU                 model identifier            law
 ``controller_dlqr`` ``FlexarmControllerDLQR``   feedforward + discrete LQR
 ==================  ==========================  ==========================
 
-All have the same variables, so a scenario swaps them with one line. The
+All have the same variables, so a scenario swaps them with one line.
+Defaults (nothing set): the paper's Table 2 law, ``gain_set`` = 2 (``gamma0.1``)
+switched every 200 ms (``schedule_period`` = 0.2 s), the motors' peak
+torques as saturation, the theta7 rate from the tachometer
+(``omega7_estimate`` = 1); the default experiment lasts the slew. The two
+choices are Integer parameters whose description lists the choices
+(``...; choices: 1 = gamma1, 2 = gamma0.1, 3 = gamma0, 4 = eq32``); no
+String parameters, and no FMI Enumeration either, because libcosim 0.11
+ignores Enumeration variables. The
 trajectory (``flexarm/data/trajectory.npz``) and the gain schedules
 (``flexarm/data/gains/``) travel in the bundled ``flexarm`` package.
 
@@ -30,56 +38,69 @@ with the trajectory sample k = round(t_k / 1 ms); the plant holds them over
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 from flexarm_feedthrough import FeedthroughSlave
-from flexarm_fmu_base import Var, variable_table
-from pythonfmu.default_experiment import DefaultExperiment
+from flexarm_fmu_base import Var, own_data_dir, slew_experiment, variable_table
 
 from flexarm.control import PEAK_TORQUE, TrackingController
-from flexarm.gain_sets import DEFAULT_GAIN_SET, resolve_gain_set
-from flexarm.lqr import OMEGA7_CHOICES, default_trajectory_path
+from flexarm.lqr import OMEGA7_CHOICES, canonical_name, default_trajectory_path
+from flexarm.signals import names, signals
 
-#: Measured signals the law uses (sensors FMU output names), in the order q, q̇, ε.
-USED_INPUTS = ("q1_m", "q2_m", "qd1_m", "qd2_m", *(f"eps{i}_m" for i in range(1, 7)))
-#: Accepted for plug-compatibility with the sensors FMU, not used by the law.
-UNUSED_INPUTS = ("acc1_m", "acc2_m")
+#: Measured signals the law uses (sensors FMU output names), in the order q, q̇, ε (catalogue group "feedback").
+USED_INPUTS = names("controller", "input", "feedback")
+#: Accepted for plug-compatibility with the sensors FMU, not used by the law (catalogue group "unused").
+UNUSED_INPUTS = names("controller", "input", "unused")
 #: ``schedule_period`` value (s) -> :data:`flexarm.lqr.SCHEDULES` label.
 SCHEDULE_PERIODS = {0.2: "200ms", 0.02: "20ms", 0.0: "single"}
-
-_INPUT_INFO = {
-    "q1_m": ("rad", "Measured joint-1 angle (encoder 1)"),
-    "q2_m": ("rad", "Measured joint-2 angle (encoder 2)"),
-    "qd1_m": ("rad/s", "Measured joint-1 rate (tachometer 1)"),
-    "qd2_m": ("rad/s", "Measured joint-2 rate (tachometer 2)"),
-    **{f"eps{i}_m": ("rad", f"Measured strain-gauge segment angle {i}") for i in range(1, 7)},
-    "acc1_m": ("m/s2", "Measured link-1 tip acceleration (accepted, not used by the control law)"),
-    "acc2_m": ("m/s2", "Measured link-2 tip acceleration (accepted, not used by the control law)"),
-}
+#: ``gain_set`` choices: value, :mod:`flexarm.lqr` weights name, description.
+GAIN_SET_ITEMS = (
+    (1, "gamma1", "LQR weights gamma = 1 (paper Table 1)"),
+    (2, "gamma0.1", "LQR weights gamma = 0.1 (paper Table 2, the default)"),
+    (3, "gamma0", "LQR weights gamma = 0 (paper Table 3)"),
+    (4, "eq32", "LQR weights of the paper's experiments (eq. 32)"),
+)
+#: ``omega7_estimate`` choices: how the theta7-rate error is formed.
+OMEGA7_ITEMS = (
+    (1, "tachometer", "from the joint-2 tachometer (qd2 error)"),
+    (2, "rigid", "from both tachometers, rigid-body (qd1 + qd2 errors)"),
+)
+DEFAULT_GAIN_SET = 2  # gamma0.1
 
 VARIABLES = variable_table([
-    *[Var(name, "input", "continuous", *_INPUT_INFO[name], 0.0) for name in (*USED_INPUTS, *UNUSED_INPUTS)],
+    *[Var(s.name, "input", "continuous", s.unit, s.description, 0.0) for s in signals("controller", "input")],
     Var("gain_set", "parameter", "fixed", None,
-        "LQR gain set: gamma1, gamma0.1, gamma0, eq32 (alias experimental), dlqr-<set>; "
-        "gamma_1 style accepted", DEFAULT_GAIN_SET, type="String"),
+        "LQR gain set (weights); controller_dlqr uses their discrete-time design", DEFAULT_GAIN_SET, 1, 4,
+        type="Integer", choices=GAIN_SET_ITEMS),
     Var("schedule_period", "parameter", "fixed", "s",
         "Gain-switching period: 0.2, 0.02, or 0 for one gain set (mid-slew)", 0.2, 0.0, 10.0),
     Var("tau1_max", "parameter", "fixed", "N.m", "Saturation |tau1| <= tau1_max (shoulder motor peak torque)",
         float(PEAK_TORQUE[0]), 1e-9, 1000.0),
     Var("tau2_max", "parameter", "fixed", "N.m", "Saturation |tau2| <= tau2_max (elbow motor peak torque)",
         float(PEAK_TORQUE[1]), 1e-9, 1000.0),
-    Var("omega7", "parameter", "fixed", None,
-        "How the theta7-rate error is formed: tachometer (qd2 error) or rigid (qd1 + qd2 errors)",
-        "tachometer", type="String"),
-    Var("tau1", "output", "continuous", "N.m", "Joint-1 (shoulder) motor torque command", depends_on=USED_INPUTS),
-    Var("tau2", "output", "continuous", "N.m", "Joint-2 (elbow) motor torque command", depends_on=USED_INPUTS),
+    Var("omega7_estimate", "parameter", "fixed", None,
+        "How the theta7-rate error is formed: from the joint-2 tachometer (qd2 error) or rigid-body "
+        "(qd1 + qd2 errors)", 1, 1, 2, type="Integer", choices=OMEGA7_ITEMS),
+    *[Var(s.name, "output", "continuous", s.unit, s.description, depends_on=USED_INPUTS)
+      for s in signals("controller", "output")],
 ])
 
 
-def gain_set_name(value: str, discrete: bool = False) -> str:
-    """The :mod:`flexarm.gain_sets` name of a ``gain_set`` parameter value (see there for the aliases)."""
-    return resolve_gain_set(value, discrete)
+def gain_set_name(value: int, discrete: bool = False) -> str:
+    """The :mod:`flexarm.lqr` name of a ``gain_set`` parameter value (1..4, see :data:`GAIN_SET_ITEMS`).
+
+    Raises
+    ------
+    ValueError
+        Naming ``gain_set`` and the allowed values.
+    """
+    names = {v: n for v, n, _ in GAIN_SET_ITEMS}
+    if value not in names:
+        raise ValueError(f"gain_set: {value!r} is not one of "
+                         + ", ".join(f"{v} ({n})" for v, n in names.items()))
+    return canonical_name(f"dlqr-{names[value]}" if discrete else names[value])
 
 
 def schedule_label(period: float) -> str:
@@ -91,20 +112,22 @@ def schedule_label(period: float) -> str:
 
 
 @functools.lru_cache(maxsize=16)
-def _tracking_controller(mode: str, name: str, schedule: str, tau1_max: float, tau2_max: float,
+def _tracking_controller(data: str | None, mode: str, name: str, schedule: str, tau1_max: float, tau2_max: float,
                          omega7: str) -> TrackingController:
     """The control law of one configuration, built once per process (about 25 ms).
 
-    Shared by the instances (and resets) with the same configuration: a
-    TrackingController does not change after construction.
+    Shared by the instances (and resets) with the same configuration and data folder: a
+    TrackingController does not change after construction. `data` is this FMU's own
+    ``resources/flexarm/data`` (FMUs in one process share the ``flexarm`` package imported first,
+    which need not carry this FMU's trajectory and gains), or None for the package's.
     """
     gains = None
     if mode != "ff":  # feedforward only needs no gains (the name is still checked by the caller)
         from flexarm.lqr import GainSchedule
 
-        gains = GainSchedule.load(name, schedule)
-    return TrackingController(default_trajectory_path(), gains, mode=mode, saturation=(tau1_max, tau2_max),
-                              omega7=omega7)
+        gains = GainSchedule.load(name, schedule, directory=None if data is None else Path(data) / "gains")
+    trajectory = default_trajectory_path() if data is None else Path(data) / "trajectory.npz"
+    return TrackingController(trajectory, gains, mode=mode, saturation=(tau1_max, tau2_max), omega7=omega7)
 
 
 class ControllerSlave(FeedthroughSlave):
@@ -117,7 +140,7 @@ class ControllerSlave(FeedthroughSlave):
     VARIABLES = VARIABLES
     MODE: ClassVar[str] = "ff+fb"
     DISCRETE: ClassVar[bool] = False
-    default_experiment = DefaultExperiment(start_time=0.0, stop_time=2.058, step_size=1e-3)
+    default_experiment = slew_experiment()
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -126,9 +149,10 @@ class ControllerSlave(FeedthroughSlave):
         self._used_vrs = [self._vr[n] for n in USED_INPUTS]
 
     def _config(self) -> tuple:
-        omega7 = self.value("omega7")
+        omega7 = dict((v, n) for v, n, _ in OMEGA7_ITEMS).get(self.value("omega7_estimate"))
         if omega7 not in OMEGA7_CHOICES:
-            raise ValueError(f"omega7: {omega7!r} is not one of {OMEGA7_CHOICES}")
+            raise ValueError(f"omega7_estimate: {self.value('omega7_estimate')!r} is not one of "
+                             + ", ".join(f"{v} ({n})" for v, n, _ in OMEGA7_ITEMS))
         name = gain_set_name(self.value("gain_set"), self.DISCRETE)
         return (name, schedule_label(self.value("schedule_period")), self.value("tau1_max"),
                 self.value("tau2_max"), omega7)
@@ -138,7 +162,7 @@ class ControllerSlave(FeedthroughSlave):
         if self.law is not None and key == self._key:
             return
         try:
-            self.law = _tracking_controller(self.MODE, *key)
+            self.law = _tracking_controller(own_data_dir(self.resources), self.MODE, *key)
         except (ValueError, OSError) as exc:
             raise ValueError(f"gain_set = {self.value('gain_set')!r}, schedule_period = "
                              f"{self.value('schedule_period')!r} s: {exc}") from None

@@ -8,12 +8,20 @@ this project's FMUs (pythonfmu imports it by name; see
 
 Interface (full table in ``docs/fmu-interface.md``):
 
+Its inputs and outputs are the plant's rows of the signal catalogue
+(``flexarm/data/signals.toml``):
+
 * inputs ``tau1``, ``tau2`` (N·m), held constant over each step;
 * parameters ``payload_mass`` (kg), ``q1_0``, ``q2_0`` (rad), ``substeps``,
   ``integrator`` (1 ``rodas4``, 2 ``exponential``) and ``damping_ratio``;
 * outputs at the communication point: element angles and rates, joint
   angles and rates, strain-gauge angles, tip position, link-tip
   accelerations and accelerometer signals.
+
+Defaults (nothing set): the arm starts at rest and undeformed on the
+committed trajectory's first state (``q1_0``, ``q2_0`` read from
+``flexarm/data/trajectory.npz`` when the FMU is built), no payload beyond the
+parameter file's, and the default experiment lasts the slew (1 ms steps).
 
 A step whose integration leaves the finite numbers (absurd torques or step
 sizes) is discarded (``fmi2Discard``; the state stays at the communication
@@ -48,8 +56,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from flexarm_fmu_base import FlexarmSlave, StepDiscarded, Var, pin_module_namespace, variable_table
-from pythonfmu.default_experiment import DefaultExperiment
+from flexarm_fmu_base import (
+    FlexarmSlave,
+    StepDiscarded,
+    Var,
+    pin_module_namespace,
+    slew,
+    slew_experiment,
+    variable_table,
+)
 
 from flexarm.integrator import DEFAULT_SUBSTEPS, INTEGRATORS, IntegrationError, advance
 from flexarm.model import (
@@ -58,53 +73,38 @@ from flexarm.model import (
     rigid_configuration,
 )
 from flexarm.parameters import load_parameters
+from flexarm.signals import signals
 
 pin_module_namespace(globals())  # pythonfmu 0.7.0 drops a reference per instantiation (see there)
 
-
-def _out(name: str, unit: str, description: str) -> Var:
-    # Outputs are functions of the state and the torque of the finished step:
-    # no direct feedthrough from the inputs (empty dependencies).
-    return Var(name, "output", "continuous", unit, description, depends_on=())
+#: The committed trajectory's start angles and length: the defaults (q1_0, q2_0, default experiment).
+_SLEW = slew()
 
 
-_ELEMENTS = ("hub 1", "bracket 1", "link 1 segment 1", "link 1 segment 2", "link 1 segment 3",
-             "bracket 2 with the elbow stator", "rotor 2", "bracket 3", "link 2 segment 1",
-             "link 2 segment 2", "link 2 segment 3")
-_GAUGES = ("link 1 root (theta3 - theta2)", "link 1 middle (theta4 - theta3)", "link 1 outer (theta5 - theta4)",
-           "link 2 root (theta9 - theta8)", "link 2 middle (theta10 - theta9)", "link 2 outer (theta11 - theta10)")
+def _signal(s) -> Var:
+    # Inputs are held over the step; outputs are functions of the state and the torque of the
+    # finished step: no direct feedthrough from the inputs (empty dependencies).
+    if s.causality == "input":
+        return Var(s.name, "input", "continuous", s.unit, s.description, 0.0)
+    return Var(s.name, "output", "continuous", s.unit, s.description, depends_on=())
+
 
 VARIABLES = variable_table([
-    ("tau1", "input", "continuous", "N.m", "Joint-1 (shoulder) motor torque, held over the step", 0.0),
-    ("tau2", "input", "continuous", "N.m", "Joint-2 (elbow) motor torque, held over the step", 0.0),
+    *[_signal(s) for s in signals("plant", "input")],
     ("payload_mass", "parameter", "fixed", "kg", "Extra point mass at the tip of link 2",
      float(load_parameters().payload_mass), (0.0, 10.0)),
-    ("q1_0", "parameter", "fixed", "rad", "Initial joint-1 angle (arm undeformed and at rest)",
-     0.0, (-2 * math.pi, 2 * math.pi)),
-    ("q2_0", "parameter", "fixed", "rad", "Initial joint-2 (elbow) angle, relative to link 1",
-     math.pi / 2, (-math.pi, math.pi)),
+    ("q1_0", "parameter", "fixed", "rad", "Initial joint-1 angle (arm undeformed and at rest); "
+     "default: the trajectory's first sample", _SLEW["q1_0"], (-2 * math.pi, 2 * math.pi)),
+    ("q2_0", "parameter", "fixed", "rad", "Initial joint-2 (elbow) angle, relative to link 1; "
+     "default: the trajectory's first sample", _SLEW["q2_0"], (-math.pi, math.pi)),
     ("substeps", "parameter", "fixed", "1", "Integrator substeps per communication step", int(DEFAULT_SUBSTEPS),
      (1, 64)),
     ("integrator", "parameter", "fixed", "1",
-     "Integration scheme: 1 rodas4 (L-stable, damps the kHz bracket modes), 2 exponential (no numerical damping)",
-     1, (1, len(INTEGRATORS))),
+     "Integration scheme: rodas4 is L-stable and damps the kHz bracket modes, exponential adds no numerical "
+     "damping; choices: 1 = rodas4, 2 = exponential", 1, (1, len(INTEGRATORS))),
     ("damping_ratio", "parameter", "fixed", "1",
      "Modal structural damping ratio of every flexible mode (0: the paper's undamped model)", 0.0, (0.0, 1.0)),
-    *[_out(f"theta{i + 1}", "rad", f"Absolute angle of element {i + 1} ({e})") for i, e in enumerate(_ELEMENTS)],
-    *[_out(f"omega{i + 1}", "rad/s", f"Angular rate of element {i + 1} ({e})") for i, e in enumerate(_ELEMENTS)],
-    _out("q1", "rad", "Joint-1 angle (encoder 1) = theta1"),
-    _out("q2", "rad", "Joint-2 angle (encoder 2) = theta7 - theta6"),
-    _out("qd1", "rad/s", "Joint-1 rate (tachometer 1)"),
-    _out("qd2", "rad/s", "Joint-2 rate (tachometer 2)"),
-    *[_out(f"eps{k + 1}", "rad", f"Strain-gauge angle at the {g}") for k, g in enumerate(_GAUGES)],
-    _out("tip_x", "m", "Tip of link 2, x (shoulder axis at the origin)"),
-    _out("tip_y", "m", "Tip of link 2, y"),
-    _out("link1_tip_ax", "m/s2", "Acceleration of the link-1 tip, x"),
-    _out("link1_tip_ay", "m/s2", "Acceleration of the link-1 tip, y"),
-    _out("link2_tip_ax", "m/s2", "Acceleration of the link-2 tip, x"),
-    _out("link2_tip_ay", "m/s2", "Acceleration of the link-2 tip, y"),
-    _out("acc1_n", "m/s2", "Link-1 tip acceleration normal to link 1 (accelerometer 1 axis)"),
-    _out("acc2_n", "m/s2", "Link-2 tip acceleration normal to link 2 (accelerometer 2 axis)"),
+    *[_signal(s) for s in signals("plant", "output")],  # = flexarm.model.OBSERVABLE_NAMES
 ])
 
 
@@ -118,7 +118,7 @@ class FlexarmPlant(FlexarmSlave):
 
     VARIABLES = VARIABLES
     description = "Sandia two-link flexible arm, 11-element model (plant)"
-    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=1e-3)
+    default_experiment = slew_experiment()
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)

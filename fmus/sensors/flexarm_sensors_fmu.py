@@ -15,28 +15,39 @@ Interface (full table in ``docs/fmu-interface.md``):
   plus ``sample_period`` (s);
 * outputs: :data:`flexarm.sensors.MEASURED_SIGNAL_NAMES` (``q1_m`` … ``acc2_m``).
 
+Defaults: noise off (``noise_enabled`` false), 1 ms sample period; the
+default experiment lasts the committed trajectory's slew.
+
 Sampling (direct feedthrough, :mod:`flexarm_feedthrough`): the outputs at
 communication point t_k are the measurement of the inputs present at t_k.
 The bank takes exactly one sample per communication point (one filter
 update, one draw of the noise generator), whatever the number of reads.
+A communication step h may be any whole multiple n of ``sample_period``:
+the FMU then also samples at t_k + T, ..., t_k + (n - 1) T inside the step,
+holding the inputs of t_k (zero-order hold), so the filters and the noise
+stream run at their own period; the outputs after the step are the sample at
+t_k + h of the inputs set then. With n = 1 (the default 1 ms step) this is
+one sample per communication point.
 """
 
 from __future__ import annotations
 
 import copy
 import math
+from pathlib import Path
 
 import numpy as np
 from flexarm_feedthrough import FeedthroughSlave
-from flexarm_fmu_base import Var, pin_module_namespace, variable_table
-from pythonfmu.default_experiment import DefaultExperiment
+from flexarm_fmu_base import Var, pin_module_namespace, slew_experiment, variable_table
 
 from flexarm.sensors import MEASURED_SIGNALS, TRUE_SIGNALS, SensorBank, SensorSettings
 
 pin_module_namespace(globals())  # pythonfmu 0.7.0 drops a reference per instantiation (see there)
 
-#: Default settings: the committed file flexarm/data/sensors_default.toml.
-DEFAULTS = SensorSettings.from_toml()
+#: Default settings: the committed file flexarm/data/sensors_default.toml (this FMU's own copy when built:
+#: FMUs in one process share the flexarm package imported first, which need not carry it).
+_OWN_SETTINGS = Path(__file__).resolve().parent / "flexarm" / "data" / "sensors_default.toml"
+DEFAULTS = SensorSettings.from_toml(_OWN_SETTINGS if _OWN_SETTINGS.is_file() else None)
 #: The per-link tuple field, exposed as two scalar parameters.
 _GAUGE_FS = "strain_gauge_full_scale_curvature_per_m"
 _GAUGE_FS_NAMES = (f"{_GAUGE_FS}_link1", f"{_GAUGE_FS}_link2")
@@ -59,7 +70,8 @@ _OUTPUTS = [Var(m.name, "output", "continuous", m.unit, f"Measured: {m.descripti
 
 VARIABLES = variable_table([
     *_INPUTS,
-    _param("noise_enabled", None, "Add the uniform sensor noise (the paper's 'with noise' case)"),
+    _param("noise_enabled", None, "Add the uniform sensor noise (the paper's 'with noise' case); default off",
+           start=False),
     _param("noise_seed", None, "Seed of this instance's PCG64 noise generator", 0, _INT32_MAX),
     _param("encoder_noise_deg", "deg", "Encoder noise half-width (uniform on [-a, a))", 0.0),
     _param("encoder_quantization", None, "Round the encoder angles to whole counts"),
@@ -86,7 +98,8 @@ VARIABLES = variable_table([
     _param("adc_quantization", None, "Quantise the analogue channels (tachometers, gauges, accelerometers)"),
     _param("adc_bits", None, "A/D resolution, bits", 2, 24),
     Var("sample_period", "parameter", "fixed", "s",
-        "Sample period of the bank (filters); every communication step must equal it", 1e-3, 1e-6, 10.0),
+        "Sample period of the bank (filters); every communication step must be a whole multiple of it",
+        1e-3, 1e-6, 10.0),
     *_OUTPUTS,
 ])
 
@@ -113,7 +126,7 @@ class FlexarmSensors(FeedthroughSlave):
         "1/m": {"base": {"m": -1}},
     }
     description = "Sandia two-link flexible arm: encoders, tachometers, strain gauges, accelerometers (sensors)"
-    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=1e-3)
+    default_experiment = slew_experiment()
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -140,14 +153,23 @@ class FlexarmSensors(FeedthroughSlave):
         return self.bank.measure(np.array([values[vr] for vr in self._true_vrs], dtype=float))
 
     def commit(self, t: float, h: float) -> None:
+        # A step of n sample periods: the sample at t was taken; the n - 1 samples inside the step
+        # measure the inputs held since t (one filter update and one noise draw each).
+        held = np.array([self._values[vr] for vr in self._true_vrs], dtype=float)
+        for _ in range(self._samples_in(h) - 1):
+            self.bank.measure(held)
         self._pre = None
+
+    def _samples_in(self, h: float) -> int:
+        return max(1, round(h / self.value("sample_period")))
 
     def check_step(self, t: float, h: float) -> None:
         period = self.value("sample_period")
-        if abs(h - period) > 1e-9 * period:
-            raise ValueError(f"step_size: {h!r} s differs from the parameter sample_period = {period!r} s "
-                             "(the filters are discretised for that period; set sample_period to the "
-                             "communication step)")
+        n = self._samples_in(h)
+        if abs(h - n * period) > 1e-9 * h:
+            raise ValueError(f"step_size: {h!r} s is not a whole multiple of the parameter sample_period = "
+                             f"{period!r} s (the filters are discretised for that period; the FMU samples at "
+                             "its period inside a longer step, holding its inputs)")
 
     def get_sample_state(self) -> dict:
         return {"bank": _jsonable(self.bank.get_state()),

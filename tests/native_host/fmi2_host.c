@@ -9,7 +9,7 @@
  *
  *   gcc -std=c11 -O2 -I<fmpy>/c-code -o fmi2_host fmi2_host.c -ldl
  *   fmi2_host FMU_DIR [--steps N] [--dt H] [--set NAME=VALUE]... [--inputs FILE.csv]
- *                     [--out NAME,NAME,...] [--check-errors] [--quiet]
+ *                     [--out NAME,NAME,...] [--check-errors] [--quiet] [--logging-off]
  *
  *   --steps N        communication steps (default 1000); N + 1 rows are printed
  *   --dt H           communication step in s (default 0.001)
@@ -21,6 +21,7 @@
  *                    fmi2DoStep and fmi2GetReal before initialisation, NaN into the first Real
  *                    input, a fixed parameter set after initialisation
  *   --quiet          do not print log messages with status fmi2OK
+ *   --logging-off    instantiate with loggingOn = fmi2False (the FMU must still report errors)
  *
  * Exit status: 0 success, 1 usage, 2 the FMU could not be loaded or instantiated,
  * 3 an FMI call returned fmi2Error or worse (or --check-errors found a problem).
@@ -49,7 +50,7 @@
 typedef struct {
     char name[128];
     unsigned vr;
-    char type[16];      /* Real, Integer, Boolean, String */
+    char type[16];      /* Real, Integer, Enumeration, Boolean, String */
     char causality[32];
     char variability[32];
 } Variable;
@@ -206,7 +207,7 @@ static fmi2Status set_value(const Api *api, fmi2Component c, const Variable *v, 
         fmi2Real x = strtod(text, NULL);
         return api->setReal(c, &vr, 1, &x);
     }
-    if (strcmp(v->type, "Integer") == 0) {
+    if (strcmp(v->type, "Integer") == 0 || strcmp(v->type, "Enumeration") == 0) {
         fmi2Integer x = (fmi2Integer)strtol(text, NULL, 10);
         return api->setInteger(c, &vr, 1, &x);
     }
@@ -286,11 +287,12 @@ static int check_errors(const Api *api, const fmi2CallbackFunctions *cb, const c
 int main(int argc, char **argv)
 {
     if (argc < 2 || argv[1][0] == '-') die(1, "usage: fmi2_host FMU_DIR [--steps N] [--dt H] [--set NAME=VALUE]... "
-                                           "[--inputs FILE.csv] [--out NAME,...] [--check-errors] [--quiet]");
+                                           "[--inputs FILE.csv] [--out NAME,...] [--check-errors] [--quiet] [--logging-off]");
     const char *dir = argv[1], *inputs_file = NULL, *out_names = NULL;
     long steps = 1000;
     double dt = 1e-3;
     int do_check = 0, n_sets = 0;
+    fmi2Boolean logging_on = fmi2True;
     const char **sets = calloc((size_t)argc, sizeof *sets);
     for (int i = 2; i < argc; i++) {
         const char *a = argv[i], *next = i + 1 < argc ? argv[i + 1] : NULL;
@@ -301,6 +303,7 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--out") == 0 && next) out_names = argv[++i];
         else if (strcmp(a, "--check-errors") == 0) do_check = 1;
         else if (strcmp(a, "--quiet") == 0) quiet = 1;
+        else if (strcmp(a, "--logging-off") == 0) logging_on = fmi2False;
         else die(1, "unknown or incomplete option '%s'", a);
     }
     char path[PATH_MAX], guid[128], model_id[128];
@@ -357,7 +360,7 @@ int main(int argc, char **argv)
         fclose(f);
     }
 
-    fmi2Component c = api.instantiate("host", fmi2CoSimulation, guid, uri, &cb, fmi2False, fmi2True);
+    fmi2Component c = api.instantiate("host", fmi2CoSimulation, guid, uri, &cb, fmi2False, logging_on);
     if (!c) die(2, "fmi2Instantiate failed (see the log above)");
     check(api.setupExperiment(c, fmi2False, 0.0, 0.0, fmi2False, 0.0), "fmi2SetupExperiment");
     check(api.enterInitializationMode(c), "fmi2EnterInitializationMode");
