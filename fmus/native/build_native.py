@@ -43,7 +43,10 @@ ROOT = Path(__file__).resolve().parents[2]
 NATIVE_DIR = Path(__file__).resolve().parent
 DEFAULT_OUT = ROOT / "build" / "fmus-native"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
-COMMON_SOURCES = ("fmi2_glue.c", "fmi2_glue.h", "sha256.c", "sha256.h")
+COMMON_SOURCES = ("fmi2_glue.c", "fmi2_glue.h", "sha256.c", "sha256.h", "portable_math.c", "portable_math.h",
+                  "libm.h")
+#: musl's sin/cos kernels, copied from the ziglang package (MIT licence) so every platform computes the same bits.
+MUSL_SOURCES = ("__sin.c", "__cos.c", "__rem_pio2.c", "__rem_pio2_large.c")
 
 #: platform -> (Zig target, binary suffix)
 PLATFORMS = {
@@ -177,6 +180,16 @@ def zig_command() -> list[str]:
     return [sys.executable, "-m", "ziglang", "cc"]
 
 
+def _musl_dir() -> Path:
+    zig_command()
+    import ziglang
+
+    musl = Path(ziglang.__file__).parent / "lib" / "libc" / "musl"
+    if not (musl / "src" / "math" / MUSL_SOURCES[0]).is_file():
+        raise NativeBuildError(f"{musl}: musl's math sources are missing from the ziglang package")
+    return musl
+
+
 def compile_binary(src_dir: Path, model_identifier: str, platform: str, out_dir: Path) -> Path:
     """Compile every .c in `src_dir` into out_dir/binaries/<platform>/<model_identifier><suffix>."""
     target, suffix = PLATFORMS[platform]
@@ -184,7 +197,8 @@ def compile_binary(src_dir: Path, model_identifier: str, platform: str, out_dir:
     dest.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="flexarm-zig-") as tmp:
         lib = Path(tmp) / (model_identifier + suffix)
-        cmd = [*zig_command(), "-target", target, "-shared", "-O2", "-g0", "-s", "-fvisibility=hidden", "-std=c99",
+        cmd = [*zig_command(), "-target", target, "-shared", "-O2", "-g0", "-s", "-ffp-contract=off",
+               "-fvisibility=hidden", "-std=c99",
                "-I", str(src_dir), "-o", str(lib), *sorted(str(p) for p in src_dir.glob("*.c"))]
         if platform != "win64":
             cmd += ["-fPIC", "-lm"]
@@ -212,6 +226,10 @@ def _stage_sources(name: str, staging: Path, python_fmu: Path) -> tuple[str, str
         shutil.copy2(fmpy_headers / h, src / h)
     for f in COMMON_SOURCES:
         shutil.copy2(NATIVE_DIR / "common" / f, src / f)
+    musl = _musl_dir()
+    for f in MUSL_SOURCES:
+        shutil.copy2(musl / "src" / "math" / f, src / f"musl{f}")
+    shutil.copy2(musl / "COPYRIGHT", src / "musl_COPYRIGHT.txt")
     model_source = NATIVE_DIR / NATIVE_FMUS[name][0]
     shutil.copy2(model_source, src / model_source.name)
     if name == "plant":

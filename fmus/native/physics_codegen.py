@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import re
 import struct
 from pathlib import Path
 
@@ -96,6 +97,7 @@ def generate_physics(out_dir: Path, params: ArmParameters | None = None) -> list
     gen.add(f_mass)
     gen.add(f_tan)
     gen.generate(str(out_dir) + "/")
+    _use_portable_trigonometry(out_dir / "flexarm_physics.c")
     work = max(f.sz_w() for f in (f_mass, f_tan))
     iwork = max(f.sz_iw() for f in (f_mass, f_tan))
     a_rows = ",\n    ".join("{" + ", ".join(repr(float(x)) for x in row) + "}" for row in kern.RODAS4_A)
@@ -122,6 +124,16 @@ static const double RODAS4_C[6][5] = {{
 """
     (out_dir / "plant_constants.h").write_text(constants)
     return [out_dir / "flexarm_physics.c", out_dir / "flexarm_physics.h", out_dir / "plant_constants.h"]
+
+
+def _use_portable_trigonometry(path: Path) -> None:
+    """sin/cos of the FMU's own (portable_math.c) instead of the C library's, in generated C."""
+    text = path.read_text()
+    text = re.sub(r"\bsin\(", "flexarm_sin(", re.sub(r"\bcos\(", "flexarm_cos(", text))
+    head, sep, rest = text.partition("#include <math.h>\n")
+    if not sep:
+        raise RuntimeError(f"{path}: CasADi's code has no '#include <math.h>' to put portable_math.h after")
+    path.write_text(head + sep + '#include "portable_math.h"\n' + rest)
 
 
 def hex_doubles(values) -> str:

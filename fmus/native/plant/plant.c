@@ -16,6 +16,7 @@
 #include "fmi2_glue.h"
 #include "flexarm_physics.h"
 #include "model_vars.h"
+#include "portable_math.h"
 #include "plant_constants.h"
 
 #define N PLANT_N_ELEMENTS
@@ -203,7 +204,7 @@ static int outputs(Instance *inst, const double *z, const double *tau)
     /* flexarm._kernels.chain_kinematics for the link tips */
     double x = 0.0, yy = 0.0, ax = 0.0, ay = 0.0;
     for (int i = 0; i < N; i++) {
-        double c = cos(z[i]), s = sin(z[i]), om2 = z[N + i] * z[N + i], l = d->length[i];
+        double c = flexarm_cos(z[i]), s = flexarm_sin(z[i]), om2 = z[N + i] * z[N + i], l = d->length[i];
         x += l * c;
         yy += l * s;
         ax += l * (-s * alpha[i] - c * om2);
