@@ -46,7 +46,7 @@ FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 COMMON_SOURCES = ("fmi2_glue.c", "fmi2_glue.h", "sha256.c", "sha256.h", "portable_math.c", "portable_math.h",
                   "libm.h")
 #: musl's sin/cos kernels, copied from the ziglang package (MIT licence) so every platform computes the same bits.
-MUSL_SOURCES = ("__sin.c", "__cos.c", "__rem_pio2.c", "__rem_pio2_large.c")
+MUSL_SOURCES = ("__sin.c", "__cos.c", "__tan.c", "__rem_pio2.c", "__rem_pio2_large.c")
 
 #: platform -> (Zig target, binary suffix)
 PLATFORMS = {
@@ -210,9 +210,10 @@ def compile_binary(src_dir: Path, model_identifier: str, platform: str, out_dir:
 
 
 # -- one FMU --------------------------------------------------------------------------------------
-#: name -> (C model source (relative to fmus/native), resource writers)
+#: name -> the C sources of its model (relative to fmus/native/)
 NATIVE_FMUS = {
     "plant": ("plant/plant.c",),
+    "sensors": ("sensors/sensors.c", "sensors/pcg64.c", "sensors/pcg64.h"),
 }
 
 
@@ -230,11 +231,13 @@ def _stage_sources(name: str, staging: Path, python_fmu: Path) -> tuple[str, str
     for f in MUSL_SOURCES:
         shutil.copy2(musl / "src" / "math" / f, src / f"musl{f}")
     shutil.copy2(musl / "COPYRIGHT", src / "musl_COPYRIGHT.txt")
-    model_source = NATIVE_DIR / NATIVE_FMUS[name][0]
-    shutil.copy2(model_source, src / model_source.name)
+    for model_source in NATIVE_FMUS[name]:
+        shutil.copy2(NATIVE_DIR / model_source, src / Path(model_source).name)
     if name == "plant":
         physics_codegen.generate_physics(src)
         physics_codegen.write_arm_resource(res / physics_codegen.ARM_RESOURCE)
+    elif name == "sensors":
+        physics_codegen.write_sensor_resource(res / physics_codegen.SENSOR_RESOURCE)
     resources = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(res.iterdir())}
     python_xml = _read_description(python_fmu)
     root = ET.fromstring(python_xml)

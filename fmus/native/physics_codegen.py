@@ -39,6 +39,8 @@ from flexarm.parameters import (
 
 #: The resource file of the plant FMU.
 ARM_RESOURCE = "arm_parameters.txt"
+#: The resource file of the sensors FMU.
+SENSOR_RESOURCE = "sensor_constants.txt"
 
 
 def _numpy_kernels():
@@ -166,3 +168,13 @@ def write_arm_resource(path: Path, params: ArmParameters | None = None) -> None:
         "length": params.length,
     }, f"flexarm arm constants for the native plant FMU (IEEE-754 doubles as hex bit patterns)\n"
        f"source: {Path(params.source).name} sha256 {params.sha256}")
+
+
+def write_sensor_resource(path: Path, params: ArmParameters | None = None) -> None:
+    """The sensors' arm constants: the gauged segments' lengths (angle = curvature x length)."""
+    from flexarm.sensors import strain_gauge_segment_lengths
+
+    params = params if params is not None else load_parameters()
+    write_resource(path, {"strain_gauge_segment_lengths": strain_gauge_segment_lengths(params)},
+                   f"flexarm sensor constants for the native sensors FMU (IEEE-754 doubles as hex bit patterns)\n"
+                   f"source: {Path(params.source).name} sha256 {params.sha256}")

@@ -1,4 +1,4 @@
-/* sin and cos from musl's kernels (the argument reduction and quadrant logic of musl's sin.c and cos.c). */
+/* sin, cos and tan from musl's kernels (the argument reduction and quadrant logic of musl's sin.c, cos.c, tan.c). */
 #include "portable_math.h"
 
 #include <stdint.h>
@@ -47,4 +47,17 @@ double flexarm_cos(double x)
     case 2: return -__cos(y[0], y[1]);
     default: return __sin(y[0], y[1], 1);
     }
+}
+
+double flexarm_tan(double x)
+{
+    double y[2];
+    uint32_t ix = high_word(x);
+    if (ix <= 0x3fe921fb) {
+        if (ix < 0x3e400000) return x; /* |x| < 2**-27 */
+        return __tan(x, 0.0, 0);
+    }
+    if (ix >= 0x7ff00000) return x - x;
+    unsigned n = (unsigned)__rem_pio2(x, y);
+    return __tan(y[0], y[1], (int)(n & 1));
 }

@@ -7,4 +7,5 @@
 #define FLEXARM_PORTABLE_MATH_H
 double flexarm_sin(double x);
 double flexarm_cos(double x);
+double flexarm_tan(double x);
 #endif
