@@ -82,7 +82,7 @@ def run_fmpy(fmu: Path, n_steps: int, inputs=None, params=None, outputs=None, dt
     for name, value in (params or {}).items():
         v = var[name]
         setter = {"Real": slave.setReal, "Integer": slave.setInteger, "Enumeration": slave.setInteger,
-                  "Boolean": slave.setBoolean}[v.type]
+                  "Boolean": slave.setBoolean, "String": slave.setString}[v.type]
         setter([v.valueReference], [value])
     if inputs is not None and inputs_in_initialization:
         _set(slave, var, inputs(0))
