@@ -355,12 +355,12 @@ def build_native_fmus(out_dir: Path | None = None, python_fmus: dict[str, Path] 
         The Python FMUs whose interface the native ones copy (default: build_fmus.build_all into a temporary
         folder).
     only : iterable of str, optional
-        Names of NATIVE_FMUS to build (default: all).
+        Names of NATIVE_FMUS to build (default: all, or all of `python_fmus` when given).
     platforms : iterable of str
         Keys of PLATFORMS.
     """
     out_dir = Path(out_dir) if out_dir is not None else DEFAULT_OUT
-    names = list(only) if only else list(NATIVE_FMUS)
+    names = list(only) if only else [n for n in NATIVE_FMUS if python_fmus is None or n in python_fmus]
     with tempfile.TemporaryDirectory(prefix="flexarm-python-fmus-") as tmp:
         if python_fmus is None:
             from build_fmus import build_all  # the project's Python FMU build (repository root)
