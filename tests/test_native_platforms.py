@@ -80,3 +80,15 @@ def test_fmu_compiled_from_its_sources_runs_like_the_shipped_binary(tmp_path):
     _, shipped = run_fmpy(plant, N_STEPS, inputs)
     np.testing.assert_allclose(from_sources, shipped, rtol=0, atol=1e-9 * np.abs(shipped).max())
     assert np.abs(from_sources[:, names.index("q1")]).max() > 0.01
+
+
+def test_every_native_fmu_runs_in_fmpy_simulate_with_no_options():
+    """A tool user's first try: `fmpy simulate` with nothing set, on each native FMU."""
+    from fmpy import simulate_fmu
+
+    for name, fmu in native_fmus().items():
+        md = read_model_description(str(fmu))
+        result = simulate_fmu(str(fmu))
+        assert abs(result["time"][-1] - float(md.defaultExperiment.stopTime)) < 1e-9, name
+        outputs = [v.name for v in md.modelVariables if v.causality == "output"]
+        assert all(np.isfinite(result[n]).all() for n in outputs), name
