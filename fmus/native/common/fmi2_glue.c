@@ -89,8 +89,9 @@ static Instance *as_instance(fmi2Component c)
     return (inst != NULL && inst->magic == INSTANCE_MAGIC) ? inst : NULL;
 }
 
-/* The instance if `call` is allowed in its state; otherwise log why and return NULL. */
-static Instance *admit(fmi2Component c, Call call)
+/* The instance if `call` is allowed in its state; otherwise log why (naming `fn`, or the call's name) and return
+   NULL. */
+static Instance *admit_as(fmi2Component c, Call call, const char *fn)
 {
     Instance *inst = as_instance(c);
     if (inst == NULL) return NULL;
@@ -101,10 +102,12 @@ static Instance *admit(fmi2Component c, Call call)
             if (list[0]) strcat(list, ", ");
             strcat(list, STATE_NAMES[s]);
         }
-    glue_log(inst, fmi2Error, "%s: not allowed in state %s (allowed in: %s)", CALLS[call].name,
-             STATE_NAMES[inst->fmi_state], list);
+    glue_log(inst, fmi2Error, "%s is not allowed in state '%s' (allowed in: %s); the call was ignored",
+             fn != NULL ? fn : CALLS[call].name, STATE_NAMES[inst->fmi_state], list);
     return NULL;
 }
+
+static Instance *admit(fmi2Component c, Call call) { return admit_as(c, call, NULL); }
 
 /* -- variables ----------------------------------------------------------------------------- */
 static long find_var(fmi2ValueReference vr)
@@ -164,8 +167,8 @@ static int check_value(Instance *inst, long i, fmi2ValueReference vr, VarType gi
         return -1;
     }
     if (!isfinite(x) || x < v->min || x > v->max) {
-        glue_log(inst, fmi2Error, "%s = %.17g%s%s: outside the allowed range %s", v->name, x, v->unit[0] ? " " : "",
-                 v->unit, range);
+        glue_log(inst, fmi2Error, "%s = %.17g%s%s: %s the allowed range %s", v->name, x, v->unit[0] ? " " : "",
+                 v->unit, isfinite(x) ? "outside" : "not a finite value in", range);
         if (given == VT_REAL || given == VT_INTEGER) inst->invalid[i] = 1;
         return -1;
     }
@@ -175,10 +178,12 @@ static int check_value(Instance *inst, long i, fmi2ValueReference vr, VarType gi
 static fmi2Status set_values(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, VarType type,
                              const double *x)
 {
-    Instance *inst = admit(c, F_SET);
+    char fn[32];
+    snprintf(fn, sizeof fn, "fmi2Set%s", type_name(type));
+    Instance *inst = admit_as(c, F_SET, fn);
     if (inst == NULL) return fmi2Error;
     if (nvr > 0 && (vr == NULL || x == NULL)) {
-        glue_log(inst, fmi2Error, "fmi2Set%s: vr[] or value[] is NULL", type_name(type));
+        glue_log(inst, fmi2Error, "fmi2Set%s: vr[] and value[] must not be NULL", type_name(type));
         return fmi2Error;
     }
     int bad = 0;
@@ -207,10 +212,12 @@ static fmi2Status refresh_outputs(Instance *inst)
 
 static fmi2Status get_values(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, VarType type, double *x)
 {
-    Instance *inst = admit(c, F_GET);
+    char fn[32];
+    snprintf(fn, sizeof fn, "fmi2Get%s", type_name(type));
+    Instance *inst = admit_as(c, F_GET, fn);
     if (inst == NULL) return fmi2Error;
     if (nvr > 0 && (vr == NULL || x == NULL)) {
-        glue_log(inst, fmi2Error, "fmi2Get%s: vr[] or value[] is NULL", type_name(type));
+        glue_log(inst, fmi2Error, "fmi2Get%s: vr[] and value[] must not be NULL", type_name(type));
         return fmi2Error;
     }
     int needs_outputs = 0;
@@ -389,12 +396,12 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     inst->state = calloc(1, MODEL_INFO.state_size ? MODEL_INFO.state_size : 1);
     int ok = inst->values && inst->invalid && inst->state;
     if (ok && fmuType != fmi2CoSimulation) {
-        glue_log(inst, fmi2Error, "fmi2Instantiate: %s is a co-simulation FMU (fmuType must be fmi2CoSimulation)",
-                 MODEL_INFO.model_identifier);
+        glue_log(inst, fmi2Error, "fmi2Instantiate: %s is a co-simulation FMU only (fmuType must be "
+                 "fmi2CoSimulation)", MODEL_INFO.model_identifier);
         ok = 0;
     }
     if (ok && (fmuGUID == NULL || strcmp(fmuGUID, MODEL_INFO.guid) != 0)) {
-        glue_log(inst, fmi2Error, "fmi2Instantiate: GUID %s does not match this binary's %s (modelDescription.xml "
+        glue_log(inst, fmi2Error, "fmi2Instantiate: fmuGUID %s does not match this binary's %s (modelDescription.xml "
                  "and binary are from different builds)", fmuGUID ? fmuGUID : "(null)", MODEL_INFO.guid);
         ok = 0;
     }
@@ -540,7 +547,7 @@ fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[])
 {
     (void)value;
-    Instance *inst = admit(c, F_GET);
+    Instance *inst = admit_as(c, F_GET, "fmi2GetString");
     if (inst == NULL) return fmi2Error;
     if (nvr == 0) return fmi2OK;
     glue_log(inst, fmi2Error, "fmi2GetString: value reference %u: this FMU has no String variables",
@@ -579,7 +586,7 @@ fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
 fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[])
 {
     (void)value;
-    Instance *inst = admit(c, F_SET);
+    Instance *inst = admit_as(c, F_SET, "fmi2SetString");
     if (inst == NULL) return fmi2Error;
     if (nvr == 0) return fmi2OK;
     glue_log(inst, fmi2Error, "fmi2SetString: value reference %u: this FMU has no String variables",
