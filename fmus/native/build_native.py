@@ -43,8 +43,8 @@ ROOT = Path(__file__).resolve().parents[2]
 NATIVE_DIR = Path(__file__).resolve().parent
 DEFAULT_OUT = ROOT / "build" / "fmus-native"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
-COMMON_SOURCES = ("fmi2_glue.c", "fmi2_glue.h", "sha256.c", "sha256.h", "portable_math.c", "portable_math.h",
-                  "libm.h")
+COMMON_SOURCES = ("fmi2_glue.c", "fmi2_glue.h", "fmi2_glue_resources.c", "sha256.c", "sha256.h", "portable_math.c",
+                  "portable_math.h", "libm.h")
 #: musl's sin/cos kernels, copied from the ziglang package (MIT licence) so every platform computes the same bits.
 MUSL_SOURCES = ("__sin.c", "__cos.c", "__tan.c", "__rem_pio2.c", "__rem_pio2_large.c")
 
