@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import re
 import struct
 from pathlib import Path
 
@@ -38,6 +39,8 @@ from flexarm.parameters import (
 
 #: The resource file of the plant FMU.
 ARM_RESOURCE = "arm_parameters.txt"
+#: The resource file of the sensors FMU.
+SENSOR_RESOURCE = "sensor_constants.txt"
 
 
 def _numpy_kernels():
@@ -96,6 +99,7 @@ def generate_physics(out_dir: Path, params: ArmParameters | None = None) -> list
     gen.add(f_mass)
     gen.add(f_tan)
     gen.generate(str(out_dir) + "/")
+    _use_portable_trigonometry(out_dir / "flexarm_physics.c")
     work = max(f.sz_w() for f in (f_mass, f_tan))
     iwork = max(f.sz_iw() for f in (f_mass, f_tan))
     a_rows = ",\n    ".join("{" + ", ".join(repr(float(x)) for x in row) + "}" for row in kern.RODAS4_A)
@@ -122,6 +126,16 @@ static const double RODAS4_C[6][5] = {{
 """
     (out_dir / "plant_constants.h").write_text(constants)
     return [out_dir / "flexarm_physics.c", out_dir / "flexarm_physics.h", out_dir / "plant_constants.h"]
+
+
+def _use_portable_trigonometry(path: Path) -> None:
+    """sin/cos of the FMU's own (portable_math.c) instead of the C library's, in generated C."""
+    text = path.read_text()
+    text = re.sub(r"\bsin\(", "flexarm_sin(", re.sub(r"\bcos\(", "flexarm_cos(", text))
+    head, sep, rest = text.partition("#include <math.h>\n")
+    if not sep:
+        raise RuntimeError(f"{path}: CasADi's code has no '#include <math.h>' to put portable_math.h after")
+    path.write_text(head + sep + '#include "portable_math.h"\n' + rest)
 
 
 def hex_doubles(values) -> str:
@@ -154,3 +168,63 @@ def write_arm_resource(path: Path, params: ArmParameters | None = None) -> None:
         "length": params.length,
     }, f"flexarm arm constants for the native plant FMU (IEEE-754 doubles as hex bit patterns)\n"
        f"source: {Path(params.source).name} sha256 {params.sha256}")
+
+
+def write_sensor_resource(path: Path, params: ArmParameters | None = None) -> None:
+    """The sensors' arm constants: the gauged segments' lengths (angle = curvature x length)."""
+    from flexarm.sensors import strain_gauge_segment_lengths
+
+    params = params if params is not None else load_parameters()
+    write_resource(path, {"strain_gauge_segment_lengths": strain_gauge_segment_lengths(params)},
+                   f"flexarm sensor constants for the native sensors FMU (IEEE-754 doubles as hex bit patterns)\n"
+                   f"source: {Path(params.source).name} sha256 {params.sha256}")
+
+
+#: The controller FMUs' resource files.
+TRAJECTORY_RESOURCE = "trajectory.txt"
+GAINS_RESOURCE = "gains.txt"
+#: ``gain_set`` enumeration values (docs/fmu-interface.md, type GainSet) -> flexarm.lqr weight names.
+GAIN_SETS = {1: "gamma1", 2: "gamma0.1", 3: "gamma0", 4: "eq32"}
+#: ``omega7_estimate`` enumeration values (type Omega7Estimate) -> flexarm.lqr.OMEGA7_CHOICES.
+OMEGA7_ESTIMATES = {1: "tachometer", 2: "rigid"}
+
+
+def write_trajectory_resource(path: Path) -> None:
+    """The trajectory as the control law uses it: feedforward torques and the desired measurements.
+
+    Desired measurements m_d = (q1, q2, q̇1, q̇2, ε1..ε6) of every sample, from the desired state
+    through the sensor map (flexarm.control: "like with like"), and the estimator matrices E
+    (x̂ = E m) of both ``omega7_estimate`` choices.
+    """
+    from flexarm import control
+    from flexarm.lqr import as_trajectory_data, default_trajectory_path
+    from flexarm.model import joint_angles, joint_velocities, strain_gauge_angles
+
+    traj = as_trajectory_data(default_trajectory_path())
+    th, om = traj.z[:, :N_ELEMENTS], traj.z[:, N_ELEMENTS:]
+    m_d = np.column_stack([np.array([joint_angles(t) for t in th]), np.array([joint_velocities(o) for o in om]),
+                           np.array([strain_gauge_angles(t) for t in th])])
+    entries = {"n_steps": [traj.n_steps], "dt": [traj.dt], "feedforward_torque": traj.tau,
+               "desired_measurements": m_d}
+    for value, choice in OMEGA7_ESTIMATES.items():
+        entries[f"estimator_{value}"] = control._estimator_matrix(choice)
+    write_resource(path, entries, f"flexarm trajectory for the native controller FMUs (IEEE-754 hex bit patterns)\n"
+                                  f"source: {Path(traj.path).name} sha256 {traj.sha256}\n"
+                                  f"estimator_<v>: omega7_estimate = v ({OMEGA7_ESTIMATES})")
+
+
+def write_gains_resource(path: Path, discrete: bool) -> None:
+    """Every gain schedule of the four weight sets (``dlqr-`` designs if `discrete`), reduced gains (2, 22)."""
+    from flexarm.lqr import SCHEDULES, GainSchedule
+
+    entries, names = {}, []
+    for value, weights in GAIN_SETS.items():
+        name = f"dlqr-{weights}" if discrete else weights
+        for label in SCHEDULES:
+            sched = GainSchedule.load(name, label)
+            entries[f"set{value}_{label}_count"] = [len(sched.times)]
+            entries[f"set{value}_{label}_times"] = sched.times
+            entries[f"set{value}_{label}_gains"] = sched.reduced_gains()
+            names.append(f"set{value}_{label} = {name}_{label}")
+    write_resource(path, entries, "flexarm reduced LQR gains for the native controller FMUs (IEEE-754 hex bit "
+                                  "patterns)\n" + "\n".join(names))

@@ -17,7 +17,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sha256.h"
 
 #define INSTANCE_MAGIC 0x464e5849u /* "FNXI" */
 #define STATE_MAGIC 0x464e5853u    /* "FNXS" */
@@ -89,8 +88,9 @@ static Instance *as_instance(fmi2Component c)
     return (inst != NULL && inst->magic == INSTANCE_MAGIC) ? inst : NULL;
 }
 
-/* The instance if `call` is allowed in its state; otherwise log why and return NULL. */
-static Instance *admit(fmi2Component c, Call call)
+/* The instance if `call` is allowed in its state; otherwise log why (naming `fn`, or the call's name) and return
+   NULL. */
+static Instance *admit_as(fmi2Component c, Call call, const char *fn)
 {
     Instance *inst = as_instance(c);
     if (inst == NULL) return NULL;
@@ -101,10 +101,12 @@ static Instance *admit(fmi2Component c, Call call)
             if (list[0]) strcat(list, ", ");
             strcat(list, STATE_NAMES[s]);
         }
-    glue_log(inst, fmi2Error, "%s: not allowed in state %s (allowed in: %s)", CALLS[call].name,
-             STATE_NAMES[inst->fmi_state], list);
+    glue_log(inst, fmi2Error, "%s is not allowed in state '%s' (allowed in: %s); the call was ignored",
+             fn != NULL ? fn : CALLS[call].name, STATE_NAMES[inst->fmi_state], list);
     return NULL;
 }
+
+static Instance *admit(fmi2Component c, Call call) { return admit_as(c, call, NULL); }
 
 /* -- variables ----------------------------------------------------------------------------- */
 static long find_var(fmi2ValueReference vr)
@@ -164,8 +166,8 @@ static int check_value(Instance *inst, long i, fmi2ValueReference vr, VarType gi
         return -1;
     }
     if (!isfinite(x) || x < v->min || x > v->max) {
-        glue_log(inst, fmi2Error, "%s = %.17g%s%s: outside the allowed range %s", v->name, x, v->unit[0] ? " " : "",
-                 v->unit, range);
+        glue_log(inst, fmi2Error, "%s = %.17g%s%s: %s the allowed range %s", v->name, x, v->unit[0] ? " " : "",
+                 v->unit, isfinite(x) ? "outside" : "not a finite value in", range);
         if (given == VT_REAL || given == VT_INTEGER) inst->invalid[i] = 1;
         return -1;
     }
@@ -175,10 +177,12 @@ static int check_value(Instance *inst, long i, fmi2ValueReference vr, VarType gi
 static fmi2Status set_values(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, VarType type,
                              const double *x)
 {
-    Instance *inst = admit(c, F_SET);
+    char fn[32];
+    snprintf(fn, sizeof fn, "fmi2Set%s", type_name(type));
+    Instance *inst = admit_as(c, F_SET, fn);
     if (inst == NULL) return fmi2Error;
     if (nvr > 0 && (vr == NULL || x == NULL)) {
-        glue_log(inst, fmi2Error, "fmi2Set%s: vr[] or value[] is NULL", type_name(type));
+        glue_log(inst, fmi2Error, "fmi2Set%s: vr[] and value[] must not be NULL", type_name(type));
         return fmi2Error;
     }
     int bad = 0;
@@ -207,10 +211,12 @@ static fmi2Status refresh_outputs(Instance *inst)
 
 static fmi2Status get_values(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, VarType type, double *x)
 {
-    Instance *inst = admit(c, F_GET);
+    char fn[32];
+    snprintf(fn, sizeof fn, "fmi2Get%s", type_name(type));
+    Instance *inst = admit_as(c, F_GET, fn);
     if (inst == NULL) return fmi2Error;
     if (nvr > 0 && (vr == NULL || x == NULL)) {
-        glue_log(inst, fmi2Error, "fmi2Get%s: vr[] or value[] is NULL", type_name(type));
+        glue_log(inst, fmi2Error, "fmi2Get%s: vr[] and value[] must not be NULL", type_name(type));
         return fmi2Error;
     }
     int needs_outputs = 0;
@@ -236,137 +242,6 @@ static fmi2Status get_values(fmi2Component c, const fmi2ValueReference vr[], siz
     return fmi2OK;
 }
 
-/* -- resources ----------------------------------------------------------------------------- */
-static int hex_digit(char ch)
-{
-    if (ch >= '0' && ch <= '9') return ch - '0';
-    if (ch >= 'a' && ch <= 'f') return ch - 'a' + 10;
-    if (ch >= 'A' && ch <= 'F') return ch - 'A' + 10;
-    return -1;
-}
-
-/* Local path of a file:// URI (file:///p, file://localhost/p, file:/p; %XX decoded; Windows drive letters). */
-static char *uri_to_path(const char *uri)
-{
-    const char *p;
-    if (strncmp(uri, "file://localhost/", 17) == 0) p = uri + 16;
-    else if (strncmp(uri, "file:///", 8) == 0) p = uri + 7;
-    else if (strncmp(uri, "file:/", 6) == 0) p = uri + 5;
-    else return NULL;
-    char *out = malloc(strlen(p) + 1), *o = out;
-    if (out == NULL) return NULL;
-    for (; *p; p++) {
-        if (*p == '%' && hex_digit(p[1]) >= 0 && hex_digit(p[2]) >= 0) {
-            *o++ = (char)(hex_digit(p[1]) * 16 + hex_digit(p[2]));
-            p += 2;
-        } else *o++ = *p;
-    }
-    *o = '\0';
-#ifdef _WIN32
-    if (out[0] == '/' && out[1] && out[2] == ':') memmove(out, out + 1, strlen(out)); /* /C:/dir -> C:/dir */
-#endif
-    return out;
-}
-
-static char *read_whole(const char *path, size_t *size)
-{
-    FILE *f = fopen(path, "rb");
-    if (f == NULL) return NULL;
-    size_t cap = 1 << 16, n = 0;
-    char *buf = malloc(cap + 1);
-    for (size_t got; buf != NULL && (got = fread(buf + n, 1, cap - n, f)) > 0;) {
-        n += got;
-        if (n == cap) {
-            char *bigger = realloc(buf, 2 * cap + 1);
-            if (bigger == NULL) free(buf);
-            buf = bigger;
-            cap *= 2;
-        }
-    }
-    fclose(f);
-    if (buf != NULL) buf[n] = '\0';
-    *size = n;
-    return buf;
-}
-
-int glue_read_doubles(const Instance *inst, const char *file, const char *text, const char *name, double *out,
-                      size_t n)
-{
-    size_t len = strlen(name);
-    const char *p = text;
-    for (;;) { /* the label at the start of a line */
-        p = strstr(p, name);
-        if (p == NULL) {
-            glue_log(inst, fmi2Error, "resources/%s: no entry '%s' (the file does not belong to this FMU)", file, name);
-            return -1;
-        }
-        if ((p == text || p[-1] == '\n') && (p[len] == ' ' || p[len] == '\n')) break;
-        p += len;
-    }
-    p += len;
-    char *end;
-    unsigned long count = strtoul(p, &end, 10);
-    if (end == p || count != n) {
-        glue_log(inst, fmi2Error, "resources/%s: '%s' has %lu values, expected %zu", file, name, count, n);
-        return -1;
-    }
-    p = end;
-    for (size_t k = 0; k < n; k++) {
-        while (*p == ' ' || *p == '\n' || *p == '\r' || *p == '\t') p++;
-        uint64_t bits = 0;
-        for (int d = 0; d < 16; d++, p++) {
-            int v = hex_digit(*p);
-            if (v < 0) {
-                glue_log(inst, fmi2Error, "resources/%s: '%s' value %zu is not 16 hex digits", file, name, k);
-                return -1;
-            }
-            bits = bits << 4 | (uint64_t)v;
-        }
-        memcpy(&out[k], &bits, sizeof bits);
-    }
-    return 0;
-}
-
-static int load_resources(Instance *inst, const char *uri)
-{
-    if (MODEL_INFO.n_resources == 0) return 0;
-    char *dir = uri != NULL ? uri_to_path(uri) : NULL;
-    if (dir == NULL) {
-        glue_log(inst, fmi2Error, "fmi2Instantiate: fmuResourceLocation '%s' is not a file:// URI of the FMU's "
-                 "resources folder (unpack the whole FMU and pass its resources/ folder)", uri ? uri : "(null)");
-        return -1;
-    }
-    char *contents[8] = {0};
-    size_t sizes[8] = {0};
-    int rc = 0;
-    for (size_t r = 0; r < MODEL_INFO.n_resources && r < 8 && rc == 0; r++) {
-        const ResourceInfo *res = &MODEL_INFO.resources[r];
-        size_t n = strlen(dir) + strlen(res->file) + 2;
-        char *path = malloc(n);
-        snprintf(path, n, "%s%s%s", dir, dir[strlen(dir) - 1] == '/' ? "" : "/", res->file);
-        contents[r] = read_whole(path, &sizes[r]);
-        if (contents[r] == NULL) {
-            glue_log(inst, fmi2Error, "fmi2Instantiate: cannot read the resource %s (it ships inside the FMU in "
-                     "resources/; unpack the whole FMU)", path);
-            rc = -1;
-        } else {
-            char digest[65];
-            sha256_hex((const unsigned char *)contents[r], sizes[r], digest);
-            if (strcmp(digest, res->sha256) != 0) {
-                glue_log(inst, fmi2Error, "fmi2Instantiate: resource %s has SHA-256 %s, but this FMU was built with "
-                         "%s (the file was changed or belongs to another build: rebuild the FMU)", path, digest,
-                         res->sha256);
-                rc = -1;
-            }
-        }
-        free(path);
-    }
-    if (rc == 0) rc = MODEL_INFO.load(inst, contents, sizes);
-    for (size_t r = 0; r < 8; r++) free(contents[r]);
-    free(dir);
-    return rc;
-}
-
 /* -- FMI functions ------------------------------------------------------------------------ */
 const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
 const char *fmi2GetVersion(void) { return fmi2Version; }
@@ -389,16 +264,16 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     inst->state = calloc(1, MODEL_INFO.state_size ? MODEL_INFO.state_size : 1);
     int ok = inst->values && inst->invalid && inst->state;
     if (ok && fmuType != fmi2CoSimulation) {
-        glue_log(inst, fmi2Error, "fmi2Instantiate: %s is a co-simulation FMU (fmuType must be fmi2CoSimulation)",
-                 MODEL_INFO.model_identifier);
+        glue_log(inst, fmi2Error, "fmi2Instantiate: %s is a co-simulation FMU only (fmuType must be "
+                 "fmi2CoSimulation)", MODEL_INFO.model_identifier);
         ok = 0;
     }
     if (ok && (fmuGUID == NULL || strcmp(fmuGUID, MODEL_INFO.guid) != 0)) {
-        glue_log(inst, fmi2Error, "fmi2Instantiate: GUID %s does not match this binary's %s (modelDescription.xml "
+        glue_log(inst, fmi2Error, "fmi2Instantiate: fmuGUID %s does not match this binary's %s (modelDescription.xml "
                  "and binary are from different builds)", fmuGUID ? fmuGUID : "(null)", MODEL_INFO.guid);
         ok = 0;
     }
-    if (ok && load_resources(inst, fmuResourceLocation) != 0) ok = 0;
+    if (ok && glue_load_resources(inst, fmuResourceLocation) != 0) ok = 0;
     if (!ok) {
         free(inst->values), free(inst->invalid), free(inst->state), free(inst->name);
         inst->magic = 0;
@@ -540,7 +415,7 @@ fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[])
 {
     (void)value;
-    Instance *inst = admit(c, F_GET);
+    Instance *inst = admit_as(c, F_GET, "fmi2GetString");
     if (inst == NULL) return fmi2Error;
     if (nvr == 0) return fmi2OK;
     glue_log(inst, fmi2Error, "fmi2GetString: value reference %u: this FMU has no String variables",
@@ -579,7 +454,7 @@ fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
 fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[])
 {
     (void)value;
-    Instance *inst = admit(c, F_SET);
+    Instance *inst = admit_as(c, F_SET, "fmi2SetString");
     if (inst == NULL) return fmi2Error;
     if (nvr == 0) return fmi2OK;
     glue_log(inst, fmi2Error, "fmi2SetString: value reference %u: this FMU has no String variables",

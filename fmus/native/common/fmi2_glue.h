@@ -90,4 +90,7 @@ void glue_log(const Instance *inst, fmi2Status status, const char *fmt, ...)
 int glue_read_doubles(const Instance *inst, const char *file, const char *text, const char *name, double *out,
                       size_t n);
 
+/* Read and check every resource of MODEL_INFO, then MODEL_INFO.load; 0 on success (after logging why not). */
+int glue_load_resources(Instance *inst, const char *uri);
+
 #endif

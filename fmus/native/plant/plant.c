@@ -16,6 +16,7 @@
 #include "fmi2_glue.h"
 #include "flexarm_physics.h"
 #include "model_vars.h"
+#include "portable_math.h"
 #include "plant_constants.h"
 
 #define N PLANT_N_ELEMENTS
@@ -203,7 +204,7 @@ static int outputs(Instance *inst, const double *z, const double *tau)
     /* flexarm._kernels.chain_kinematics for the link tips */
     double x = 0.0, yy = 0.0, ax = 0.0, ay = 0.0;
     for (int i = 0; i < N; i++) {
-        double c = cos(z[i]), s = sin(z[i]), om2 = z[N + i] * z[N + i], l = d->length[i];
+        double c = flexarm_cos(z[i]), s = flexarm_sin(z[i]), om2 = z[N + i] * z[N + i], l = d->length[i];
         x += l * c;
         yy += l * s;
         ax += l * (-s * alpha[i] - c * om2);
@@ -259,6 +260,20 @@ static fmi2Status plant_initialize(Instance *inst)
 {
     PlantState *st = inst->state;
     PlantData *d = inst->data;
+#ifdef HAS_VAR_integrator /* the Python plant's choice of scheme: the native plant has RODAS4 (1) only */
+    if (VALUE(inst, IDX_integrator) != 1) {
+        glue_log(inst, fmi2Error, "fmi2ExitInitializationMode: integrator = %g: the native plant implements 1 "
+                 "(rodas4) only; use the Python plant for the others", VALUE(inst, IDX_integrator));
+        return fmi2Error;
+    }
+#endif
+#ifdef HAS_VAR_damping_ratio
+    if (VALUE(inst, IDX_damping_ratio) != 0) {
+        glue_log(inst, fmi2Error, "fmi2ExitInitializationMode: damping_ratio = %g: the native plant implements 0 "
+                 "(no structural damping) only; use the Python plant for damping", VALUE(inst, IDX_damping_ratio));
+        return fmi2Error;
+    }
+#endif
     set_payload(d, st, VALUE(inst, IDX_payload_mass));
     double z[NZ] = {0}, tau[2] = {VALUE(inst, IDX_tau1), VALUE(inst, IDX_tau2)};
     for (int i = 0; i < N; i++) /* flexarm.model.rigid_configuration(q1_0, q2_0), at rest */

@@ -1,0 +1,197 @@
+"""Native (C) FMUs beside the Python FMUs: plant step cost, first step after unpacking, three-FMU real time.
+
+Prints, in one run:
+
+1. the native plant's cost per 1 ms step (fmi2SetReal + fmi2DoStep + fmi2GetReal of every output, called
+   through ctypes) against the Numba library step (flexarm.integrator.advance + observables, warm) and the
+   Python plant FMU's step;
+2. the time from a fresh unpack to the end of the first fmi2DoStep (instantiate, initialise, one step),
+   native and Python;
+3. the real-time factor of table2's first case (plant + sensors + controller, 1 ms, our fmpy master) with
+   the Python FMUs and with the native ones.
+
+    python -m benchmarks.bench_native [--steps N] [--repeats N]
+
+Builds what it needs into a temporary folder (the Python FMUs with build_fmus, the native ones with
+fmus.native.build_native, linux64 only). Figures on a shared machine are noisy: take the best of repeats.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import subprocess
+import sys
+import tempfile
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+from fmpy import read_model_description
+from fmpy.fmi2 import FMU2Slave
+
+from flexarm.integrator import advance
+from flexarm.model import ArmModel
+from flexarm.trajectory import load_trajectory
+from fmus.native.build_native import build_native_fmus
+
+
+def _open(fmu: Path, folder: Path):
+    """Unpack `fmu` into `folder`, instantiate, initialise; (slave, variables by name)."""
+    with zipfile.ZipFile(fmu) as z:
+        z.extractall(folder)
+    md = read_model_description(str(fmu))
+    s = FMU2Slave(guid=md.guid, unzipDirectory=str(folder), modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="bench")
+    s.instantiate()
+    s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode()
+    s.exitInitializationMode()
+    return s, {v.name: v for v in md.modelVariables}
+
+
+def plant_step_cost(fmu: Path, tmp: Path, torques: np.ndarray, repeats: int) -> float:
+    """Best wall time per 1 ms step (s) of set torques + doStep + get all outputs."""
+    s, var = _open(fmu, tmp)
+    outs = [v.valueReference for v in var.values() if v.causality == "output"]
+    vr_in = (ctypes.c_uint * 2)(var["tau1"].valueReference, var["tau2"].valueReference)
+    vr_out = (ctypes.c_uint * len(outs))(*outs)
+    y = (ctypes.c_double * len(outs))()
+    u = (ctypes.c_double * 2)()
+    # fmpy's raw ctypes functions (its wrappers add logging checks that cost more than the native step)
+    set_real, do_step, get_real = (s._functions[f] for f in ("fmi2SetReal", "fmi2DoStep", "fmi2GetReal"))
+    best = float("inf")
+    for _ in range(repeats):
+        s.reset()
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        s.exitInitializationMode()
+        t0 = time.perf_counter()
+        for k, tau in enumerate(torques):
+            u[0], u[1] = tau
+            set_real(s.component, vr_in, 2, u)
+            do_step(s.component, k * 1e-3, 1e-3, 1)
+            get_real(s.component, vr_out, len(outs), y)
+        best = min(best, (time.perf_counter() - t0) / len(torques))
+    s.terminate()
+    s.freeInstance()
+    return best
+
+
+def library_step_cost(torques: np.ndarray, repeats: int) -> float:
+    """Best wall time per 1 ms step (s) of the library: advance (Numba when installed) + observables."""
+    model = ArmModel()
+    z0 = np.zeros(22)
+    z0[6:11] = np.pi / 2
+    advance(model, z0, torques[0], 1e-3)  # compile / warm up
+    best = float("inf")
+    for _ in range(repeats):
+        z = z0.copy()
+        t0 = time.perf_counter()
+        for tau in torques:
+            z, _ = advance(model, z, tau, 1e-3)
+            model.observables(z, tau)
+        best = min(best, (time.perf_counter() - t0) / len(torques))
+    return best
+
+
+_FIRST_STEP = """
+import sys, time, zipfile
+from fmpy import read_model_description
+from fmpy.fmi2 import FMU2Slave
+t0 = time.perf_counter()
+with zipfile.ZipFile(sys.argv[1]) as z:
+    z.extractall(sys.argv[2])
+md = read_model_description(sys.argv[2])
+s = FMU2Slave(guid=md.guid, unzipDirectory=sys.argv[2], modelIdentifier=md.coSimulation.modelIdentifier)
+s.instantiate()
+s.setupExperiment(startTime=0.0)
+s.enterInitializationMode()
+s.exitInitializationMode()
+s.setReal([next(v.valueReference for v in md.modelVariables if v.name == "tau1")], [1.0])
+s.doStep(0.0, 1e-3)
+print(time.perf_counter() - t0)
+"""
+
+
+def first_step(fmu: Path, tmp: Path) -> float:
+    """Seconds from a fresh unpack to the end of the first doStep, in a new process (fmpy imported) and a new
+    folder (nothing loaded or cached: for the Python FMU this includes starting its Python side)."""
+    run = subprocess.run([sys.executable, "-c", _FIRST_STEP, str(fmu), str(tmp)], capture_output=True, text=True,
+                         check=True, cwd=Path(__file__).resolve().parents[1])
+    return float(run.stdout.strip().splitlines()[-1])
+
+
+def _choice_values(setup, params: dict) -> dict:
+    """Choice names (gain_set = "gamma0.1") as their Enumeration values where an FMU declares one."""
+    out = {}
+    for inst, values in params.items():
+        var = {v.name: v for v in read_model_description(str(setup.paths[inst])).modelVariables}
+        out[inst] = {k: next(int(i.value) for i in var[k].declaredType.items if i.name == v)
+                     if k in var and var[k].type == "Enumeration" and isinstance(v, str) else v
+                     for k, v in values.items()}
+    return out
+
+
+def cosim_rtf(fmu_dir: Path, repeats: int) -> tuple[float, float, dict]:
+    """table2's first case in our master: (best wall time per run s, simulated s, metrics)."""
+    from scenarios.config import load_scenario
+    from scenarios.runner import prepare
+
+    sc = load_scenario("table2")
+    case = sc.cases[0]
+    setup = prepare(sc, fmu_dir, names=case.fmus or None, build=False)
+    params = _choice_values(setup, setup.case_parameters(case.parameters))
+    with setup.open_master("gauss-seidel") as m:
+        out = m.run(params, setup.record, setup.n_steps, sc.step_size)
+        if out["status"] != "ok":
+            raise SystemExit(f"{fmu_dir}: run failed: {out['message']}")
+        walls = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            m.run(params, setup.record, setup.n_steps, sc.step_size)
+            walls.append(time.perf_counter() - t0)
+    q1 = out["signals"][f"{setup.plant}.theta1"]
+    return min(walls), setup.n_steps * sc.step_size, {"theta1_end": float(q1[-1])}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=2000, help="plant steps per timing")
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args()
+    import build_fmus
+
+    traj = load_trajectory()
+    torques = np.array([traj.tau[min(k, len(traj.tau) - 1)] for k in range(args.steps)])
+    with tempfile.TemporaryDirectory(prefix="bench-native-") as tmp:
+        tmp = Path(tmp)
+        python = build_fmus.build_all(tmp / "python", only=["plant", "sensors", "controller"])
+        native = build_native_fmus(tmp / "native", python, platforms=("linux64",))
+        print(f"native FMU sizes (linux64 only here; with all three platforms see docs/native-fmus.md): "
+              f"{', '.join(f'{n} {p.stat().st_size / 1024:.0f} KiB' for n, p in native.items())}")
+
+        t_native = plant_step_cost(native["plant"], tmp / "u1", torques, args.repeats)
+        t_lib = library_step_cost(torques, args.repeats)
+        t_py = plant_step_cost(python["plant"], tmp / "u2", torques[:300], 2)
+        print(f"plant, per 1 ms step (2 RODAS4 substeps, every output read; best of {args.repeats}):")
+        print(f"  native FMU (C, via ctypes):        {t_native * 1e6:8.1f} us   (goal: <= 8 us)")
+        print(f"  library step (flexarm, Numba/NumPy): {t_lib * 1e6:6.1f} us")
+        print(f"  Python FMU (pythonfmu):            {t_py * 1e6:8.1f} us")
+
+        print("first doStep after a fresh unpack, new process (unpack + instantiate + initialise + one step):")
+        print(f"  native plant: {first_step(native['plant'], tmp / 'f1'):.3f} s   (goal: < 0.1 s)")
+        print(f"  Python plant: {first_step(python['plant'], tmp / 'f2'):.3f} s")
+
+        wall_py, simulated, end_py = cosim_rtf(tmp / "python", args.repeats)
+        wall_nat, _, end_nat = cosim_rtf(tmp / "native", args.repeats)
+        print(f"table2 'none', {simulated:.3f} s simulated, our master (gauss-seidel), best of {args.repeats}:")
+        print(f"  Python plant + sensors + controller: {wall_py:.3f} s, real-time factor {simulated / wall_py:.1f}x")
+        print(f"  native plant + sensors + controller: {wall_nat:.3f} s, real-time factor "
+              f"{simulated / wall_nat:.1f}x   (goal: >= 30x)")
+        print(f"  final theta1: Python {end_py['theta1_end']!r} rad, native {end_nat['theta1_end']!r} rad")
+
+
+if __name__ == "__main__":
+    main()

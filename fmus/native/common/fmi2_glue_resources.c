@@ -1,0 +1,142 @@
+/*
+ * Resources of the native FMUs (see fmi2_glue.h): the folder from the file:// URI the host passes,
+ * each file read whole and checked against the SHA-256 recorded at build time, and the text format
+ * of the constants (labelled lists of IEEE-754 doubles as 16 hex digits: exact on every platform).
+ */
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi2_glue.h"
+#include "sha256.h"
+
+static int hex_digit(char ch)
+{
+    if (ch >= '0' && ch <= '9') return ch - '0';
+    if (ch >= 'a' && ch <= 'f') return ch - 'a' + 10;
+    if (ch >= 'A' && ch <= 'F') return ch - 'A' + 10;
+    return -1;
+}
+
+/* Local path of a file:// URI (file:///p, file://localhost/p, file:/p; %XX decoded; Windows drive letters). */
+static char *uri_to_path(const char *uri)
+{
+    const char *p;
+    if (strncmp(uri, "file://localhost/", 17) == 0) p = uri + 16;
+    else if (strncmp(uri, "file:///", 8) == 0) p = uri + 7;
+    else if (strncmp(uri, "file:/", 6) == 0) p = uri + 5;
+    else return NULL;
+    char *out = malloc(strlen(p) + 1), *o = out;
+    if (out == NULL) return NULL;
+    for (; *p; p++) {
+        if (*p == '%' && hex_digit(p[1]) >= 0 && hex_digit(p[2]) >= 0) {
+            *o++ = (char)(hex_digit(p[1]) * 16 + hex_digit(p[2]));
+            p += 2;
+        } else *o++ = *p;
+    }
+    *o = '\0';
+#ifdef _WIN32
+    if (out[0] == '/' && out[1] && out[2] == ':') memmove(out, out + 1, strlen(out)); /* /C:/dir -> C:/dir */
+#endif
+    return out;
+}
+
+static char *read_whole(const char *path, size_t *size)
+{
+    FILE *f = fopen(path, "rb");
+    if (f == NULL) return NULL;
+    size_t cap = 1 << 16, n = 0;
+    char *buf = malloc(cap + 1);
+    for (size_t got; buf != NULL && (got = fread(buf + n, 1, cap - n, f)) > 0;) {
+        n += got;
+        if (n == cap) {
+            char *bigger = realloc(buf, 2 * cap + 1);
+            if (bigger == NULL) free(buf);
+            buf = bigger;
+            cap *= 2;
+        }
+    }
+    fclose(f);
+    if (buf != NULL) buf[n] = '\0';
+    *size = n;
+    return buf;
+}
+
+int glue_read_doubles(const Instance *inst, const char *file, const char *text, const char *name, double *out,
+                      size_t n)
+{
+    size_t len = strlen(name);
+    const char *p = text;
+    for (;;) { /* the label at the start of a line */
+        p = strstr(p, name);
+        if (p == NULL) {
+            glue_log(inst, fmi2Error, "resources/%s: no entry '%s' (the file does not belong to this FMU)", file, name);
+            return -1;
+        }
+        if ((p == text || p[-1] == '\n') && (p[len] == ' ' || p[len] == '\n')) break;
+        p += len;
+    }
+    p += len;
+    char *end;
+    unsigned long count = strtoul(p, &end, 10);
+    if (end == p || count != n) {
+        glue_log(inst, fmi2Error, "resources/%s: '%s' has %lu values, expected %zu", file, name, count, n);
+        return -1;
+    }
+    p = end;
+    for (size_t k = 0; k < n; k++) {
+        while (*p == ' ' || *p == '\n' || *p == '\r' || *p == '\t') p++;
+        uint64_t bits = 0;
+        for (int d = 0; d < 16; d++, p++) {
+            int v = hex_digit(*p);
+            if (v < 0) {
+                glue_log(inst, fmi2Error, "resources/%s: '%s' value %zu is not 16 hex digits", file, name, k);
+                return -1;
+            }
+            bits = bits << 4 | (uint64_t)v;
+        }
+        memcpy(&out[k], &bits, sizeof bits);
+    }
+    return 0;
+}
+
+int glue_load_resources(Instance *inst, const char *uri)
+{
+    if (MODEL_INFO.n_resources == 0) return 0;
+    char *dir = uri != NULL ? uri_to_path(uri) : NULL;
+    if (dir == NULL) {
+        glue_log(inst, fmi2Error, "fmi2Instantiate: fmuResourceLocation '%s' is not a file:// URI of the FMU's "
+                 "resources folder (unpack the whole FMU and pass its resources/ folder)", uri ? uri : "(null)");
+        return -1;
+    }
+    char *contents[8] = {0};
+    size_t sizes[8] = {0};
+    int rc = 0;
+    for (size_t r = 0; r < MODEL_INFO.n_resources && r < 8 && rc == 0; r++) {
+        const ResourceInfo *res = &MODEL_INFO.resources[r];
+        size_t n = strlen(dir) + strlen(res->file) + 2;
+        char *path = malloc(n);
+        snprintf(path, n, "%s%s%s", dir, dir[strlen(dir) - 1] == '/' ? "" : "/", res->file);
+        contents[r] = read_whole(path, &sizes[r]);
+        if (contents[r] == NULL) {
+            glue_log(inst, fmi2Error, "fmi2Instantiate: cannot read the resource %s (it ships inside the FMU in "
+                     "resources/; unpack the whole FMU)", path);
+            rc = -1;
+        } else {
+            char digest[65];
+            sha256_hex((const unsigned char *)contents[r], sizes[r], digest);
+            if (strcmp(digest, res->sha256) != 0) {
+                glue_log(inst, fmi2Error, "fmi2Instantiate: resource %s has SHA-256 %s, but this FMU was built with "
+                         "%s (the file was changed or belongs to another build: rebuild the FMU)", path, digest,
+                         res->sha256);
+                rc = -1;
+            }
+        }
+        free(path);
+    }
+    if (rc == 0) rc = MODEL_INFO.load(inst, contents, sizes);
+    for (size_t r = 0; r < 8; r++) free(contents[r]);
+    free(dir);
+    return rc;
+}

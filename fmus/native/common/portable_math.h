@@ -1,0 +1,11 @@
+/*
+ * sin and cos computed by the FMU's own code (musl's kernels), not the platform's C library, so that
+ * linux64, win64 and darwin64 binaries give the same bits (C libraries differ in the last bit, and the
+ * arm's stiff bracket modes amplify such differences in the accelerations).
+ */
+#ifndef FLEXARM_PORTABLE_MATH_H
+#define FLEXARM_PORTABLE_MATH_H
+double flexarm_sin(double x);
+double flexarm_cos(double x);
+double flexarm_tan(double x);
+#endif

@@ -1,0 +1,319 @@
+/*
+ * Native sensors FMU: flexarm.sensors.SensorBank in C (paper section 6).
+ *
+ * Per sample: true signal -> Butterworth low-pass (gauges, accelerometers; optional, second-order sections
+ * designed as scipy.signal.butter(..., output="sos", fs) designs them, primed to steady state on the first
+ * sample) -> + uniform noise from the bank's own PCG64 stream (12 draws per sample, NumPy's numbers for the
+ * same seed) -> quantisation (encoder counter, A/D with saturation). With filters, noise and quantisation
+ * off the outputs equal the inputs exactly. Segment lengths of the gauges come from resources/.
+ *
+ * Sampling (direct feedthrough): the outputs at t_k are the sample of the inputs set at t_k, computed from
+ * the committed bank into a pending copy; fmi2DoStep commits it, and a step of n sample periods takes the
+ * n - 1 samples inside the step with the inputs held.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi2_glue.h"
+#include "model_vars.h"
+#include "pcg64.h"
+#include "portable_math.h"
+
+#define N_SIGNALS 12
+#define MAX_SECTIONS 4
+
+typedef struct {
+    double sos[MAX_SECTIONS][6];
+    double zi[MAX_SECTIONS][2];
+    int n_sections;
+} Filter;
+
+typedef struct {
+    Pcg64 rng;
+    double strain_state[MAX_SECTIONS][6][2];
+    double acc_state[MAX_SECTIONS][2][2];
+    int primed;
+    double n_samples;
+} Bank;
+
+typedef struct {
+    /* settings derived at initialisation */
+    double amplitude[N_SIGNALS], adc_lsb[N_SIGNALS], encoder_lsb, code_lo, code_hi, period;
+    int noise, encoder_quant, adc_quant, strain_filter, acc_filter;
+    Filter strain, acc;
+    Bank committed, pending;
+} SensorsState;
+
+typedef struct {
+    double segment_lengths[6];
+} SensorsData;
+
+static const int TRUE_IDX[N_SIGNALS] = {IDX_q1, IDX_q2, IDX_qd1, IDX_qd2, IDX_eps1, IDX_eps2,
+                                        IDX_eps3, IDX_eps4, IDX_eps5, IDX_eps6, IDX_acc1_n, IDX_acc2_n};
+static const int MEASURED_IDX[N_SIGNALS] = {IDX_q1_m, IDX_q2_m, IDX_qd1_m, IDX_qd2_m, IDX_eps1_m, IDX_eps2_m,
+                                            IDX_eps3_m, IDX_eps4_m, IDX_eps5_m, IDX_eps6_m, IDX_acc1_m, IDX_acc2_m};
+
+/* -- Butterworth design, the steps of scipy.signal.butter(N, fc, output="sos", fs) ----------------- */
+typedef struct {
+    double re, im;
+} Cplx;
+
+static Cplx cmul(Cplx a, Cplx b) { return (Cplx){a.re * b.re - a.im * b.im, a.re * b.im + a.im * b.re}; }
+
+static Cplx cdiv(Cplx a, Cplx b) /* NumPy's complex division (Smith's method) */
+{
+    if (fabs(b.re) >= fabs(b.im)) {
+        double rat = b.im / b.re, scl = 1.0 / (b.re + b.im * rat);
+        return (Cplx){(a.re + a.im * rat) * scl, (a.im - a.re * rat) * scl};
+    }
+    double rat = b.re / b.im, scl = 1.0 / (b.im + b.re * rat);
+    return (Cplx){(a.re * rat + a.im) * scl, (a.im * rat - a.re) * scl};
+}
+
+static double cabs_(Cplx a) { return hypot(a.re, a.im); }
+
+static void butter_sos(int order, double cutoff_hz, double fs, Filter *f)
+{
+    const double pi = 3.141592653589793;
+    double wn = cutoff_hz / (fs / 2);
+    double warped = 2 * 2.0 * flexarm_tan(pi * wn / 2.0);
+    Cplx p[9], den_prod = {1.0, 0.0};
+    for (int i = 0; i < order; i++) { /* buttap: p = -exp(1j*pi*m/(2N)), then lp2lp and bilinear (fs = 2) */
+        double m = (double)(-order + 1 + 2 * i);
+        double theta = (pi * m) * (1.0 / (2 * order));
+        Cplx analog = {-flexarm_cos(theta), -flexarm_sin(theta)};
+        if (m == 0) analog.im = -0.0;
+        Cplx lp = {warped * analog.re, warped * analog.im};
+        Cplx den = {4.0 - lp.re, -lp.im};
+        p[i] = cdiv((Cplx){4.0 + lp.re, lp.im}, den);
+        den_prod = i == 0 ? den : cmul(den_prod, den);
+    }
+    double k = pow(warped, order) * cdiv((Cplx){1.0, 0.0}, den_prod).re;
+    /* zpk2sos(pairing="nearest"): odd order gets a pole and a zero at 0; poles as (positive-imaginary
+       complex, then real); sections filled from the last, worst (closest to the unit circle) pole first */
+    int n_p = 0, n_z = 0;
+    Cplx poles[9];
+    double zeros[9];
+    for (int i = 0; i < order; i++) zeros[n_z++] = -1.0;
+    if (order % 2) zeros[n_z++] = 0.0;
+    for (int i = 0; i < order; i++)
+        if (p[i].im > 0) poles[n_p++] = p[i];
+    for (int i = 0; i < order; i++)
+        if (p[i].im == 0) poles[n_p++] = p[i];
+    if (order % 2) poles[n_p++] = (Cplx){0.0, 0.0};
+    f->n_sections = (order + 1) / 2;
+    for (int si = f->n_sections - 1; si >= 0; si--) {
+        int best = 0;
+        for (int i = 1; i < n_p; i++)
+            if (fabs(1 - cabs_(poles[i])) < fabs(1 - cabs_(poles[best]))) best = i;
+        Cplx p1 = poles[best], p2;
+        for (int i = best; i + 1 < n_p; i++) poles[i] = poles[i + 1];
+        n_p--;
+        if (p1.im == 0) { /* the real pole closest to the unit circle pairs with it */
+            int j = -1;
+            for (int i = 0; i < n_p; i++)
+                if (poles[i].im == 0 && (j < 0 || fabs(cabs_(poles[i]) - 1) < fabs(cabs_(poles[j]) - 1))) j = i;
+            p2 = poles[j];
+            for (int i = j; i + 1 < n_p; i++) poles[i] = poles[i + 1];
+            n_p--;
+        } else {
+            p2 = (Cplx){p1.re, -p1.im};
+        }
+        double zz[2];
+        for (int t = 0; t < 2; t++) { /* the nearest (real) zeros */
+            int j = 0;
+            for (int i = 1; i < n_z; i++)
+                if (cabs_((Cplx){zeros[i] - p1.re, -p1.im}) < cabs_((Cplx){zeros[j] - p1.re, -p1.im})) j = i;
+            zz[t] = zeros[j];
+            for (int i = j; i + 1 < n_z; i++) zeros[i] = zeros[i + 1];
+            n_z--;
+        }
+        double *s = f->sos[si];
+        s[0] = 1.0, s[1] = -zz[1] + -zz[0], s[2] = (-zz[0]) * (-zz[1]);
+        Cplx prod = cmul((Cplx){-p1.re, -p1.im}, (Cplx){-p2.re, -p2.im});
+        s[3] = 1.0, s[4] = -p2.re + -p1.re, s[5] = prod.re;
+    }
+    for (int j = 0; j < 3; j++) f->sos[0][j] *= k;
+    /* sosfilt_zi: each section's lfilter_zi (a 2x2 solve with partial pivoting), scaled by the DC gains */
+    double scale = 1.0;
+    for (int si = 0; si < f->n_sections; si++) {
+        const double *b = f->sos[si], *a = f->sos[si] + 3;
+        double m00 = 1 + a[1], m01 = -1.0, m10 = a[2], m11 = 1.0;
+        double r0 = b[1] - a[1] * b[0], r1 = b[2] - a[2] * b[0], x0, x1;
+        if (fabs(m10) > fabs(m00)) { /* swap rows */
+            double t;
+            t = m00, m00 = m10, m10 = t;
+            t = m01, m01 = m11, m11 = t;
+            t = r0, r0 = r1, r1 = t;
+        }
+        double l = m10 * (1.0 / m00);
+        double u11 = m11 - l * m01;
+        double y1 = r1 - l * r0;
+        x1 = y1 / u11;
+        x0 = (r0 - m01 * x1) / m00;
+        f->zi[si][0] = scale * x0;
+        f->zi[si][1] = scale * x1;
+        scale *= (b[0] + b[1] + b[2]) / (a[0] + a[1] + a[2]);
+    }
+}
+
+static void filter_prime(const Filter *f, double state[][2], int stride, const double *x, int n)
+{
+    for (int k = 0; k < f->n_sections; k++)
+        for (int c = 0; c < n; c++)
+            for (int j = 0; j < 2; j++) state[k * stride + c][j] = f->zi[k][j] * x[c];
+}
+
+static void filter_step(const Filter *f, double state[][2], int stride, const double *x, double *y, int n)
+{
+    for (int c = 0; c < n; c++) {
+        double v = x[c];
+        for (int k = 0; k < f->n_sections; k++) {
+            const double *s = f->sos[k];
+            double *st = state[k * stride + c], xk = v;
+            v = s[0] * xk + st[0];
+            st[0] = s[1] * xk - s[4] * v + st[1];
+            st[1] = s[2] * xk - s[5] * v;
+        }
+        y[c] = v;
+    }
+}
+
+/* One sample of flexarm.sensors.SensorBank.measure. */
+static void measure(const SensorsState *s, Bank *bank, const double *x, double *y)
+{
+    if (!bank->primed) {
+        if (s->strain_filter) filter_prime(&s->strain, &bank->strain_state[0][0], 6, x + 4, 6);
+        if (s->acc_filter) filter_prime(&s->acc, &bank->acc_state[0][0], 2, x + 10, 2);
+        bank->primed = 1;
+    }
+    memcpy(y, x, N_SIGNALS * sizeof *y);
+    if (s->strain_filter) filter_step(&s->strain, &bank->strain_state[0][0], 6, x + 4, y + 4, 6);
+    if (s->acc_filter) filter_step(&s->acc, &bank->acc_state[0][0], 2, x + 10, y + 10, 2);
+    double u[N_SIGNALS];
+    for (int i = 0; i < N_SIGNALS; i++) u[i] = pcg64_random(&bank->rng); /* always 12 draws */
+    if (s->noise)
+        for (int i = 0; i < N_SIGNALS; i++) y[i] += s->amplitude[i] * (2.0 * u[i] - 1.0);
+    if (s->encoder_quant)
+        for (int i = 0; i < 2; i++) y[i] = nearbyint(y[i] / s->encoder_lsb) * s->encoder_lsb;
+    if (s->adc_quant)
+        for (int i = 2; i < N_SIGNALS; i++) { /* np.clip(np.round(y / lsb), lo, hi) * lsb (NaN stays NaN) */
+            double code = nearbyint(y[i] / s->adc_lsb[i]);
+            if (code < s->code_lo) code = s->code_lo;
+            if (code > s->code_hi) code = s->code_hi;
+            y[i] = code * s->adc_lsb[i];
+        }
+    bank->n_samples += 1;
+}
+
+/* -- model callbacks ------------------------------------------------------------------------------ */
+static int sensors_load(Instance *inst, char *const *contents, const size_t *sizes)
+{
+    (void)sizes;
+    SensorsData *d = calloc(1, sizeof *d);
+    if (d == NULL) return -1;
+    if (glue_read_doubles(inst, MODEL_INFO.resources[0].file, contents[0], "strain_gauge_segment_lengths",
+                          d->segment_lengths, 6)) {
+        free(d);
+        return -1;
+    }
+    inst->data = d;
+    return 0;
+}
+
+static void sensors_unload(Instance *inst)
+{
+    free(inst->data);
+    inst->data = NULL;
+}
+
+static fmi2Status sensors_initialize(Instance *inst)
+{
+    SensorsState *s = inst->state;
+    const SensorsData *d = inst->data;
+    const double deg = 3.141592653589793 / 180.0;
+    double period = VALUE(inst, IDX_sample_period), nyquist = 0.5 / period;
+    static const struct {
+        int idx;
+        const char *name;
+    } cutoffs[2] = {{IDX_strain_gauge_cutoff_hz, "strain_gauge_cutoff_hz"},
+                    {IDX_accelerometer_cutoff_hz, "accelerometer_cutoff_hz"}};
+    for (int i = 0; i < 2; i++)
+        if (!(VALUE(inst, cutoffs[i].idx) < nyquist)) {
+            glue_log(inst, fmi2Error, "fmi2ExitInitializationMode: %s: %g Hz is outside the allowed range (0, %g) "
+                     "Hz (the Nyquist frequency at sample_period = %g s)", cutoffs[i].name,
+                     VALUE(inst, cutoffs[i].idx), nyquist, period);
+            return fmi2Error;
+        }
+    memset(s, 0, sizeof *s);
+    s->period = period;
+    s->noise = VALUE(inst, IDX_noise_enabled) != 0;
+    s->encoder_quant = VALUE(inst, IDX_encoder_quantization) != 0;
+    s->adc_quant = VALUE(inst, IDX_adc_quantization) != 0;
+    s->strain_filter = VALUE(inst, IDX_strain_gauge_filter) != 0;
+    s->acc_filter = VALUE(inst, IDX_accelerometer_filter) != 0;
+    for (int i = 0; i < 2; i++) s->amplitude[i] = VALUE(inst, IDX_encoder_noise_deg) * deg;
+    for (int i = 2; i < 4; i++) s->amplitude[i] = VALUE(inst, IDX_tachometer_noise_deg_per_s) * deg;
+    for (int i = 4; i < 10; i++) s->amplitude[i] = VALUE(inst, IDX_strain_gauge_noise_deg) * deg;
+    for (int i = 10; i < 12; i++) s->amplitude[i] = VALUE(inst, IDX_accelerometer_noise_m_per_s2);
+    s->encoder_lsb = 2.0 * 3.141592653589793 / VALUE(inst, IDX_encoder_counts_per_rev);
+    double bits = pow(2.0, VALUE(inst, IDX_adc_bits));
+    double fs_gauge[2] = {VALUE(inst, IDX_strain_gauge_full_scale_curvature_per_m_link1),
+                          VALUE(inst, IDX_strain_gauge_full_scale_curvature_per_m_link2)};
+    for (int i = 0; i < N_SIGNALS; i++) {
+        double full_scale = i < 2 ? HUGE_VAL
+                            : i < 4 ? VALUE(inst, IDX_tachometer_full_scale_deg_per_s) * deg
+                            : i < 10 ? fs_gauge[(i - 4) / 3] * d->segment_lengths[i - 4]
+                                     : VALUE(inst, IDX_accelerometer_full_scale_m_per_s2);
+        s->adc_lsb[i] = 2.0 * full_scale / bits;
+    }
+    s->code_lo = -(bits / 2), s->code_hi = bits / 2 - 1;
+    if (s->strain_filter)
+        butter_sos((int)VALUE(inst, IDX_strain_gauge_filter_order), VALUE(inst, IDX_strain_gauge_cutoff_hz),
+                   1.0 / period, &s->strain);
+    if (s->acc_filter)
+        butter_sos((int)VALUE(inst, IDX_accelerometer_filter_order), VALUE(inst, IDX_accelerometer_cutoff_hz),
+                   1.0 / period, &s->acc);
+    pcg64_seed(&s->committed.rng, (uint64_t)VALUE(inst, IDX_noise_seed));
+    /* the sample at the start time, from the inputs present */
+    double x[N_SIGNALS], y[N_SIGNALS];
+    for (int i = 0; i < N_SIGNALS; i++) x[i] = VALUE(inst, TRUE_IDX[i]);
+    s->pending = s->committed;
+    measure(s, &s->pending, x, y);
+    for (int i = 0; i < N_SIGNALS; i++) VALUE(inst, MEASURED_IDX[i]) = y[i];
+    return fmi2OK;
+}
+
+static fmi2Status sensors_sample(Instance *inst)
+{
+    SensorsState *s = inst->state;
+    double x[N_SIGNALS], y[N_SIGNALS];
+    for (int i = 0; i < N_SIGNALS; i++) x[i] = VALUE(inst, TRUE_IDX[i]);
+    s->pending = s->committed; /* re-set inputs re-measure from the same state */
+    measure(s, &s->pending, x, y);
+    for (int i = 0; i < N_SIGNALS; i++) VALUE(inst, MEASURED_IDX[i]) = y[i];
+    return fmi2OK;
+}
+
+static fmi2Status sensors_do_step(Instance *inst, double t, double h)
+{
+    SensorsState *s = inst->state;
+    double n = fmax(1.0, nearbyint(h / s->period));
+    if (fabs(h - n * s->period) > 1e-9 * h) {
+        glue_log(inst, fmi2Error, "fmi2DoStep: step_size: %.17g s at t = %.17g s is not a whole multiple of the "
+                 "parameter sample_period = %.17g s (the filters are discretised for that period; the FMU samples "
+                 "at its period inside a longer step, holding its inputs)", h, t, s->period);
+        return fmi2Error;
+    }
+    double x[N_SIGNALS], y[N_SIGNALS];
+    for (int i = 0; i < N_SIGNALS; i++) x[i] = VALUE(inst, TRUE_IDX[i]);
+    for (double k = 1; k < n; k++) measure(s, &s->pending, x, y);
+    s->committed = s->pending;
+    return fmi2OK;
+}
+
+const ModelInfo MODEL_INFO = {
+    MODEL_IDENTIFIER_STRING, MODEL_GUID_STRING, MODEL_VARS, MODEL_N_VARS, MODEL_RESOURCES, MODEL_N_RESOURCES,
+    sizeof(SensorsState), sensors_load, sensors_unload, sensors_initialize, sensors_sample, sensors_do_step,
+};

@@ -1,0 +1,115 @@
+"""Test helpers for the native FMUs: one build per test process, runs in fmpy, the C host."""
+
+from __future__ import annotations
+
+import atexit
+import os
+import shutil
+import subprocess
+import tempfile
+import zipfile
+from pathlib import Path
+
+import fmpy
+import numpy as np
+from fmpy import read_model_description
+from fmpy.fmi2 import FMU2Slave
+from fmu_harness import built_fmus
+
+from fmus.native.build_native import NATIVE_FMUS, PLATFORMS, build_native_fmus
+
+ROOT = Path(__file__).resolve().parents[1]
+HOST_SOURCE = ROOT / "tests" / "native_host" / "fmi2_host.c"
+FMI_HEADERS = Path(fmpy.__file__).parent / "c-code"
+_BUILT: dict[str, Path] = {}
+
+
+def native_fmus() -> dict[str, Path]:
+    """Every native FMU (all platforms), built once per test process into a temporary folder."""
+    if not _BUILT:
+        out = Path(tempfile.mkdtemp(prefix="flexarm_native_"))
+        atexit.register(shutil.rmtree, out, True)
+        python = built_fmus()
+        _BUILT.update(build_native_fmus(out, {n: python[n] for n in NATIVE_FMUS}, platforms=tuple(PLATFORMS)))
+    return dict(_BUILT)
+
+
+def unpack_alone(fmu: Path, folder: Path) -> Path:
+    """The FMU copied alone into an empty folder and unpacked there; returns the unpacked folder."""
+    folder.mkdir(parents=True, exist_ok=True)
+    copy = folder / fmu.name
+    shutil.copy2(fmu, copy)
+    unpacked = folder / fmu.stem
+    with zipfile.ZipFile(copy) as z:
+        z.extractall(unpacked)
+    return unpacked
+
+
+def compile_host(out: Path, target: str | None = None) -> Path:
+    """tests/native_host/fmi2_host.c compiled with gcc (target None) or Zig's cc for `target` (e.g. win64)."""
+    if target is None:
+        exe = out / "fmi2_host"
+        cmd = ["gcc", "-std=c11", "-O2", "-I", str(FMI_HEADERS), "-o", str(exe), str(HOST_SOURCE), "-ldl", "-lm"]
+    else:
+        from fmus.native.build_native import zig_command
+
+        exe = out / "fmi2_host.exe"
+        cmd = [*zig_command(), "-target", PLATFORMS[target][0], "-O2", "-g0", "-s", "-I", str(FMI_HEADERS),
+               "-o", str(exe), str(HOST_SOURCE)]
+    subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=out)
+    return exe
+
+
+def read_host_csv(text: str) -> tuple[list[str], np.ndarray]:
+    lines = [ln for ln in text.replace("\r", "").splitlines() if ln]
+    return lines[0].split(","), np.array([[float(x) for x in ln.split(",")] for ln in lines[1:]])
+
+
+def run_fmpy(fmu: Path, n_steps: int, inputs=None, params=None, outputs=None, dt: float = 1e-3,
+             unzipdir: Path | None = None, inputs_in_initialization: bool = True) -> tuple[list[str], np.ndarray]:
+    """Step an FMU in fmpy: params in initialisation mode, inputs(k) -> {name: value} before reading at t_k.
+
+    Returns the output names and rows (n_steps + 1, n_outputs) at t_0 ... t_n, read after setting the inputs.
+    """
+    md = read_model_description(str(fmu))
+    unzipdir = unzipdir if unzipdir is not None else Path(fmpy.extract(str(fmu)))
+    var = {v.name: v for v in md.modelVariables}
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=str(unzipdir), modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="run")
+    slave.instantiate()
+    slave.setupExperiment(startTime=0.0)
+    slave.enterInitializationMode()
+    for name, value in (params or {}).items():
+        v = var[name]
+        setter = {"Real": slave.setReal, "Integer": slave.setInteger, "Enumeration": slave.setInteger,
+                  "Boolean": slave.setBoolean, "String": slave.setString}[v.type]
+        setter([v.valueReference], [value])
+    if inputs is not None and inputs_in_initialization:
+        _set(slave, var, inputs(0))
+    slave.exitInitializationMode()
+    names = outputs or [v.name for v in md.modelVariables if v.causality == "output"]
+    vrs = [var[n].valueReference for n in names]
+    rows = []
+    for k in range(n_steps + 1):
+        if inputs is not None:
+            _set(slave, var, inputs(k))
+        rows.append(slave.getReal(vrs))
+        if k < n_steps:
+            slave.doStep(k * dt, dt)
+    slave.terminate()
+    slave.freeInstance()
+    return names, np.array(rows)
+
+
+def _set(slave, var, values: dict) -> None:
+    if values:
+        slave.setReal([var[n].valueReference for n in values], [float(x) for x in values.values()])
+
+
+def clean_env() -> dict:
+    """An environment with nothing in it (as `env -i`)."""
+    return {}
+
+
+def wine_env() -> dict:
+    return {**os.environ, "WINEDEBUG": "-all"}

@@ -1,0 +1,158 @@
+"""The native (C) plant FMU against the Python plant FMU, and on its own in a Python-free host."""
+
+from __future__ import annotations
+
+import subprocess
+import zipfile
+
+import numpy as np
+import pytest
+from fmpy import read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.validation import validate_fmu
+from fmu_harness import ERROR, Slave, built_fmus
+from native_fmus import compile_host, native_fmus, read_host_csv, run_fmpy, unpack_alone
+
+from flexarm.trajectory import load_trajectory
+
+#: Outputs that are accelerations: they carry the stiff bracket modes (k/J ~ 1e8 s^-2), so a
+#: 1e-16 rad difference in a bracket's deflection moves them by ~1e-8 m/s2. The Python library's
+#: own two kernel paths (Numba and NumPy) differ from each other by 2.6e-8 m/s2 on them.
+ACCELERATIONS = ("link1_tip_ax", "link1_tip_ay", "link2_tip_ax", "link2_tip_ay", "acc1_n", "acc2_n")
+
+
+@pytest.fixture(scope="module")
+def plants():
+    return built_fmus()["plant"], native_fmus()["plant"]
+
+
+def _slew_case():
+    traj = load_trajectory()
+    params = {"payload_mass": 0.275, "q1_0": float(traj.theta[0, 0]),
+              "q2_0": float(traj.theta[0, 6] - traj.theta[0, 5])}
+
+    def inputs(k):
+        tau = traj.tau[min(k, len(traj.tau) - 1)]
+        return {"tau1": tau[0], "tau2": tau[1]}
+
+    return params, inputs, len(traj.tau) + 50
+
+
+def test_native_plant_matches_python_over_a_full_slew(plants):
+    """The paper's slew with the 0.275 kg model error: every output agrees, step by step."""
+    python, native = plants
+    params, inputs, n = _slew_case()
+    names, ref = run_fmpy(python, n, inputs, params)
+    names_n, got = run_fmpy(native, n, inputs, params)
+    assert names == names_n
+    assert np.isfinite(got).all() and np.abs(got[:, names.index("q1")]).max() > 1.0  # the arm did slew
+    err = np.abs(got - ref)
+    for j, name in enumerate(names):
+        if name in ACCELERATIONS:
+            scale = np.abs(ref[:, j]).max()
+            assert err[:, j].max() <= 1e-7 * scale, (name, err[:, j].max(), scale)
+        else:
+            # relative to the signal's peak over the slew (rates cross zero at the end of the slew)
+            assert err[:, j].max() <= max(1e-10 * np.abs(ref[:, j]).max(), 1e-12), (name, err[:, j].max())
+
+
+def test_native_plant_interface_equals_the_python_one(plants):
+    python, native = plants
+    md_p, md_n = read_model_description(str(python)), read_model_description(str(native))
+    key = [(v.name, v.valueReference, v.type, v.causality, v.variability, v.unit, v.start, v.min, v.max,
+            v.description) for v in md_p.modelVariables]
+    assert key == [(v.name, v.valueReference, v.type, v.causality, v.variability, v.unit, v.start, v.min, v.max,
+                    v.description) for v in md_n.modelVariables]
+    assert md_n.coSimulation.modelIdentifier == md_p.coSimulation.modelIdentifier + "Native"
+    assert not md_n.coSimulation.needsExecutionTool
+
+
+def test_native_plant_validates_and_holds_only_what_it_needs(plants):
+    native = plants[1]
+    assert validate_fmu(str(native)) == []
+    with zipfile.ZipFile(native) as z:
+        names = set(z.namelist())
+        modes = {i.filename: (i.external_attr >> 16) & 0o777 for i in z.infolist()}
+    md = read_model_description(str(native))
+    sources = {f"sources/{f}" for f in md.buildConfigurations[0].sourceFileSets[0].sourceFiles}
+    assert {"sources/plant.c", "sources/fmi2_glue.c", "sources/flexarm_physics.c"} <= sources <= names
+    binaries = {f"binaries/{p}/FlexarmPlantNative{s}" for p, s in
+                (("linux64", ".so"), ("win64", ".dll"), ("darwin64", ".dylib"))}
+    assert binaries <= names
+    assert not [n for n in names if not n.startswith(("binaries/", "sources/", "resources/"))
+                and n != "modelDescription.xml"]
+    assert [n for n in names if n.startswith("resources/")] == ["resources/arm_parameters.txt"]
+    assert set(modes.values()) == {0o644}
+    assert native.stat().st_size < 400_000
+
+
+def test_native_plant_errors_like_the_python_one(plants, tmp_path):
+    """Misuse gives fmi2Error with a message naming the variable, and changes nothing."""
+    native = plants[1]
+    unz = unpack_alone(native, tmp_path / "p")
+    s = Slave(native, unz, start=False)
+    with pytest.raises(FMICallException):
+        s.fmu.doStep(0.0, 1e-3)  # before initialisation
+    s.fmu.setupExperiment(startTime=0.0)
+    s.fmu.enterInitializationMode()
+    payload, tau = s.vars["payload_mass"].valueReference, s.vars["tau1"].valueReference
+    with pytest.raises(FMICallException):
+        s.fmu.setReal([payload], [11.0])
+    assert any("payload_mass" in m and "[0, 10]" in m for _, m in s.messages)
+    assert s.fmu.getReal([payload]) == [0.0]  # the rejected value changed nothing
+    with pytest.raises(FMICallException):
+        s.fmu.exitInitializationMode()  # refused until a valid value is set
+    s.fmu.setReal([payload], [0.275])
+    s.fmu.exitInitializationMode()
+    with pytest.raises(FMICallException):
+        s.fmu.setReal([tau], [float("nan")])
+    with pytest.raises(FMICallException):
+        s.fmu.doStep(0.0, 1e-3)  # until a valid torque is set
+    s.fmu.setReal([tau], [0.0])
+    with pytest.raises(FMICallException):
+        s.fmu.doStep(0.0, -1e-3)
+    assert any("step_size" in m for _, m in s.messages)
+    with pytest.raises(FMICallException):
+        s.fmu.setReal([payload], [0.1])  # a fixed parameter after initialisation
+    s.fmu.doStep(0.0, 1e-3)
+    assert s.fmu.getReal([s.vars["theta1"].valueReference]) == [0.0]  # at rest, no torque
+    with pytest.raises(FMICallException):
+        s.fmu.setReal([tau], [1e300])
+        s.fmu.doStep(1e-3, 1e-3)
+    assert all(status >= ERROR - 1 for status, _ in s.messages)
+    s.fmu.terminate()
+    s.fmu.freeInstance()
+
+
+def test_native_plant_checks_its_resource_sha256(plants, tmp_path):
+    native = plants[1]
+    unz = unpack_alone(native, tmp_path / "p")
+    res = unz / "resources" / "arm_parameters.txt"
+    res.write_text(res.read_text().replace("length 11", "length 11\n", 1))  # one byte more
+    exe = compile_host(tmp_path)
+    run = subprocess.run([str(exe), str(unz), "--steps", "1"], capture_output=True, text=True, env={})
+    assert run.returncode == 2
+    assert "SHA-256" in run.stderr and "arm_parameters.txt" in run.stderr, run.stderr
+
+
+def test_native_plant_runs_alone_in_the_c_host_without_python(plants, tmp_path):
+    """Copied alone into an empty folder, run by tests/native_host/fmi2_host.c under `env -i`."""
+    native = plants[1]
+    unz = unpack_alone(native, tmp_path / "alone")
+    exe = compile_host(tmp_path)
+    n = 300
+    params, inputs, _ = _slew_case()
+    csv = tmp_path / "tau.csv"
+    rows = (f"{float(inputs(k)['tau1'])!r},{float(inputs(k)['tau2'])!r}\n" for k in range(n))
+    csv.write_text("tau1,tau2\n" + "".join(rows))
+    cmd = ["env", "-i", str(exe), str(unz), "--steps", str(n), "--inputs", str(csv), "--check-errors", "--quiet"]
+    for k, v in params.items():
+        cmd += ["--set", f"{k}={v!r}"]
+    run = subprocess.run(cmd, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    text = run.stdout[run.stdout.index("time,"):]
+    header, rows = read_host_csv(text)
+    names, ref = run_fmpy(native, n, inputs, params, inputs_in_initialization=False)  # as the host does
+    assert header[1:] == names
+    np.testing.assert_array_equal(rows[:, 1:], ref)  # the same binary: bit for bit
+
