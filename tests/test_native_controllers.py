@@ -47,14 +47,21 @@ def test_native_controller_matches_python(name):
             assert (np.abs(got) == limits).any()  # these inputs drive the saturation
 
 
-def test_native_controller_interface_uses_enumerations_and_lean_resources():
+def test_native_controller_interface_equals_the_python_one_and_is_lean():
+    """Choices are Integers listing them (libcosim cannot set Enumerations), exactly as the Python FMU's."""
+    from scenarios.master import parse_choices
+
     fmus = native_fmus()
     md = read_model_description(str(fmus["controller"]))
+    python_md = read_model_description(str(built_fmus()["controller"]))
     var = {v.name: v for v in md.modelVariables}
-    assert var["gain_set"].type == "Enumeration" and var["gain_set"].declaredType.name == "GainSet"
-    assert [i.name for i in var["gain_set"].declaredType.items] == ["gamma1", "gamma0.1", "gamma0", "eq32"]
-    assert var["gain_set"].start == "2" or var["gain_set"].start == 2
-    assert var["omega7_estimate"].declaredType.name == "Omega7Estimate"
+    python_var = {v.name: v for v in python_md.modelVariables}
+    for name in ("gain_set", "omega7_estimate"):
+        assert var[name].type == python_var[name].type == "Integer"
+        assert var[name].description == python_var[name].description
+        assert int(var[name].start) == int(python_var[name].start)
+    assert parse_choices(var["gain_set"].description) == {"gamma1": 1, "gamma0.1": 2, "gamma0": 3, "eq32": 4}
+    assert int(var["gain_set"].start) == 2
     assert not [v for v in md.modelVariables if v.type == "String"]
     import zipfile
 

@@ -3,24 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
-from fmpy import read_model_description
 from fmu_harness import built_fmus
 from native_fmus import native_fmus
 
 from scenarios.config import load_scenario
 from scenarios.metrics import METRICS
 from scenarios.runner import CaseResult, format_table, prepare, simulate_case
-
-
-def _choice_values(setup, params: dict) -> dict:
-    """Choice names (gain_set = "gamma0.1") as Enumeration values where the FMU declares an Enumeration."""
-    out = {}
-    for inst, values in params.items():
-        var = {v.name: v for v in read_model_description(str(setup.paths[inst])).modelVariables}
-        out[inst] = {k: next(int(i.value) for i in var[k].declaredType.items if i.name == v)
-                     if k in var and var[k].type == "Enumeration" and isinstance(v, str) else v
-                     for k, v in values.items()}
-    return out
 
 
 def _run_table2(fmus: dict, tmp_path, label: str):
@@ -33,7 +21,7 @@ def _run_table2(fmus: dict, tmp_path, label: str):
     for case in sc.cases:
         setup = prepare(sc, folder, names=case.fmus or None, build=False)
         with setup.open_master("gauss-seidel") as m:
-            out, metrics = simulate_case(setup, m, _choice_values(setup, setup.case_parameters(case.parameters)))
+            out, metrics = simulate_case(setup, m, case.parameters)
             assert out["status"] == "ok", out.get("message")
         signals[case.key] = out["signals"]
         results.append(CaseResult(case.key, case.label, "ok", "", metrics, 0.0, {}))

@@ -197,19 +197,21 @@ def write_trajectory_resource(path: Path) -> None:
     (x̂ = E m) of both ``omega7_estimate`` choices.
     """
     from flexarm import control
-    from flexarm.lqr import as_trajectory_data, default_trajectory_path
     from flexarm.model import joint_angles, joint_velocities, strain_gauge_angles
+    from flexarm.provenance import sha256_file
+    from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
 
-    traj = as_trajectory_data(default_trajectory_path())
-    th, om = traj.z[:, :N_ELEMENTS], traj.z[:, N_ELEMENTS:]
+    traj = load_trajectory(DEFAULT_TRAJECTORY_FILE)
+    th, om = traj.theta, traj.omega
     m_d = np.column_stack([np.array([joint_angles(t) for t in th]), np.array([joint_velocities(o) for o in om]),
                            np.array([strain_gauge_angles(t) for t in th])])
-    entries = {"n_steps": [traj.n_steps], "dt": [traj.dt], "feedforward_torque": traj.tau,
+    entries = {"n_steps": [len(traj.t) - 1], "dt": [float(traj.t[1] - traj.t[0])], "feedforward_torque": traj.tau,
                "desired_measurements": m_d}
     for value, choice in OMEGA7_ESTIMATES.items():
         entries[f"estimator_{value}"] = control._estimator_matrix(choice)
     write_resource(path, entries, f"flexarm trajectory for the native controller FMUs (IEEE-754 hex bit patterns)\n"
-                                  f"source: {Path(traj.path).name} sha256 {traj.sha256}\n"
+                                  f"source: {DEFAULT_TRAJECTORY_FILE.name} "
+                                  f"sha256 {sha256_file(DEFAULT_TRAJECTORY_FILE)}\n"
                                   f"estimator_<v>: omega7_estimate = v ({OMEGA7_ESTIMATES})")
 
 
