@@ -1,4 +1,4 @@
-"""Regenerate the whole data chain with one command: parameters -> trajectory -> gains -> FMUs.
+"""Regenerate the whole data chain with one command: parameters -> trajectory -> gains -> FMUs -> tables.
 
 ``python -m flexarm.regenerate`` runs, in order and each as its own process
 (so each stage is exactly its documented command):
@@ -6,7 +6,8 @@
 1. ``python -m flexarm.calibration`` -> ``flexarm/data/sandia_arm.toml`` (records the design file's SHA-256);
 2. ``python -m flexarm.trajectory`` -> ``flexarm/data/trajectory.npz/.json/.png`` (records the parameter file's);
 3. ``python -m flexarm.lqr --write`` -> ``flexarm/data/gains/*`` (record the trajectory's and parameters');
-4. ``python build_fmus.py --force`` -> ``build/fmus/*.fmu`` (built from the files above; not committed).
+4. ``python build_fmus.py --force`` -> ``build/fmus/*.fmu`` (built from the files above; not committed);
+5. ``python -m scenarios results-page`` -> ``docs/results.md`` and the README's table (from fresh runs).
 
 It stops at the first stage that fails, naming it; the files of the stages
 before it are complete (every file is written atomically). ``--from STAGE``
@@ -39,6 +40,7 @@ def stages(sensitivity: bool) -> list[tuple[str, list[str]]]:
         ("trajectory", trajectory),
         ("gains", [py, "-m", "flexarm.lqr", "--write"]),
         ("fmus", [py, "build_fmus.py", "--force"]),
+        ("tables", [py, "-m", "scenarios", "results-page"]),
     ]
 
 

@@ -89,4 +89,4 @@ def test_regenerate_runs_the_chain_in_order_and_stops_at_a_failure(monkeypatch, 
     assert "stage 'gains' failed" in err and "--from gains" in err
     ran.clear()
     assert regenerate.main(["--from", "fmus"]) == 0
-    assert ran == [[ran[0][0], "build_fmus.py", "--force"]]
+    assert ran == [[ran[0][0], "build_fmus.py", "--force"], [ran[0][0], "-m", "scenarios", "results-page"]]

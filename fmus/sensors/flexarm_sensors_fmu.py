@@ -172,8 +172,8 @@ class FlexarmSensors(FeedthroughSlave):
                              "its period inside a longer step, holding its inputs)")
 
     def get_sample_state(self) -> dict:
-        return {"bank": _jsonable(self.bank.get_state()),
-                "pre": None if self._pre is None else copy.deepcopy(_jsonable(self._pre))}
+        return {"bank": _bank_state_as_lists(self.bank.get_state()),
+                "pre": None if self._pre is None else copy.deepcopy(_bank_state_as_lists(self._pre))}
 
     def set_sample_state(self, state: dict) -> None:
         settings = self.settings()
@@ -183,6 +183,6 @@ class FlexarmSensors(FeedthroughSlave):
         self._pre = state["pre"]
 
 
-def _jsonable(bank_state: dict) -> dict:
+def _bank_state_as_lists(bank_state: dict) -> dict:
     """A :meth:`SensorBank.get_state` snapshot with the filter arrays as nested lists (JSON, exact)."""
     return {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in bank_state.items()}
