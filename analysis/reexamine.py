@@ -106,7 +106,7 @@ def variant(scenario, scheme: str, ratio: float, samples=None, name=None):
     s = copy.deepcopy(scenario)
     s.name = name or f"{scenario.name}-{scheme}-z{ratio:g}"
     for case in s.cases:
-        case.parameters.setdefault("plant", {}).update(integrator=SCHEMES[scheme], damping_ratio=float(ratio))
+        case.parameters.setdefault("plant", {}).update(integrator=scheme, damping_ratio=float(ratio))
     if samples is not None:
         s.samples = samples
     return s

@@ -12,6 +12,7 @@ docs/outcomes.md); the results folder is published only when every case has fini
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -33,7 +34,9 @@ from .results import write_csv
 from .values import check_parameters
 
 REPO = Path(__file__).resolve().parent.parent
-DEFAULT_FMU_DIR = Path("build") / "fmus"  # relative to the current directory, as fmu_build's default
+#: Where FMUs are built and found: $FLEXARM_FMU_DIR, else ./build/fmus (relative to the current directory, as
+#: fmu_build's default), made absolute once so that scenario and sweep files in other folders find the same.
+DEFAULT_FMU_DIR = Path(os.environ.get("FLEXARM_FMU_DIR", Path("build") / "fmus")).resolve()
 N_EL = 11
 #: The plant's state outputs (theta1..11, omega1..11), from the signal catalogue.
 PLANT_STATE = list(signal_names("plant", "output", "state"))

@@ -20,7 +20,7 @@ from scenarios.config import load_scenario
 from scenarios.runner import run_scenario
 
 SCENARIOS = ("table1", "table2", "table3", "compare_ff_fb", "compare_schedule")
-EXPONENTIAL = 2  # the plant FMU's integrator value of the non-dissipative scheme
+EXPONENTIAL = "exponential"  # the plant FMU's integrator choice of the non-dissipative scheme (value 2)
 
 
 def with_plant(scenario, **plant):
