@@ -71,26 +71,12 @@ from fmpy.fmi2 import (
 
 from .compat import fmu2_raw_functions
 from .fmu_files import read_description, unpack
+from .values import parse_choices
 
 ALGORITHMS = ("gauss-seidel", "jacobi", "fmpy-ssp")
 _STATUS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
 #: The outcomes of a run, in the order docs/outcomes.md explains them.
 OUTCOMES = ("ok", "unbounded", "error", "interrupted")
-
-
-#: How an Integer choice parameter lists its options in its description (docs/fmu-interface.md).
-CHOICES_MARK = "choices: "
-
-
-def parse_choices(description: str) -> dict[str, int]:
-    """{name: value} of a choice parameter, from its description (``...; choices: 1 = a, 2 = b``); {} if none."""
-    if CHOICES_MARK not in description:
-        return {}
-    out = {}
-    for part in description.rsplit(CHOICES_MARK, 1)[1].split(", "):
-        value, _, name = part.partition(" = ")
-        out[name.strip()] = int(value)
-    return out
 
 
 class CoSimulationError(RuntimeError):

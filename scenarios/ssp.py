@@ -50,7 +50,7 @@ from flexarm.provenance import write_atomic
 
 from . import runner
 from .config import Scenario
-from .master import parse_choices
+from .values import parse_choices
 
 NS = {
     "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",

@@ -50,20 +50,27 @@ def settable(md) -> dict:
 CHOICES_MARK = "choices: "
 
 
-def choice_items(variable) -> dict[str, int]:
-    """Choice name -> integer of an Enumeration (its declared type's items) or of an Integer whose description
-    ends with ``choices: 1 = name1, 2 = name2``; {} for any other variable."""
-    declared = getattr(variable, "declaredType", None)
-    if variable.type == "Enumeration" and declared is not None:
-        return {item.name: int(item.value) for item in declared.items}
-    description = getattr(variable, "description", None) or ""
-    if variable.type != "Integer" or CHOICES_MARK not in description:
+def parse_choices(description: str) -> dict[str, int]:
+    """{name: value} of a choice parameter, from its description (``...; choices: 1 = a, 2 = b``); {} if none.
+
+    The format is the one the FMU glue writes (``fmus/common/flexarm_fmu_interface.py``, docs/fmu-interface.md).
+    """
+    if CHOICES_MARK not in description:
         return {}
     items = {}
     for part in description.rsplit(CHOICES_MARK, 1)[1].split(", "):
         value, _, name = part.partition(" = ")
         items[name.strip()] = int(value)
     return items
+
+
+def choice_items(variable) -> dict[str, int]:
+    """Choice name -> integer of an Enumeration (its declared type's items) or of an Integer whose description
+    ends with ``choices: 1 = name1, 2 = name2``; {} for any other variable."""
+    declared = getattr(variable, "declaredType", None)
+    if variable.type == "Enumeration" and declared is not None:
+        return {item.name: int(item.value) for item in declared.items}
+    return parse_choices(getattr(variable, "description", None) or "") if variable.type == "Integer" else {}
 
 
 def check_value(where: str, variable, value, error: type[Exception] = ScenarioError):

@@ -101,7 +101,7 @@ def rss_mb() -> float:
 
 def choice(var, name: str) -> int:
     """The integer of choice parameter `var`'s option `name` (listed in its description)."""
-    from scenarios.master import parse_choices
+    from scenarios.values import parse_choices
 
     items = parse_choices(var.description or "")
     if name not in items:

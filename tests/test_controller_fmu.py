@@ -16,7 +16,7 @@ from flexarm.lqr import DEFAULT_GAIN_DIR, GainSchedule, as_trajectory, default_t
 from flexarm.model import N, joint_angles, joint_velocities, strain_gauge_angles
 from flexarm.sensors import MEASURED_SIGNAL_NAMES
 from fmu_build import build_all
-from scenarios.master import parse_choices
+from scenarios.values import parse_choices
 
 ROOT = Path(__file__).resolve().parents[1]
 
