@@ -22,6 +22,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from fmu_harness import built_fmus
 
 from flexarm.provenance import sha256_bytes
 from scenarios import fmu_files, runner
@@ -62,7 +63,9 @@ def stderr_line(capsys) -> str:
 
 @pytest.fixture(scope="module")
 def table2_setup():
-    return runner.prepare(load_scenario("table2"), build=False)
+    # the FMUs this test process built; a fresh clone has no build/fmus yet
+    folder = next(iter(built_fmus().values())).parent
+    return runner.prepare(load_scenario("table2"), folder, build=False)
 
 
 # ---------------------------------------------------------------------------------------- 1. typed outcomes
@@ -433,7 +436,8 @@ def test_sweep_disk_full_closes_the_cluster_and_does_not_hang(tmp_path):
 
 
 def test_unpacked_fmus_of_a_killed_run_are_removed_by_the_next_one(tmp_path, table2_setup):
-    env = {**os.environ, fmu_files.UNPACK_ENV: str(tmp_path)}
+    env = {**os.environ, fmu_files.UNPACK_ENV: str(tmp_path),
+           "FLEXARM_FMU_DIR": str(table2_setup.paths["plant"].parent)}
     code = ("import sys, time\nfrom scenarios.runner import prepare\nfrom scenarios.config import load_scenario\n"
             "m = prepare(load_scenario('table2'), build=False).open_master()\nprint('loaded', flush=True)\n"
             "time.sleep(600)\n")
