@@ -75,8 +75,10 @@ def test_native_lqg_matches_python(params):
 def _jacobi_run(fmu, params: dict, n: int, late_inputs: bool) -> np.ndarray:
     """A Jacobi master: read the torques, then set the inputs, then doStep (inputs set after the read).
 
-    With `late_inputs` the inputs are also changed once more after a second read and then set to other values
-    without a read: the sample the FMU commits must be the one whose torques were read last.
+    The torques are first read in initialisation mode (inputs of sample 5 set there), and the inputs are changed
+    before the first step without a read: the first sample committed is the one read. With `late_inputs` the
+    inputs are also changed once more after a second read and then set to other values without a read: the
+    sample the FMU commits must be the one whose torques were read last.
     """
     md = read_model_description(str(fmu))
     var = {v.name: v for v in md.modelVariables}
@@ -88,13 +90,16 @@ def _jacobi_run(fmu, params: dict, n: int, late_inputs: bool) -> np.ndarray:
     for name, value in params.items():
         setter = {"Integer": s.setInteger, "Boolean": s.setBoolean, "Real": s.setReal}[var[name].type]
         setter([var[name].valueReference], [value])
-    s.exitInitializationMode()
     taus = [var["tau1"].valueReference, var["tau2"].valueReference]
     meas = [var[m].valueReference for m in MEASURED]
-    rows = []
-    for k in range(n):
+    s.setReal(meas, list(lqg_inputs(5).values()))
+    rows = [s.getReal(taus)]
+    s.exitInitializationMode()
+    s.setReal(meas, list(lqg_inputs(9).values()))  # never read: the sample of t = 0 is the one read above
+    s.doStep(0.0, 1e-3)
+    for k in range(1, n):
         rows.append(s.getReal(taus))
-        s.setReal(meas, list(lqg_inputs(max(k - 1, 0)).values()))
+        s.setReal(meas, list(lqg_inputs(k - 1).values()))
         if late_inputs and k % 3 == 0:
             rows[-1] = s.getReal(taus)  # read again: these torques are the sample's
             s.setReal(meas, list(lqg_inputs(k + 7).values()))  # set, never read: not committed
