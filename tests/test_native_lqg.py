@@ -228,9 +228,9 @@ def test_win64_lqg_under_wine_matches_linux64(tmp_path):
     args = [str(unz), "--steps", str(N_STEPS), "--inputs", str(csv), "--quiet", "--set", "loop_delay_samples=2",
             "--set", "integral_action=true", "--set", "tau1_max=5.0"]
     runs = []
-    for cmd, env in (([str(compile_host(tmp_path))], {}),
+    for cmd, env in (([str(compile_host(tmp_path))], {}),  # env -i: no Python anywhere
                      ([wine, str(compile_host(tmp_path, target="win64"))], wine_env())):
-        run = subprocess.run([*cmd, *args], capture_output=True, text=True, env=env, timeout=600)
+        run = subprocess.run([*cmd, *args, "--check-errors"], capture_output=True, text=True, env=env, timeout=600)
         assert run.returncode == 0, run.stderr[-2000:]
         runs.append(read_host_csv(run.stdout[run.stdout.index("time,"):]))
     (header_l, linux), (header_w, windows) = runs
