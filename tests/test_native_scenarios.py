@@ -1,12 +1,18 @@
-"""Table 2's four cases with the native FMUs against the Python FMUs, in our master (closed loop)."""
+"""Table 2's four cases with the native FMUs against the Python FMUs, in our master (closed loop) and the CLI."""
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+
 import numpy as np
+import pytest
 from fmu_harness import built_fmus
 from native_fmus import native_fmus
 
-from scenarios.config import load_scenario
+from flexarm.provenance import sha256_file
+from scenarios.config import SCENARIO_DIR, ScenarioError, load_scenario
 from scenarios.metrics import METRICS
 from scenarios.runner import CaseResult, format_table, prepare, simulate_case
 
@@ -44,3 +50,57 @@ def test_table2_native_equals_python(tmp_path):
     for r_py, r_nat in zip(res_py, res_nat):
         for m in METRICS:
             assert abs(r_nat.metrics[m] - r_py.metrics[m]) <= 1e-9 * abs(r_py.metrics[m]) + 1e-12, (r_py.key, m)
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "scenarios", *args], capture_output=True, text=True, timeout=900)
+
+
+def _table(stdout: str) -> str:
+    """The printed table of the (one) scenario: its lines after the "== name" header, up to the wall times."""
+    lines = stdout.split("\n== ", 1)[1].splitlines()[1:]
+    return "\n".join(ln for ln in lines if ln.strip() and not ln.lstrip().startswith(("wall time", "results:")))
+
+
+def test_cli_runs_table2_native_with_the_python_sets_table(tmp_path):
+    """``python -m scenarios run table2 --native`` prints the table the Python set prints; the results record
+    the kind and the native files' SHA-256; a scenario's ``kind = "native"`` chooses the same, --python
+    overrides it; a name without a native build is refused naming it before anything runs."""
+    python, native = built_fmus(), native_fmus()
+    dirs = ["--fmu-dir", str(python["plant"].parent), "--native-fmu-dir", str(native["plant"].parent)]
+    runs = {}
+    for kind in ("native", "python"):
+        proc = _cli("run", "table2", f"--{kind}", *dirs, "--out", str(tmp_path / kind), "--quiet", "--no-plots")
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        assert f"[{kind} FMUs]" in proc.stdout
+        runs[kind] = _table(proc.stdout)
+    assert runs["native"] == runs["python"]
+    assert "peak torque (1st joint)" in runs["native"] and len(runs["native"].splitlines()) == 8
+    record = json.loads((tmp_path / "native" / "table2" / "none.json").read_text())
+    assert record["fmu_kind"] == "native"
+    assert record["fmu_kinds"] == {"plant": "native", "sensors": "native", "controller": "native"}
+    assert record["fmu_sha256"] == {i: sha256_file(native[i]) for i in ("plant", "sensors", "controller")}
+    assert json.loads((tmp_path / "python" / "table2" / "none.json").read_text())["fmu_kind"] == "python"
+
+    text = (SCENARIO_DIR / "table2.toml").read_text()
+    assert '\n[scenario]\n' in text
+    chosen = tmp_path / "table2_native.toml"
+    chosen.write_text(text.replace("\n[scenario]\n", '\n[scenario]\nkind = "native"\n', 1))
+    for flag, kind in (((), "native"), (("--python",), "python")):
+        out = tmp_path / f"file-{kind}"
+        proc = _cli("run", str(chosen), *flag, *dirs, "--out", str(out), "--quiet", "--no-plots")
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        assert json.loads((out / "table2" / "none.json").read_text())["fmu_kind"] == kind
+
+    proc = _cli("run", "table2", "lqg", "--native", *dirs, "--out", str(tmp_path / "refused"), "--quiet")
+    assert proc.returncode == 2
+    assert "controller_lqg has no native build" in proc.stderr
+    assert not (tmp_path / "refused" / "table2").exists()  # refused before table2 ran
+
+
+def test_a_scenario_kind_outside_the_choices_is_refused(tmp_path):
+    bad = tmp_path / "bad.toml"
+    text = (SCENARIO_DIR / "table2.toml").read_text()
+    bad.write_text(text.replace("\n[scenario]\n", '\n[scenario]\nkind = "c"\n', 1))
+    with pytest.raises(ScenarioError, match=r"scenario.kind: one of \['python', 'native'\]"):
+        load_scenario(bad)
