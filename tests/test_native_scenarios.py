@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -104,3 +105,30 @@ def test_a_scenario_kind_outside_the_choices_is_refused(tmp_path):
     bad.write_text(text.replace("\n[scenario]\n", '\n[scenario]\nkind = "c"\n', 1))
     with pytest.raises(ScenarioError, match=r"scenario.kind: one of \['python', 'native'\]"):
         load_scenario(bad)
+
+
+def test_build_fmus_both_kinds_up_to_date_and_refusals(tmp_path, monkeypatch, capsys):
+    """build_fmus.py's native kind: a second build of up-to-date FMUs rebuilds nothing; an FMU without a native
+    build is refused naming it; without ziglang it says so and builds nothing."""
+    from fmu_build.cli import main
+    from fmu_build.compile import BuildError
+    from fmu_build.native import build_native_all, native_is_up_to_date
+
+    python, native = built_fmus(), native_fmus()
+    stamps = {n: p.stat().st_mtime_ns for n, p in native.items()}
+    again = build_native_all(python, next(iter(native.values())).parent)
+    assert again == native and {n: p.stat().st_mtime_ns for n, p in again.items()} == stamps
+    assert all(native_is_up_to_date(native[n], python[n]) for n in native)
+    stale = tmp_path / "plant.fmu"
+    stale.write_bytes(native["plant"].read_bytes())
+    os.utime(stale, ns=(python["plant"].stat().st_mtime_ns - 10**9,) * 2)  # older than its Python twin
+    assert not native_is_up_to_date(stale, python["plant"])
+    with pytest.raises(BuildError, match="no native build of controller_lqg"):
+        build_native_all(python, tmp_path, only=["controller_lqg"])
+
+    monkeypatch.setitem(sys.modules, "ziglang", None)  # as if not installed: import ziglang raises
+    out, native_out = tmp_path / "py", tmp_path / "nat"
+    assert main(["--out", str(out), "--native-out", str(native_out), "--only", "sensors"]) == 1
+    err = capsys.readouterr().err
+    assert "pip install ziglang" in err and "--kind python" in err
+    assert not out.exists() and not native_out.exists()  # said before anything was built
