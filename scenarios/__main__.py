@@ -50,6 +50,7 @@ def main(argv=None) -> int:
                        help="results folder, relative to the current directory (default: ./results/sweeps); "
                             "the sweep writes into OUT/<name>/ and resumes from its journal there")
     sweep.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
+    _kind_options(sweep)
     sweep.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://host:8786")
     sweep.add_argument("--workers", type=int, help="local cluster: worker processes (default: the cores)")
     sweep.add_argument("--serial", action="store_true", help="run in this process, no Dask (debugging)")

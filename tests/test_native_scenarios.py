@@ -132,3 +132,29 @@ def test_build_fmus_both_kinds_up_to_date_and_refusals(tmp_path, monkeypatch, ca
     err = capsys.readouterr().err
     assert "pip install ziglang" in err and "--kind python" in err
     assert not out.exists() and not native_out.exists()  # said before anything was built
+
+
+def test_a_native_sweep_runs_the_native_files_and_never_reuses_python_points(tmp_path):
+    """run_sweep(kind="native"): every point on the native FMU files (their SHA-256 in sweep.json), with the
+    Python set's metrics; the Python kind into the same folder reuses none of the native points."""
+    from scenarios.sweep import run_sweep
+
+    python, native = built_fmus(), native_fmus()
+    sweep = tmp_path / "two_schedules.toml"
+    sweep.write_text('[sweep]\nname = "two"\ndescription = "two schedules"\nscenario = "table2"\ncase = "none"\n'
+                     "\n[axes]\ncontroller.schedule_period = [0.2, 0.0]\n")
+    dirs = {"fmu_dir": python["plant"].parent, "native_fmu_dir": native["plant"].parent}
+    runs = {}
+    for kind in ("native", "python"):
+        runs[kind] = run_sweep(sweep, tmp_path / "out", serial=True, plots=False, progress=False, build=False,
+                               kind=kind, **dirs)
+        meta = json.loads((tmp_path / "out" / "two" / "sweep.json").read_text())
+        assert meta["fmu_kind"] == kind
+        files = native if kind == "native" else python
+        assert meta["fmu_sets"][0]["fmu_sha256"] == {i: sha256_file(files[i]) for i in ("plant", "sensors",
+                                                                                         "controller")}
+        assert runs[kind].ran == 2 and runs[kind].skipped == 0  # the Python run reused no native point
+    for r_nat, r_py in zip(runs["native"].rows, runs["python"].rows):
+        assert r_nat["status"] == r_py["status"] == "ok"
+        for m in METRICS:
+            assert abs(float(r_nat[m]) - float(r_py[m])) <= 1e-9 * abs(float(r_py[m])) + 1e-12, m
