@@ -24,7 +24,7 @@ USAGE = f"""Build this project's FMUs, both kinds: the Python ones into <out>/<n
 
 The default output folders are ${OUT_DIR_ENV}, else build/fmus, and ${NATIVE_OUT_DIR_ENV}, else
 build/fmus-native, under the current directory. The native kind needs Zig's C compiler
-(pip install ziglang); an FMU without a native build (e.g. controller_lqg) is built as Python only."""
+(pip install ziglang); an FMU without a native build is built as Python only (and said so)."""
 
 
 def main(argv=None) -> int:

@@ -66,7 +66,7 @@ def _table(stdout: str) -> str:
 def test_cli_runs_table2_native_with_the_python_sets_table(tmp_path):
     """``python -m scenarios run table2 --native`` prints the table the Python set prints; the results record
     the kind and the native files' SHA-256; a scenario's ``kind = "native"`` chooses the same, --python
-    overrides it; a name without a native build is refused naming it before anything runs."""
+    overrides it."""
     python, native = built_fmus(), native_fmus()
     dirs = ["--fmu-dir", str(python["plant"].parent), "--native-fmu-dir", str(native["plant"].parent)]
     runs = {}
@@ -93,10 +93,21 @@ def test_cli_runs_table2_native_with_the_python_sets_table(tmp_path):
         assert proc.returncode == 0, proc.stderr[-3000:]
         assert json.loads((out / "table2" / "none.json").read_text())["fmu_kind"] == kind
 
-    proc = _cli("run", "table2", "lqg", "--native", *dirs, "--out", str(tmp_path / "refused"), "--quiet")
-    assert proc.returncode == 2
-    assert "controller_lqg has no native build" in proc.stderr
-    assert not (tmp_path / "refused" / "table2").exists()  # refused before table2 ran
+
+
+def test_cli_refuses_a_name_without_a_native_build_before_anything_runs(tmp_path, monkeypatch, capsys):
+    """As if controller_ff had no native build: ``run table2 compare_ff_fb --native`` exits 2 naming it, before
+    table2 (which has every native FMU) runs."""
+    from fmus.native import build_native
+    from scenarios.__main__ import main
+
+    monkeypatch.setattr(build_native, "NATIVE_FMUS", {k: v for k, v in build_native.NATIVE_FMUS.items()
+                                                      if k != "controller_ff"})
+    out = tmp_path / "refused"
+    assert main(["run", "table2", "compare_ff_fb", "--native", "--out", str(out), "--quiet", "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert "fmus.controller: controller_ff has no native build" in err and "--python" in err
+    assert not (out / "table2").exists()
 
 
 def test_a_scenario_kind_outside_the_choices_is_refused(tmp_path):
@@ -123,8 +134,13 @@ def test_build_fmus_both_kinds_up_to_date_and_refusals(tmp_path, monkeypatch, ca
     stale.write_bytes(native["plant"].read_bytes())
     os.utime(stale, ns=(python["plant"].stat().st_mtime_ns - 10**9,) * 2)  # older than its Python twin
     assert not native_is_up_to_date(stale, python["plant"])
-    with pytest.raises(BuildError, match="no native build of controller_lqg"):
-        build_native_all(python, tmp_path, only=["controller_lqg"])
+    from fmus.native import build_native
+
+    with monkeypatch.context() as m:  # as if controller_ff had no native build
+        m.setattr(build_native, "NATIVE_FMUS", {k: v for k, v in build_native.NATIVE_FMUS.items()
+                                                if k != "controller_ff"})
+        with pytest.raises(BuildError, match="no native build of controller_ff"):
+            build_native_all(python, tmp_path, only=["controller_ff"])
 
     monkeypatch.setitem(sys.modules, "ziglang", None)  # as if not installed: import ziglang raises
     out, native_out = tmp_path / "py", tmp_path / "nat"

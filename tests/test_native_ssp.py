@@ -207,7 +207,13 @@ def test_simulate_ssp_runs_a_case_off_the_defaults_from_the_baked_values(table2_
     assert np.max(np.abs(none["plant.tip_x"] - theirs["plant.tip_x"])) > 1e-3  # the payload made a difference
 
 
-def test_export_refuses_a_case_without_a_native_fmu(tmp_path, folders):
-    with pytest.raises(ScenarioError, match="controller_lqg has no native build"):
-        export_ssp(load_scenario("lqg"), tmp_path, build=False, kind="native", **folders)
+def test_export_refuses_a_case_without_a_native_fmu(tmp_path, folders, monkeypatch):
+    """As if controller_ff had no native build: compare_ff_fb (whose ff cases swap it in) is refused naming it,
+    and no archive is written, not even those of the cases that have every native FMU."""
+    from fmus.native import build_native
+
+    monkeypatch.setattr(build_native, "NATIVE_FMUS", {k: v for k, v in build_native.NATIVE_FMUS.items()
+                                                      if k != "controller_ff"})
+    with pytest.raises(ScenarioError, match="fmus.controller: controller_ff has no native build"):
+        export_ssp(load_scenario("compare_ff_fb"), tmp_path, build=False, kind="native", **folders)
     assert not any(tmp_path.iterdir())
