@@ -175,7 +175,8 @@ def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = Non
             hint = "" if tool is not None or name.endswith(".fmu") else (
                 " (the build tooling build_fmus.py is not installed here: build the FMUs in a checkout and pass "
                 "--fmu-dir" + (" / --native-fmu-dir" if kind == "native" else "") + ")")
-            raise ScenarioError(f"fmus.{inst}: no {kind} FMU at {p}{hint}")
+            what = "FMU" if name.endswith(".fmu") else f"{kind} FMU"
+            raise ScenarioError(f"fmus.{inst}: no {what} at {p}{hint}")
         paths[inst] = p
     return paths
 
