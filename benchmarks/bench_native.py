@@ -7,8 +7,10 @@ Prints, in one run:
    Python plant FMU's step;
 2. the time from a fresh unpack to the end of the first fmi2DoStep (instantiate, initialise, one step),
    native and Python;
-3. the real-time factor of table2's first case (plant + sensors + controller, 1 ms, our fmpy master) with
-   the Python FMUs and with the native ones.
+3. the real-time factor of table2's first case (plant + sensors + controller, 1 ms) with the Python FMUs
+   and with the native ones, in our fmpy master and in libcosim (the case exported as SSP, run by
+   scenarios.libcosim_runner on the calling thread, then with libcosim's default worker pool; stepping
+   only, loading excluded).
 
     python -m benchmarks.bench_native [--steps N] [--repeats N]
 
@@ -156,18 +158,42 @@ def cosim_rtf(fmu_dir: Path, repeats: int) -> tuple[float, float, dict]:
     return min(walls), setup.n_steps * sc.step_size, {"theta1_end": float(q1[-1])}
 
 
+_LIBCOSIM = """
+import sys
+from scenarios.libcosim_runner import run_case_libcosim
+threads = None if sys.argv[3] == "default" else int(sys.argv[3])
+walls = [run_case_libcosim(sys.argv[1], worker_threads=threads)["step_wall_s"] for _ in range(int(sys.argv[2]))]
+print(min(walls))
+"""
+
+
+def libcosim_rtf(fmu_dir: Path, native_dir: Path, kind: str, out: Path, repeats: int,
+                 worker_threads: str = "0") -> float:
+    """table2's first case exported as SSP with the `kind` FMUs and stepped in libcosim (a new process):
+    best wall time of the stepping (s). `worker_threads`: "0" (the calling thread) or "default" (libcosim's)."""
+    from scenarios.config import load_scenario
+    from scenarios.ssp import export_ssp
+
+    sc = load_scenario("table2")
+    ssp = export_ssp(sc, out / kind, fmu_dir, build=False, cases=[sc.cases[0].key], kind=kind,
+                     native_fmu_dir=native_dir)[sc.cases[0].key]
+    run = subprocess.run([sys.executable, "-c", _LIBCOSIM, str(ssp), str(repeats), worker_threads],
+                         capture_output=True, text=True, check=True, cwd=Path(__file__).resolve().parents[1])
+    return float(run.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=2000, help="plant steps per timing")
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
-    import build_fmus
+    from fmu_build import build_all
 
     traj = load_trajectory()
     torques = np.array([traj.tau[min(k, len(traj.tau) - 1)] for k in range(args.steps)])
     with tempfile.TemporaryDirectory(prefix="bench-native-") as tmp:
         tmp = Path(tmp)
-        python = build_fmus.build_all(tmp / "python", only=["plant", "sensors", "controller"])
+        python = build_all(tmp / "python", only=["plant", "sensors", "controller"])
         native = build_native_fmus(tmp / "native", python, platforms=("linux64",))
         print(f"native FMU sizes (linux64 only here; with all three platforms see docs/native-fmus.md): "
               f"{', '.join(f'{n} {p.stat().st_size / 1024:.0f} KiB' for n, p in native.items())}")
@@ -191,6 +217,14 @@ def main() -> None:
         print(f"  native plant + sensors + controller: {wall_nat:.3f} s, real-time factor "
               f"{simulated / wall_nat:.1f}x   (goal: >= 30x)")
         print(f"  final theta1: Python {end_py['theta1_end']!r} rad, native {end_nat['theta1_end']!r} rad")
+        print(f"table2 'none' in libcosim (exported as SSP; stepping only, loading excluded), best of {args.repeats}:")
+        lc_py = libcosim_rtf(tmp / "python", tmp / "native", "python", tmp / "ssp", args.repeats)
+        print(f"  Python plant + sensors + controller: {lc_py:.3f} s, real-time factor {simulated / lc_py:.1f}x")
+        lc_nat = libcosim_rtf(tmp / "python", tmp / "native", "native", tmp / "ssp", args.repeats)
+        print(f"  native plant + sensors + controller: {lc_nat:.3f} s, real-time factor "
+              f"{simulated / lc_nat:.1f}x   (goal: >= 50x)")
+        lc_pool = libcosim_rtf(tmp / "python", tmp / "native", "native", tmp / "ssp", args.repeats, "default")
+        print(f"  native, libcosim's default worker pool: {lc_pool:.3f} s, real-time factor {simulated / lc_pool:.1f}x")
 
 
 if __name__ == "__main__":

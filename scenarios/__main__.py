@@ -17,7 +17,7 @@ from pathlib import Path
 from .config import SCENARIO_DIR, ScenarioError, list_scenarios, load_scenario
 from .master import CoSimulationError
 from .outdir import OutputError, describe_os_error
-from .runner import DEFAULT_FMU_DIR, format_table, run_scenario
+from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, check_kind, format_table, run_scenario
 
 EXIT_OK, EXIT_ERROR, EXIT_REFUSED, EXIT_OUTPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
 #: Default results folder: relative to the current directory, so it works with any install.
@@ -40,6 +40,7 @@ def main(argv=None) -> int:
                      help="results folder, relative to the current directory (default: ./results); "
                           "a scenario writes OUT/<name>/, replacing an earlier run's folder when it completes")
     run.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
+    _kind_options(run)
     run.add_argument("--controller", help="controller FMU to use instead of the scenario's (name or .fmu path)")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -49,6 +50,7 @@ def main(argv=None) -> int:
                        help="results folder, relative to the current directory (default: ./results/sweeps); "
                             "the sweep writes into OUT/<name>/ and resumes from its journal there")
     sweep.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
+    _kind_options(sweep)
     sweep.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://host:8786")
     sweep.add_argument("--workers", type=int, help="local cluster: worker processes (default: the cores)")
     sweep.add_argument("--serial", action="store_true", help="run in this process, no Dask (debugging)")
@@ -60,6 +62,7 @@ def main(argv=None) -> int:
                      help="folder for <scenario>/<case>.ssp, relative to the current directory (default: ./build/ssp)")
     ssp.add_argument("--case", action="append", help="export only this case (repeatable; default: all)")
     ssp.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
+    _kind_options(ssp)
     page = sub.add_parser("results-page", help="rewrite docs/results.md and the README's table from fresh runs")
     page.add_argument("--check", action="store_true",
                       help="do not write: exit 1 with a diff if the committed files differ from a fresh run")
@@ -85,6 +88,17 @@ def main(argv=None) -> int:
             signal.signal(signal.SIGTERM, previous)
 
 
+def _kind_options(parser) -> None:
+    """--native / --python (override the scenario file's ``kind``) and the native FMUs' folder."""
+    kind = parser.add_mutually_exclusive_group()
+    kind.add_argument("--native", dest="kind", action="store_const", const="native",
+                      help="run the native (plain C) FMUs, whatever the scenario's kind says")
+    kind.add_argument("--python", dest="kind", action="store_const", const="python",
+                      help="run the Python FMUs, whatever the scenario's kind says")
+    parser.add_argument("--native-fmu-dir", type=Path, default=DEFAULT_NATIVE_FMU_DIR,
+                        help="where built native FMUs live (their Python twins live in --fmu-dir)")
+
+
 def _main_thread() -> bool:
     import threading
 
@@ -100,7 +114,8 @@ def _dispatch(args) -> int:
         from .ssp import SSPExportError, export_ssp
 
         try:
-            paths = export_ssp(load_scenario(args.scenario), args.out, args.fmu_dir, cases=args.case)
+            paths = export_ssp(load_scenario(args.scenario), args.out, args.fmu_dir, cases=args.case, kind=args.kind,
+                               native_fmu_dir=args.native_fmu_dir)
         except SSPExportError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return EXIT_REFUSED
@@ -121,12 +136,13 @@ def _dispatch(args) -> int:
         return EXIT_OK
     names = [s.name for s in list_scenarios()] if args.scenarios == ["all"] else args.scenarios
     scenarios = [load_scenario(name) for name in names]  # every file refused before anything runs
+    kinds = [check_kind(sc, args.kind, args.controller) for sc in scenarios]  # and every FMU without that kind
     paper = tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
     code = EXIT_OK
-    for sc in scenarios:
+    for sc, kind in zip(scenarios, kinds):
         results = run_scenario(sc, args.out, args.fmu_dir, args.controller, progress=not args.quiet,
-                               plots=not args.no_plots)
-        print(f"\n== {sc.name}: {sc.description}")
+                               plots=not args.no_plots, kind=kind, native_fmu_dir=args.native_fmu_dir)
+        print(f"\n== {sc.name}: {sc.description} [{kind} FMUs]")
         print(format_table(results, paper.get(sc.paper_table) if sc.paper_table else None))
         for r in results:
             if r.status != "ok":

@@ -15,9 +15,12 @@ from pathlib import Path
 
 SCENARIO_DIR = Path(__file__).resolve().parent
 _TOP_KEYS = {"scenario", "fmus", "connections", "parameters", "cases", "record"}
-_SCENARIO_KEYS = {"name", "description", "paper_table", "step_size_s", "samples", "order", "trajectory", "algorithm"}
+_SCENARIO_KEYS = {"name", "description", "paper_table", "step_size_s", "samples", "order", "trajectory", "algorithm",
+                  "kind"}
 #: Master stepping algorithms a scenario may ask for (scenarios/master.py).
 ALGORITHMS = ("gauss-seidel", "jacobi")
+#: Kinds of FMU a scenario may run (FMU names resolve in build/fmus or build/fmus-native; docs/native-fmus.md).
+KINDS = ("python", "native")
 
 
 class ScenarioError(ValueError):
@@ -49,6 +52,8 @@ class Scenario:
     record: list[str] = field(default_factory=list)
     #: Master stepping: "gauss-seidel" (default) or "jacobi" (see scenarios/master.py).
     algorithm: str = "gauss-seidel"
+    #: Which kind of FMU the names in [fmus] mean: "python" (default) or "native" (plain C).
+    kind: str = "python"
 
 
 def _require(cond: bool, where: str, allowed: str, got) -> None:
@@ -92,6 +97,8 @@ def load_scenario(path: str | Path) -> Scenario:
              samples)
     algorithm = sc.get("algorithm", "gauss-seidel")
     _require(algorithm in ALGORITHMS, f"{p.name}: scenario.algorithm", f"one of {list(ALGORITHMS)}", algorithm)
+    kind = sc.get("kind", "python")
+    _require(kind in KINDS, f"{p.name}: scenario.kind", f"one of {list(KINDS)} (which FMUs the names mean)", kind)
     fmus = doc.get("fmus", {})
     _require(isinstance(fmus, dict) and fmus and all(isinstance(v, str) for v in fmus.values()),
              f"{p.name}: [fmus]", "a table of instance = \"built FMU name or path to a .fmu\"", fmus)
@@ -136,7 +143,8 @@ def load_scenario(path: str | Path) -> Scenario:
     record = doc.get("record", {}).get("signals", [])
     return Scenario(name=sc["name"], description=sc.get("description", ""), path=p, fmus=fmus, order=order,
                     connections=connections, parameters=params, cases=cases, step_size=float(step),
-                    samples=samples, paper_table=sc.get("paper_table"), record=record, algorithm=algorithm)
+                    samples=samples, paper_table=sc.get("paper_table"), record=record, algorithm=algorithm,
+                    kind=kind)
 
 
 def list_scenarios() -> list[Scenario]:

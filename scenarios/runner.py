@@ -26,7 +26,7 @@ from flexarm.signals import names as signal_names
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
 from . import master
-from .config import Scenario, ScenarioError
+from .config import KINDS, Scenario, ScenarioError
 from .fmu_files import NotAnFmuError, read_description
 from .metrics import METRICS, UNITS, table_metrics
 from .outdir import check_writable, run_folder
@@ -37,6 +37,9 @@ REPO = Path(__file__).resolve().parent.parent
 #: Where FMUs are built and found: $FLEXARM_FMU_DIR, else ./build/fmus (relative to the current directory, as
 #: fmu_build's default), made absolute once so that scenario and sweep files in other folders find the same.
 DEFAULT_FMU_DIR = Path(os.environ.get("FLEXARM_FMU_DIR", Path("build") / "fmus")).resolve()
+#: Where the native (plain C) FMUs are built and found: $FLEXARM_NATIVE_FMU_DIR, else ./build/fmus-native (as
+#: fmu_build.native's default), made absolute once.
+DEFAULT_NATIVE_FMU_DIR = Path(os.environ.get("FLEXARM_NATIVE_FMU_DIR", Path("build") / "fmus-native")).resolve()
 N_EL = 11
 #: The plant's state outputs (theta1..11, omega1..11), from the signal catalogue.
 PLANT_STATE = list(signal_names("plant", "output", "state"))
@@ -75,15 +78,70 @@ def known_fmu_names() -> list[str]:
     return sorted(tool.FMUS) if tool is not None else []
 
 
+def native_fmu_names() -> list[str] | None:
+    """The FMU names that have a native build (``fmus.native.build_native.NATIVE_FMUS``); None if unknown here."""
+    try:
+        from fmus.native.build_native import NATIVE_FMUS
+    except ImportError:
+        return None
+    return list(NATIVE_FMUS)
+
+
+#: generationTool of a native FMU's model description (fmus/native/build_native.py) starts with this.
+NATIVE_GENERATION_TOOL = "flexarm-fmi native build"
+
+
+def fmu_kind(description) -> str:
+    """The kind of an FMU from its description: "native" (our plain C), "python" (pythonfmu) or "other"."""
+    tool = description.generationTool or ""
+    if tool.startswith(NATIVE_GENERATION_TOOL):
+        return "native"
+    return "python" if tool.startswith("PythonFMU") else "other"
+
+
+def refuse_without_native(names: dict[str, str], kind: str) -> None:
+    """With kind "native": :class:`ScenarioError` naming an instance whose FMU name has no native build."""
+    native = native_fmu_names() if kind == "native" else None
+    if native is None:
+        return
+    for inst, name in names.items():
+        if not name.endswith(".fmu") and name not in native:
+            raise ScenarioError(f"fmus.{inst}: {name} has no native build (the native FMUs are "
+                                f"{', '.join(native)}): run it with the Python FMUs (--python, or "
+                                f"kind = \"python\" in [scenario]) or give a path to a .fmu")
+
+
+def check_kind(scenario: Scenario, kind: str | None = None, controller: str | None = None) -> str:
+    """The kind a run of `scenario` uses (`kind`, else the scenario's), after refusing a name of any case
+    that has no FMU of that kind; nothing is built (the CLI checks every scenario before the first runs)."""
+    kind = kind or scenario.kind
+    if kind not in KINDS:
+        raise ScenarioError(f"kind: one of {list(KINDS)}, got {kind!r}")
+    for case in scenario.cases:
+        names = dict(case.fmus or scenario.fmus)
+        if controller is not None:
+            names["controller"] = controller
+        refuse_without_native(names, kind)
+    return kind
+
+
 def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = None, build: bool = True,
-                 names: dict[str, str] | None = None) -> dict[str, Path]:
-    """FMU instance -> .fmu path; names are built into `fmu_dir` (rebuilt when older than their sources).
+                 names: dict[str, str] | None = None, kind: str | None = None,
+                 native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR) -> dict[str, Path]:
+    """FMU instance -> .fmu path; names are built (rebuilt when older than their sources).
 
     `names` (instance -> FMU name or path) defaults to the scenario's ``[fmus]``;
-    `controller` replaces the ``controller`` instance's FMU. An unknown name is refused listing the
-    known ones; a path that is no FMU is refused naming the file (both :class:`ScenarioError`).
-    Without the build tooling (a non-editable install) names are taken from `fmu_dir` as they are.
+    `controller` replaces the ``controller`` instance's FMU. `kind` (default the scenario's
+    ``kind``) says which FMUs a name means: "python" (built into `fmu_dir`) or "native" (built into
+    `native_fmu_dir`, with their Python twins in `fmu_dir`, whose interface they copy). An unknown name,
+    or with kind "native" a name that has no native build, is refused listing the known ones; a path that
+    is no FMU is refused naming the file (all :class:`ScenarioError`). A path to a .fmu is used as it is,
+    whatever the kind. Without the build tooling (a non-editable install) names are taken from the
+    folder as they are.
     """
+    kind = kind or scenario.kind
+    if kind not in KINDS:
+        raise ScenarioError(f"kind: one of {list(KINDS)}, got {kind!r}")
     names = dict(scenario.fmus if names is None else names)
     if controller is not None:
         names["controller"] = controller
@@ -94,24 +152,31 @@ def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = Non
         if not name.endswith(".fmu") and known and name not in known:
             raise ScenarioError(f"fmus.{inst}: an FMU name of this project {known} or a path to a .fmu file, "
                                 f"got {name!r}")
+    refuse_without_native(names, kind)
+    folder = Path(native_fmu_dir if kind == "native" else fmu_dir)
     built = {}
     if to_build and build and tool is not None:
         try:
             built = tool.build_all(fmu_dir, only=to_build)
+            if kind == "native":
+                from fmu_build.native import build_native_all
+
+                built = build_native_all(built, folder, only=to_build)
         except Exception as exc:  # noqa: BLE001 - one line naming what failed, not a traceback
-            raise ScenarioError(f"building the FMUs {to_build} into {fmu_dir} failed: {type(exc).__name__}: "
+            raise ScenarioError(f"building the {kind} FMUs {to_build} into {folder} failed: {type(exc).__name__}: "
                                 f"{exc}") from exc
     paths = {}
     for inst, name in names.items():
         if name.endswith(".fmu"):
             p = Path(name) if Path(name).is_absolute() else (scenario.path.parent / name)
         else:
-            p = built.get(name, Path(fmu_dir) / f"{name}.fmu")
+            p = built.get(name, folder / f"{name}.fmu")
         if not p.is_file():
             hint = "" if tool is not None or name.endswith(".fmu") else (
                 " (the build tooling build_fmus.py is not installed here: build the FMUs in a checkout and pass "
-                "--fmu-dir)")
-            raise ScenarioError(f"fmus.{inst}: no FMU at {p}{hint}")
+                "--fmu-dir" + (" / --native-fmu-dir" if kind == "native" else "") + ")")
+            what = "FMU" if name.endswith(".fmu") else f"{kind} FMU"
+            raise ScenarioError(f"fmus.{inst}: no {what} at {p}{hint}")
         paths[inst] = p
     return paths
 
@@ -227,6 +292,12 @@ class Setup:
     desired: dict[str, np.ndarray]
     start: dict[str, float]
     descriptions: dict = field(default_factory=dict, repr=False)
+    #: The kind the names were resolved as ("python" or "native"; see :func:`resolve_fmus`).
+    kind: str = "python"
+
+    def fmu_kinds(self) -> dict[str, str]:
+        """Instance -> kind of the FMU file it runs, from its model description (:func:`fmu_kind`)."""
+        return {inst: fmu_kind(md) for inst, md in self.descriptions.items()}
 
     def open_master(self, algorithm: str = "gauss-seidel") -> master.Master:
         """Load this set's FMUs once (reuse the master for every case that shares them)."""
@@ -242,9 +313,14 @@ class Setup:
 
 
 def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
-            names: dict[str, str] | None = None, build: bool = True) -> Setup:
-    """Resolve (and build) the FMUs, read and wire them, and precompute what the cases share."""
-    paths = resolve_fmus(scenario, fmu_dir, controller, build, names)
+            names: dict[str, str] | None = None, build: bool = True, kind: str | None = None,
+            native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR) -> Setup:
+    """Resolve (and build) the FMUs, read and wire them, and precompute what the cases share.
+
+    `kind` (default the scenario's): "python" or "native", see :func:`resolve_fmus`.
+    """
+    kind = kind or scenario.kind
+    paths = resolve_fmus(scenario, fmu_dir, controller, build, names, kind, native_fmu_dir)
     descriptions = read_descriptions(paths)
     connections = connect_by_name(paths, scenario.connections, descriptions)
     torque_edges = [c for c in connections if c.dst_var == "tau1"]
@@ -257,7 +333,7 @@ def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str
     n = run_length(scenario, traj)
     return Setup(scenario, paths, connections, plant, driver, record, n,
                  desired_states(traj, np.arange(n + 1) * scenario.step_size), start_parameters(traj),
-                 descriptions)
+                 descriptions, kind)
 
 
 def simulate_case(setup: Setup, m: master.Master, parameters: dict[str, dict],
@@ -292,11 +368,13 @@ def probe_cases(setup: Setup, m: master.Master, cases) -> None:
 
 
 def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
-                 progress: bool = True, algorithm: str | None = None, plots: bool = False) -> list[CaseResult]:
+                 progress: bool = True, algorithm: str | None = None, plots: bool = False, kind: str | None = None,
+                 native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR) -> list[CaseResult]:
     """Check everything, then run every case; publish per-case CSV and JSON (and PNGs) in out_dir/<scenario>/.
 
     Cases with the same FMUs share one loaded master (reset between cases). ``algorithm`` None: the
-    scenario file's (``scenario.algorithm``, default Gauss-Seidel). Every refusal
+    scenario file's (``scenario.algorithm``, default Gauss-Seidel). ``kind`` None: the scenario file's
+    (``scenario.kind``, default "python"); "native" runs the plain-C FMUs (:func:`resolve_fmus`). Every refusal
     (:class:`ScenarioError`, :class:`scenarios.outdir.OutputError`) comes before the first case runs; on
     Ctrl-C (:class:`scenarios.master.RunInterrupted`) or a filesystem error nothing is published and the
     previous results stay as they were.
@@ -312,7 +390,8 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
             groups.setdefault(tuple(sorted(case.fmus.items())) if case.fmus else (), []).append(case)
         setups = []
         for names, cases in groups.items():
-            setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None)
+            setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None, kind=kind,
+                            native_fmu_dir=native_fmu_dir)
             for case in cases:
                 setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")
             setups.append((setup, cases))
@@ -324,6 +403,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                 probe_cases(setup, opened[-1], cases)
             for (setup, cases), m in zip(setups, opened):
                 checksums = {inst: sha256_file(p) for inst, p in setup.paths.items()}
+                kinds = setup.fmu_kinds()
                 for case in cases:
                     params = setup.case_parameters(case.parameters)
                     t0 = time.perf_counter()
@@ -341,6 +421,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                         "metrics": metrics, "metric_units": dict(UNITS), "parameters": params,
                         "samples": setup.n_steps, "step_size_s": scenario.step_size, "algorithm": algorithm,
                         "fmus": {k: str(v) for k, v in setup.paths.items()}, "fmu_sha256": checksums,
+                        "fmu_kind": setup.kind, "fmu_kinds": kinds,
                         "commit": commit, "wall_time_s": wall, "steps_done": out["steps_done"],
                         "trajectory_sha256": chain[_relative(DEFAULT_TRAJECTORY_FILE)],
                         "parameter_file": _relative(DEFAULT_PARAMETER_FILE),

@@ -61,6 +61,9 @@ NS = {
 DEFAULT_SSD = "SystemStructure.ssd"
 #: In an FMU's resources: the case's start values (read by fmus/common/flexarm_fmu_base.py, START_VALUES).
 START_VALUES = "flexarm_start_values.json"
+#: The same for a native FMU (read by fmi2Instantiate, fmus/native/common/fmi2_glue_resources.c): lines
+#: ``name bits``, the value's IEEE-754 double as 16 hex digits (exact on every platform).
+NATIVE_START_VALUES = "flexarm_start_values.txt"
 DEFAULT_SSP_DIR = runner.REPO / "build" / "ssp"
 #: FMI causality -> SSP 1.0 connector kind (other causalities are not exported).
 _KINDS = {"input": "input", "output": "output", "parameter": "parameter", "calculatedParameter": "calculatedParameter"}
@@ -93,12 +96,17 @@ def _fmt_real(x: float) -> str:
 
 
 def plan_cases(scenario: Scenario, fmu_dir: Path = runner.DEFAULT_FMU_DIR, build: bool = True,
-               cases: list[str] | None = None) -> list[CasePlan]:
-    """Prepare each case as the runner would (FMUs built if needed); `cases` selects by key (default all)."""
+               cases: list[str] | None = None, kind: str | None = None,
+               native_fmu_dir: Path = runner.DEFAULT_NATIVE_FMU_DIR) -> list[CasePlan]:
+    """Prepare each case as the runner would (FMUs built if needed); `cases` selects by key (default all).
+
+    `kind` (default the scenario's): "python" or "native" FMUs (:func:`scenarios.runner.resolve_fmus`).
+    """
     keys = [c.key for c in scenario.cases]
     unknown = sorted(set(cases or ()) - set(keys))
     if unknown:
         raise SSPExportError(f"cases: {unknown} not in scenario {scenario.name} (has: {', '.join(keys)})")
+    runner.check_kind(scenario, kind)  # a case whose FMU has no native build: refused before any is written
     setups: dict[tuple, runner.Setup] = {}
     plans = []
     for case in scenario.cases:
@@ -107,7 +115,8 @@ def plan_cases(scenario: Scenario, fmu_dir: Path = runner.DEFAULT_FMU_DIR, build
         names = case.fmus or scenario.fmus
         key = tuple(sorted(names.items()))
         if key not in setups:
-            setups[key] = runner.prepare(scenario, fmu_dir, names=dict(names), build=build)
+            setups[key] = runner.prepare(scenario, fmu_dir, names=dict(names), build=build, kind=kind,
+                                         native_fmu_dir=native_fmu_dir)
         setup = setups[key]
         plans.append(CasePlan(case.key, case.label, setup, setup.case_parameters(case.parameters)))
     return plans
@@ -154,10 +163,12 @@ def case_fmu(fmu: Path, values: dict) -> bytes:
     """A copy of `fmu` whose default values are `values` (typed, see :func:`typed_values`).
 
     The ``start`` attributes in modelDescription.xml are rewritten and the
-    values written to ``resources/flexarm_start_values.json``, which the FMU
+    values written to ``resources/flexarm_start_values.json`` (a Python FMU) or
+    ``resources/flexarm_start_values.txt`` (a native one), which the FMU
     applies when it is instantiated (and again at ``fmi2Reset``).
     """
     import json
+    import struct
 
     out = io.BytesIO()
     with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as dst:
@@ -171,13 +182,19 @@ def case_fmu(fmu: Path, values: dict) -> bytes:
         missing = sorted(set(values) - seen)
         if missing:
             raise SSPExportError(f"{fmu.name}: no variables {missing} in its modelDescription.xml")
+        native = (md.get("generationTool") or "").startswith(runner.NATIVE_GENERATION_TOOL)
+        ours = f"resources/{NATIVE_START_VALUES if native else START_VALUES}"
         for info in src.infolist():
-            if info.filename == "modelDescription.xml" or info.filename == f"resources/{START_VALUES}":
+            if info.filename in ("modelDescription.xml", ours):
                 continue
             dst.writestr(info, src.read(info))
         dst.writestr(_member("modelDescription.xml"),
                      etree.tostring(md, xml_declaration=True, encoding="UTF-8"))
-        dst.writestr(_member(f"resources/{START_VALUES}"), json.dumps(values, indent=1) + "\n")
+        if native:
+            text = "".join(f"{name} {struct.pack('>d', float(value)).hex()}\n" for name, value in values.items())
+        else:
+            text = json.dumps(values, indent=1) + "\n"
+        dst.writestr(_member(ours), text)
     return out.getvalue()
 
 
@@ -278,15 +295,18 @@ def system_structure_xml(scenario: Scenario, plan: CasePlan) -> bytes:
 
 def export_ssp(scenario: Scenario, out_dir: str | Path = DEFAULT_SSP_DIR,
                fmu_dir: str | Path = runner.DEFAULT_FMU_DIR, build: bool = True,
-               cases: list[str] | None = None) -> dict[str, Path]:
+               cases: list[str] | None = None, kind: str | None = None,
+               native_fmu_dir: str | Path = runner.DEFAULT_NATIVE_FMU_DIR) -> dict[str, Path]:
     """Write one archive per case, ``<out_dir>/<scenario>/<case>.ssp``; return {case key: path}.
 
-    FMUs are built into `fmu_dir` if needed (as ``python -m scenarios run`` does).
-    `cases` selects cases by key (default: all).
+    FMUs are built into `fmu_dir` (and `native_fmu_dir`) if needed (as ``python -m scenarios run`` does).
+    `cases` selects cases by key (default: all). `kind` (default the scenario's ``kind``): "python" puts
+    the Python FMUs in the archives, "native" the plain-C ones (a case whose FMU has no native build is
+    refused naming it).
     """
     folder = Path(out_dir) / scenario.name
     written = {}
-    for plan in plan_cases(scenario, Path(fmu_dir), build, cases):
+    for plan in plan_cases(scenario, Path(fmu_dir), build, cases, kind, Path(native_fmu_dir)):
         members: dict[str, bytes] = {DEFAULT_SSD: system_structure_xml(scenario, plan)}
         for inst in scenario.order:
             path = Path(plan.setup.paths[inst])

@@ -399,7 +399,7 @@ def build_native_fmus(out_dir: Path | None = None, python_fmus: dict[str, Path] 
     names = list(only) if only else [n for n in NATIVE_FMUS if python_fmus is None or n in python_fmus]
     with tempfile.TemporaryDirectory(prefix="flexarm-python-fmus-") as tmp:
         if python_fmus is None:
-            from build_fmus import build_all  # the project's Python FMU build (repository root)
+            from fmu_build import build_all  # the project's Python FMU build
 
             python_fmus = build_all(Path(tmp), only=names)
         return {name: build_native_fmu(name, python_fmus[name], out_dir, platforms) for name in names}

@@ -13,7 +13,7 @@ from flexarm.provenance import sha256_bytes
 
 from ..config import ScenarioError
 from ..master import Master
-from ..runner import DEFAULT_FMU_DIR, known_fmu_names, prepare, read_descriptions, resolve_fmus
+from ..runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, known_fmu_names, prepare, read_descriptions, resolve_fmus
 from ..values import check_parameters, check_value, check_variable
 from .spec import Axis, Sweep, SweepError, _require, toml_content_sha256
 
@@ -73,15 +73,19 @@ def _check_axis(sweep: Sweep, axis: Axis, md, fmu_path: Path) -> None:
         check_value(where, v, x, SweepError)
 
 
-def point_key(scenario_sha: str, samples, fmus: dict, parameters: dict) -> str:
-    """A point's key: what defines its run (the scenario's parsed content, the run length, the FMU names and
-    the parameters), not the sweep file's bytes: a comment, or a new value on an axis, reruns nothing."""
-    blob = json.dumps({"scenario_content_sha256": scenario_sha, "samples": samples, "fmus": fmus,
-                       "parameters": parameters}, sort_keys=True, separators=(",", ":"))
+def point_key(scenario_sha: str, samples, fmus: dict, parameters: dict, kind: str = "python") -> str:
+    """A point's key: what defines its run (the scenario's parsed content, the run length, the FMU names, their
+    kind and the parameters), not the sweep file's bytes: a comment, or a new value on an axis, reruns nothing.
+    The kind enters only when it is not "python" (so journals written before kinds existed still match)."""
+    what = {"scenario_content_sha256": scenario_sha, "samples": samples, "fmus": fmus, "parameters": parameters}
+    if kind != "python":
+        what["kind"] = kind
+    blob = json.dumps(what, sort_keys=True, separators=(",", ":"))
     return sha256_bytes(blob.encode())[:16]
 
 
-def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True, probe: bool = True) -> Plan:
+def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True, probe: bool = True,
+               kind: str | None = None, native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR) -> Plan:
     """Resolve (and build) the FMUs of every FMU set, check every value against them, list the points.
 
     Parameters
@@ -95,6 +99,9 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
     probe : bool
         Initialise each FMU set with the base point and take one communication step, so that a step or a
         value the FMUs refuse is reported (with the FMU's message) before any point runs.
+    kind : str, optional
+        "python" or "native" FMUs (default: the scenario's ``kind``); native ones are found (and built) in
+        `native_fmu_dir` (:func:`scenarios.runner.resolve_fmus`).
 
     Returns
     -------
@@ -107,6 +114,7 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
         Naming the field and its allowed values (or the FMU's message for a refused probe).
     """
     scenario, case = sweep.scenario, sweep.case
+    kind = kind or scenario.kind
     scenario_sha = toml_content_sha256(scenario.path)
     fmu_axes = [a for a in sweep.axes if a.is_fmu]
     fmu_sets: dict[str, FmuSet] = {}
@@ -122,7 +130,7 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
     for combo in itertools.product(*(a.values for a in fmu_axes)):
         names = {**case.fmus, **{a.instance: v for a, v in zip(fmu_axes, combo)}}
         try:
-            paths = resolve_fmus(scenario, fmu_dir, None, build, names)
+            paths = resolve_fmus(scenario, fmu_dir, None, build, names, kind, native_fmu_dir)
             descriptions = read_descriptions(paths)
             check_parameters(f"{scenario.path.name}: cases[{case.key}].parameters", descriptions, case.parameters)
         except ScenarioError as exc:
@@ -148,7 +156,7 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
                 params.setdefault(a.instance, {})[a.variable] = v
         fs_key = by_combo[tuple(values[a.field] for a in fmu_axes)]
         names = fmu_sets[fs_key].names
-        key = point_key(scenario_sha, scenario.samples, names, params)
+        key = point_key(scenario_sha, scenario.samples, names, params, kind)
         points.append(Point(index, key, values, names, params))
         point_set[key] = fs_key
     return Plan(sweep, points, fmu_sets, point_set, scenario_sha)

@@ -15,7 +15,7 @@ from flexarm.provenance import git_commit, write_json
 
 from ..master import RunInterrupted
 from ..outdir import check_writable, folder_lock, remove_stale
-from ..runner import DEFAULT_FMU_DIR, verify_data_chain
+from ..runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, verify_data_chain
 from .journal import DONE, STATUSES, Journal, table_columns, table_rows, write_table
 from .plan import Plan, plan_sweep
 from .report import Progress, _short, format_summary, summary_plots
@@ -41,7 +41,8 @@ class SweepResult:
 def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_dir: Path = DEFAULT_FMU_DIR, *,
               scheduler: str | None = None, workers: int | None = None, serial: bool = False,
               plots: bool = True, progress: bool = True, build: bool = True, allowed_failures: int = 1,
-              on_record: Callable[[dict], None] | None = None) -> SweepResult:
+              on_record: Callable[[dict], None] | None = None, kind: str | None = None,
+              native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR) -> SweepResult:
     """Run every point of a sweep not yet in its journal; write the table and plots.
 
     Parameters
@@ -69,6 +70,8 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
         Local cluster only: retries of a point whose worker died.
     on_record : callable, optional
         Called with each new journal record.
+    kind : str, optional
+        "python" or "native" FMUs (default: the scenario's ``kind``); native ones live in `native_fmu_dir`.
 
     Returns
     -------
@@ -86,7 +89,8 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
     if not isinstance(sweep, Sweep):
         sweep = load_sweep(sweep)
     chain = verify_data_chain()
-    plan = plan_sweep(sweep, fmu_dir, build)
+    kind = kind or sweep.scenario.kind
+    plan = plan_sweep(sweep, fmu_dir, build, kind=kind, native_fmu_dir=native_fmu_dir)
     out = Path(out_dir)
     folder = out / sweep.name
     with ExitStack() as stack:
@@ -111,6 +115,7 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
             "samples": sweep.scenario.samples,
             "axes": [{"field": a.field, "kind": a.kind, "values": a.values} for a in sweep.axes],
             "points": len(plan.points), "commit": commit, "execution": mode, "data_sha256": chain,
+            "fmu_kind": kind,
             "fmu_sets": [{"fmus": fs.names, "fmu_sha256": fs.sha256} for fs in plan.fmu_sets.values()],
             "started_at": _now(), "journal": "journal.jsonl", "columns": table_columns(plan),
         }
@@ -122,7 +127,7 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
         unmatched = len(set(records) - {p.key for p in plan.points})
         if unmatched:  # say why points run again rather than rerun them silently
             sys.stderr.write(f"{sweep.name}: {unmatched} journal record(s) match no point of this sweep (other "
-                             "parameters, scenario content, run length or FMU names, or an older key scheme); "
+                             "parameters, scenario content, run length, FMU names or kind, or an older key scheme); "
                              "they are kept but not reused\n")
         if journal.bad_lines:
             sys.stderr.write(f"{sweep.name}: skipped {journal.bad_lines} unreadable journal line(s)\n")
@@ -207,7 +212,8 @@ def cli(args) -> int:
     if args.workers is not None and args.workers < 1:
         raise SweepError(f"--workers: an integer >= 1, got {args.workers}")
     res = run_sweep(args.sweep, args.out, args.fmu_dir, scheduler=args.scheduler, workers=args.workers,
-                    serial=args.serial, plots=not args.no_plots, progress=not args.quiet)
+                    serial=args.serial, plots=not args.no_plots, progress=not args.quiet, kind=args.kind,
+                    native_fmu_dir=args.native_fmu_dir)
     counts = {s: sum(r["status"] == s for r in res.rows) for s in STATUSES}
     sw = res.plan.sweep
     print(f"\n== sweep {sw.name}: {sw.description}")

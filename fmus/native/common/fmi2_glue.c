@@ -133,7 +133,7 @@ static void range_text(const VarInfo *v, char *buf, size_t size)
 
 static void reset_values(Instance *inst)
 {
-    for (size_t i = 0; i < MODEL_INFO.n_vars; i++) inst->values[i] = MODEL_INFO.vars[i].start;
+    memcpy(inst->values, inst->starts, MODEL_INFO.n_vars * sizeof *inst->values);
     memset(inst->invalid, 0, MODEL_INFO.n_vars);
     memset(inst->state, 0, MODEL_INFO.state_size ? MODEL_INFO.state_size : 1);
     inst->time = 0.0;
@@ -263,7 +263,9 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     inst->values = calloc(MODEL_INFO.n_vars, sizeof *inst->values);
     inst->invalid = calloc(MODEL_INFO.n_vars, 1);
     inst->state = calloc(1, MODEL_INFO.state_size ? MODEL_INFO.state_size : 1);
-    int ok = inst->values && inst->invalid && inst->state;
+    inst->starts = calloc(MODEL_INFO.n_vars, sizeof *inst->starts);
+    int ok = inst->values && inst->invalid && inst->state && inst->starts;
+    for (size_t i = 0; ok && i < MODEL_INFO.n_vars; i++) inst->starts[i] = MODEL_INFO.vars[i].start;
     if (ok && fmuType != fmi2CoSimulation) {
         glue_log(inst, fmi2Error, "fmi2Instantiate: %s is a co-simulation FMU only (fmuType must be "
                  "fmi2CoSimulation)", MODEL_INFO.model_identifier);
@@ -275,8 +277,9 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         ok = 0;
     }
     if (ok && glue_load_resources(inst, fmuResourceLocation) != 0) ok = 0;
+    if (ok && glue_load_start_values(inst, fmuResourceLocation) != 0) ok = 0;
     if (!ok) {
-        free(inst->values), free(inst->invalid), free(inst->state), free(inst->name);
+        free(inst->values), free(inst->invalid), free(inst->state), free(inst->starts), free(inst->name);
         inst->magic = 0;
         free(inst);
         return NULL;
@@ -292,7 +295,7 @@ void fmi2FreeInstance(fmi2Component c)
     if (inst == NULL) return;
     if (MODEL_INFO.unload != NULL) MODEL_INFO.unload(inst);
     inst->magic = 0;
-    free(inst->values), free(inst->invalid), free(inst->state), free(inst->name);
+    free(inst->values), free(inst->invalid), free(inst->state), free(inst->starts), free(inst->name);
     free(inst);
 }
 

@@ -73,6 +73,7 @@ typedef struct Instance {
     int outputs_stale;      /* feedthrough: inputs changed since the last sample */
     void *state;            /* model state, ModelInfo.state_size bytes */
     void *data;             /* model constants from the resources (not part of the FMU state) */
+    double *starts;         /* start values: the table's, or a case's (glue_load_start_values) */
 } Instance;
 
 extern const ModelInfo MODEL_INFO;
@@ -94,5 +95,11 @@ int glue_read_doubles(const Instance *inst, const char *file, const char *text, 
 
 /* Read and check every resource of MODEL_INFO, then MODEL_INFO.load; 0 on success (after logging why not). */
 int glue_load_resources(Instance *inst, const char *uri);
+
+/* A case's start values, if resources/flexarm_start_values.txt exists (written by the SSP export of
+   flexarm-fmi's scenarios, so a master that applies no parameter set still runs the case): into inst->starts.
+   0 on success or without the file; -1 (after logging which line) on a name that is no parameter or a value
+   outside its range. */
+int glue_load_start_values(Instance *inst, const char *uri);
 
 #endif

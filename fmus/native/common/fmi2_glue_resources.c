@@ -3,6 +3,7 @@
  * each file read whole and checked against the SHA-256 recorded at build time, and the text format
  * of the constants (labelled lists of IEEE-754 doubles as 16 hex digits: exact on every platform).
  */
+#include <math.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -138,5 +139,69 @@ int glue_load_resources(Instance *inst, const char *uri)
     if (rc == 0) rc = MODEL_INFO.load(inst, contents, sizes);
     for (size_t r = 0; r < 8; r++) free(contents[r]);
     free(dir);
+    return rc;
+}
+
+#define START_VALUES_FILE "flexarm_start_values.txt"
+
+/* One line "name value" of the start-values file; value: the IEEE-754 bits as 16 hex digits. */
+static int apply_start_value(Instance *inst, const char *name, size_t len, const char *hex, const char *line_end)
+{
+    uint64_t bits = 0;
+    int d = 0;
+    for (; d < 16 && hex + d < line_end && hex_digit(hex[d]) >= 0; d++) bits = bits << 4 | (uint64_t)hex_digit(hex[d]);
+    if (d != 16 || hex + 16 != line_end) {
+        glue_log(inst, fmi2Error, "fmi2Instantiate: resources/%s: line '%.*s' is not 'name' and 16 hex digits",
+                 START_VALUES_FILE, (int)(line_end - name), name);
+        return -1;
+    }
+    double x;
+    memcpy(&x, &bits, sizeof x);
+    for (size_t i = 0; i < MODEL_INFO.n_vars; i++) {
+        const VarInfo *v = &MODEL_INFO.vars[i];
+        if (strlen(v->name) != len || strncmp(v->name, name, len) != 0) continue;
+        if (v->causality != CA_PARAMETER) break;
+        if (!isfinite(x) || x < v->min || x > v->max || (v->type != VT_REAL && x != floor(x))) {
+            glue_log(inst, fmi2Error, "fmi2Instantiate: resources/%s: %s = %.17g is outside its range [%.17g, %.17g]"
+                     "%s", START_VALUES_FILE, v->name, x, v->min, v->max, v->type != VT_REAL ? " of whole numbers" : "");
+            return -1;
+        }
+        inst->starts[i] = x;
+        return 0;
+    }
+    glue_log(inst, fmi2Error, "fmi2Instantiate: resources/%s: '%.*s' is not a parameter of %s", START_VALUES_FILE,
+             (int)len, name, MODEL_INFO.model_identifier);
+    return -1;
+}
+
+int glue_load_start_values(Instance *inst, const char *uri)
+{
+    char *dir = uri != NULL ? uri_to_path(uri) : NULL;
+    if (dir == NULL) return 0; /* no resources folder: the table's start values */
+    size_t n = strlen(dir) + strlen(START_VALUES_FILE) + 2, size = 0;
+    char *path = malloc(n);
+    if (path == NULL) {
+        free(dir);
+        return -1;
+    }
+    snprintf(path, n, "%s%s%s", dir, dir[0] && dir[strlen(dir) - 1] == '/' ? "" : "/", START_VALUES_FILE);
+    char *text = read_whole(path, &size);
+    free(path);
+    free(dir);
+    if (text == NULL) return 0; /* no file: the table's start values */
+    int rc = 0;
+    for (const char *p = text; *p && rc == 0;) {
+        const char *end = p;
+        while (*end && *end != '\n' && *end != '\r') end++;
+        if (end > p) {
+            const char *name = p, *sep = p;
+            while (sep < end && *sep != ' ') sep++;
+            const char *hex = sep;
+            while (hex < end && *hex == ' ') hex++;
+            rc = apply_start_value(inst, name, (size_t)(sep - name), hex, end);
+        }
+        p = *end ? end + 1 : end;
+    }
+    free(text);
     return rc;
 }
