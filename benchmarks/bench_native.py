@@ -161,13 +161,13 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=2000, help="plant steps per timing")
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
-    import build_fmus
+    from fmu_build import build_all
 
     traj = load_trajectory()
     torques = np.array([traj.tau[min(k, len(traj.tau) - 1)] for k in range(args.steps)])
     with tempfile.TemporaryDirectory(prefix="bench-native-") as tmp:
         tmp = Path(tmp)
-        python = build_fmus.build_all(tmp / "python", only=["plant", "sensors", "controller"])
+        python = build_all(tmp / "python", only=["plant", "sensors", "controller"])
         native = build_native_fmus(tmp / "native", python, platforms=("linux64",))
         print(f"native FMU sizes (linux64 only here; with all three platforms see docs/native-fmus.md): "
               f"{', '.join(f'{n} {p.stat().st_size / 1024:.0f} KiB' for n, p in native.items())}")

@@ -284,7 +284,7 @@ def compile_binary(src_dir: Path, model_identifier: str, platform: str, out_dir:
 # -- one FMU --------------------------------------------------------------------------------------
 #: name -> the C sources of its model (relative to fmus/native/)
 NATIVE_FMUS = {
-    "plant": ("plant/plant.c", "plant/plant_linalg.c", "plant/plant_linalg.h"),
+    "plant": ("plant/plant.c", "plant/plant_linalg.h"),
     "sensors": ("sensors/sensors.c", "sensors/pcg64.c", "sensors/pcg64.h"),
     **{name: ("controller/controller.c",) for name in ("controller", "controller_ff", "controller_fb",
                                                        "controller_dlqr")},

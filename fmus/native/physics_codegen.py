@@ -88,6 +88,68 @@ def lower_packed(n: int) -> list[tuple[int, int]]:
     return [(i, j) for j in range(n) for i in range(j, n)]
 
 
+def _ldl(packed: list, n: int) -> tuple[list, list, list]:
+    """M = L D Lᵀ of the symmetric matrix whose lower triangle is `packed` (:func:`lower_packed` order), on symbols.
+
+    Straight-line code for the n = 11 factorisation that runs twelve times per 1 ms step: the compiler schedules
+    independent elements side by side (a loop keeps them in memory, on one long chain). No square roots.
+    Returns L's strict lower triangle (column by column), 1/d_j and d_j (the C checks d_j > 0: positive definite).
+    """
+    a = {ij: x for ij, x in zip(lower_packed(n), packed)}
+    low, d, dinv = {}, [], []
+    for j in range(n):
+        w = [low[j, k] * d[k] for k in range(j)]
+        col = {}
+        for i in range(j, n):
+            t = a[i, j]
+            for k in range(j):
+                t = t - low[i, k] * w[k]
+            col[i] = t
+        d.append(col[j])
+        dinv.append(1.0 / col[j])
+        for i in range(j + 1, n):
+            low[i, j] = col[i] * dinv[j]
+    return [low[i, j] for j in range(n) for i in range(j + 1, n)], dinv, d
+
+
+def _ldl_solve_function(n: int) -> ca.Function:
+    """``flexarm_ldl_solve(L, 1/d, b) -> x`` = (L D Lᵀ)⁻¹ b with :func:`_ldl`'s factors, straight-line."""
+    low_sx, low_v = _symbols("unit_lower", n * (n - 1) // 2)
+    dinv_sx, dinv = _symbols("inverse_pivots", n)
+    b_sx, b = _symbols("b", n)
+    low = dict(zip([(i, j) for j in range(n) for i in range(j + 1, n)], low_v))
+    y = list(b)
+    for i in range(n):  # L y = b
+        for k in range(i):
+            y[i] = y[i] - low[i, k] * y[k]
+    y = [y[i] * dinv[i] for i in range(n)]
+    x = [None] * n
+    for i in reversed(range(n)):  # Lᵀ x = D⁻¹ y, the newest x_k last
+        t = y[i]
+        for k in reversed(range(i + 1, n)):
+            t = t - low[k, i] * x[k]
+        x[i] = t
+    return ca.Function("flexarm_ldl_solve", [low_sx, dinv_sx, b_sx], [ca.vertcat(*x)])
+
+
+def _lu_solve_function(n: int) -> ca.Function:
+    """``flexarm_lu_solve(LU, b_permuted) -> x``: LU row-major with 1/U_ii on the diagonal (plant_linalg.h
+    lu_factor), b already permuted by its pivots; straight-line."""
+    lu_sx, lu_v = _symbols("lu", n * n)
+    b_sx, b = _symbols("b", n)
+    lu = np.asarray(lu_v, dtype=object).reshape(n, n)
+    x = list(b)
+    for k in range(n):  # unit lower, k ascending
+        for i in range(k + 1, n):
+            x[i] = x[i] - lu[i, k] * x[k]
+    for i in reversed(range(n)):
+        t = x[i]
+        for k in reversed(range(i + 1, n)):
+            t = t - lu[i, k] * x[k]
+        x[i] = t * lu[i, i]
+    return ca.Function("flexarm_lu_solve", [lu_sx, b_sx], [ca.vertcat(*x)])
+
+
 def generate_physics(out_dir: Path, params: ArmParameters | None = None) -> list[Path]:
     """Write flexarm_physics.c/.h (CasADi) and plant_constants.h into `out_dir`; return the paths.
 
@@ -124,17 +186,20 @@ def generate_physics(out_dir: Path, params: ArmParameters | None = None) -> list
         return ca.vertcat(*[ca.horzcat(*row) for row in a]) if a.ndim == 2 else ca.vertcat(*a)
 
     mass_lower = [mass[i, j] for i, j in lower_packed(n)]
-    f_mass = ca.Function("flexarm_mass_rhs", [cos_sx, sin_sx, om_sx, coeff_sx], [sx(mass_lower), sx(rhs)])
+    low, dinv, piv = _ldl(mass_lower, n)
+    f_mass = ca.Function("flexarm_mass_rhs", [cos_sx, sin_sx, om_sx, coeff_sx],
+                         [sx(mass_lower), sx(rhs), sx(low), sx(dinv), sx(piv)])
     f_tan = ca.Function("flexarm_tangents", [cos_sx, sin_sx, om_sx, acc_sx, coeff_sx], [sx(q), sx(v)])
     f_in = ca.Function("flexarm_input_forces", [tau_sx], [sx(forces)])
+    functions = (f_mass, f_tan, f_in, _ldl_solve_function(n), _lu_solve_function(n))
     gen = ca.CodeGenerator("flexarm_physics.c", {"with_header": True, "casadi_real": "double",
                                                  "casadi_int": "long long", "with_export": False})
-    for f in (f_mass, f_tan, f_in):
+    for f in functions:
         gen.add(f)
     gen.generate(str(out_dir) + "/")
     _check_no_library_math(out_dir / "flexarm_physics.c")
-    work = max(f.sz_w() for f in (f_mass, f_tan, f_in))
-    iwork = max(f.sz_iw() for f in (f_mass, f_tan, f_in))
+    work = max(f.sz_w() for f in functions)
+    iwork = max(f.sz_iw() for f in functions)
     a_rows = ",\n    ".join("{" + ", ".join(repr(float(x)) for x in row) + "}" for row in kern.RODAS4_A)
     c_rows = ",\n    ".join("{" + ", ".join(repr(float(x)) for x in row) + "}" for row in kern.RODAS4_C)
     pade = ", ".join(repr(float(x)) for x in kern._PADE13)
@@ -144,6 +209,7 @@ def generate_physics(out_dir: Path, params: ArmParameters | None = None) -> list
 #define PLANT_N_ELEMENTS {n}
 #define PLANT_N_SPRING_VALUES {n_k}
 #define PLANT_N_MASS_PACKED {len(mass_lower)}
+#define PLANT_N_UNIT_LOWER {len(low)}
 #define PLANT_WORK_DOUBLES {max(work, 1)}
 #define PLANT_WORK_INTS {max(iwork, 1)}
 #define PLANT_JOINT2_PROXIMAL {JOINT2_PAIR[0]}

@@ -30,7 +30,8 @@
 typedef struct {
     double c[N], s[N];                     /* cos θ, sin θ */
     double mass_packed[PLANT_N_MASS_PACKED]; /* M(θ), lower triangle column by column */
-    double chol[N * N];                    /* its Cholesky factor, column-major */
+    double unit_lower[PLANT_N_UNIT_LOWER];   /* M = L D Lᵀ: L below the diagonal, column by column */
+    double inverse_pivots[N], pivots[N];   /* 1/d_j, d_j */
     double force[N];                       /* S(θ, θ̇) − C_d θ̇ */
 } Eval;
 
@@ -62,7 +63,7 @@ static int evaluate(PlantData *d, const double *z, Eval *ev)
 {
     for (int i = 0; i < N; i++) flexarm_sincos(z[i], &ev->s[i], &ev->c[i]);
     const double *arg[4] = {ev->c, ev->s, z + N, d->coeff};
-    double *res[2] = {ev->mass_packed, ev->force};
+    double *res[5] = {ev->mass_packed, ev->force, ev->unit_lower, ev->inverse_pivots, ev->pivots};
     flexarm_mass_rhs(arg, res, d->iw, d->w, 0);
     if (d->damped)
         for (int i = 0; i < N; i++) {
@@ -70,9 +71,17 @@ static int evaluate(PlantData *d, const double *z, Eval *ev)
             for (int j = 0; j < N; j++) t += d->damping[i * N + j] * z[N + j];
             ev->force[i] -= t;
         }
-    for (int j = 0, k = 0; j < N; j++)
-        for (int i = j; i < N; i++) ev->chol[j * N + i] = ev->mass_packed[k++];
-    return chol_factor(ev->chol, N);
+    for (int j = 0; j < N; j++)
+        if (!(ev->pivots[j] > 0.0)) return -1; /* M not positive definite (or not finite) */
+    return 0;
+}
+
+/* x = M⁻¹ b at the state of `ev` (x and b distinct) */
+static void mass_solve(PlantData *d, const Eval *ev, const double *b, double *x)
+{
+    const double *arg[3] = {ev->unit_lower, ev->inverse_pivots, b};
+    double *res[1] = {x};
+    flexarm_ldl_solve(arg, res, d->iw, d->w, 0);
 }
 
 static void mass_full(const Eval *ev, double *mass)
@@ -82,10 +91,21 @@ static void mass_full(const Eval *ev, double *mass)
 }
 
 /* θ̈ = M⁻¹ (S − C_d θ̇ + B̄τ), `forces` = B̄τ */
-static void acceleration(const Eval *ev, const double *forces, double *acc)
+static void acceleration(PlantData *d, const Eval *ev, const double *forces, double *acc)
 {
-    for (int i = 0; i < N; i++) acc[i] = ev->force[i] + forces[i];
-    chol_solve(ev->chol, acc, N);
+    double b[N];
+    for (int i = 0; i < N; i++) b[i] = ev->force[i] + forces[i];
+    mass_solve(d, ev, b, acc);
+}
+
+/* x = W⁻¹ b with W's factors from lu_factor */
+static void stage_solve(PlantData *d, const double *lu, const int *piv, const double *b, double *x)
+{
+    double bp[N];
+    for (int i = 0; i < N; i++) bp[i] = b[piv[i]];
+    const double *arg[2] = {lu, bp};
+    double *res[1] = {x};
+    flexarm_lu_solve(arg, res, d->iw, d->w, 0);
 }
 
 /* Q and V − C_d (column-major) at the state of `ev` with rates omega and accelerations acc. */
@@ -114,7 +134,7 @@ static int rodas4_step(PlantData *d, const double *z, const Eval *ev0, Eval *ev,
     int piv[N];
     mass_full(ev0, mass);
     memcpy(f, z + N, N * sizeof *f);
-    acceleration(ev0, forces, f + N);
+    acceleration(d, ev0, forces, f + N);
     tangents(d, ev0, z + N, f + N, q, v);
     const double g = 1.0 / (RODAS4_GAMMA * h);
     for (int i = 0; i < N; i++)
@@ -134,7 +154,7 @@ static int rodas4_step(PlantData *d, const double *z, const Eval *ev0, Eval *ev,
             }
             memcpy(f, u + N, N * sizeof *f);
             if (evaluate(d, u, ev) != 0) return -1;
-            acceleration(ev, forces, f + N);
+            acceleration(d, ev, forces, f + N);
             for (int j = 0; j < stage; j++) {
                 const double cj = RODAS4_C[stage][j] / h;
                 for (int i = 0; i < NZ; i++) f[i] += cj * ks[j][i];
@@ -151,7 +171,7 @@ static int rodas4_step(PlantData *d, const double *z, const Eval *ev0, Eval *ev,
             }
         }
         for (int i = 0; i < N; i++) tm[i] -= tv[i];
-        lu_solve(w, piv, tm, k_th, N);
+        stage_solve(d, w, piv, tm, k_th);
         for (int i = 0; i < N; i++) {
             ks[stage][i] = k_th[i];
             ks[stage][N + i] = g * k_th[i] - f[i];
@@ -171,11 +191,14 @@ static int exponential_step(PlantData *d, const double *z, const Eval *ev0, cons
                             double *z_new)
 {
     double acc[N], q[N * N], v[N * N], aug[NA * NA], e[NA * NA];
-    acceleration(ev0, forces, acc);
+    acceleration(d, ev0, forces, acc);
     tangents(d, ev0, z + N, acc, q, v);
+    double qv[N * N], vv[N * N];
+    memcpy(qv, q, sizeof qv);
+    memcpy(vv, v, sizeof vv);
     for (int j = 0; j < N; j++) { /* [∂θ̈/∂θ, ∂θ̈/∂θ̇] = M⁻¹ [Q, V − C_d], column by column */
-        chol_solve(ev0->chol, q + j * N, N);
-        chol_solve(ev0->chol, v + j * N, N);
+        mass_solve(d, ev0, qv + j * N, q + j * N);
+        mass_solve(d, ev0, vv + j * N, v + j * N);
     }
     double c = 1.0; /* sqrt(max |∂θ̈_i/∂θ_i|): balances the blocks of hJ */
     for (int i = 0; i < N; i++) c = fmax(c, sqrt(fabs(q[i * N + i])));
@@ -211,26 +234,31 @@ static int build_damping(PlantData *d, double ratio)
     for (int i = 0; i < N; i++) z[i] = PLANT_DAMPING_Q1 + (i >= PLANT_JOINT2_DISTAL ? PLANT_DAMPING_Q2 : 0.0);
     if (evaluate(d, z, &ev) != 0) return -1;
     mass_full(&ev, mass);
-    acceleration(&ev, zero, acc);
+    acceleration(d, &ev, zero, acc);
     tangents(d, &ev, zero, acc, q, v);
-    for (int j = 0; j < N; j++) chol_solve(ev.chol, q + j * N, N); /* A_θ = M⁻¹ Q, column-major */
+    double qm[N * N];
+    memcpy(qm, q, sizeof qm);
+    for (int j = 0; j < N; j++) mass_solve(d, &ev, qm + j * N, q + j * N); /* A_θ = M⁻¹ Q, column-major */
     for (int i = 0; i < N; i++) /* K_t = −M A_θ, row-major */
         for (int j = 0; j < N; j++) {
             double t = 0.0;
             for (int k = 0; k < N; k++) t += mass[i * N + k] * q[j * N + k];
             kt[i * N + j] = -t;
         }
+    double low[N * N]; /* M = L Lᵀ */
+    memcpy(low, mass, sizeof low);
+    if (chol_factor(low, N) != 0) return -1;
     for (int i = 0; i < N; i++) /* symmetric part, its columns (= rows) solved with L: L⁻¹ K */
         for (int j = 0; j < N; j++) a[j * N + i] = 0.5 * (kt[i * N + j] + kt[j * N + i]);
-    for (int j = 0; j < N; j++) chol_forward(ev.chol, a + j * N, N);
+    for (int j = 0; j < N; j++) chol_forward(low, a + j * N, N);
     for (int i = 0; i < N; i++) /* (L⁻¹ K)ᵀ's columns solved again: L⁻¹ K L⁻ᵀ */
         for (int j = 0; j < N; j++) y[i * N + j] = a[j * N + i];
-    for (int j = 0; j < N; j++) chol_forward(ev.chol, y + j * N, N);
+    for (int j = 0; j < N; j++) chol_forward(low, y + j * N, N);
     for (int i = 0; i < N; i++)
         for (int j = 0; j < N; j++) a[i * N + j] = 0.5 * (y[i * N + j] + y[j * N + i]);
     if (sym_eigen(a, lam, y, N) != 0) return -1;
     for (int i = 0; i < N; i++) /* L, row-major */
-        for (int j = 0; j < N; j++) lower[i * N + j] = j <= i ? ev.chol[j * N + i] : 0.0;
+        for (int j = 0; j < N; j++) lower[i * N + j] = j <= i ? low[j * N + i] : 0.0;
     double mphi[N * N], scaled[N * N]; /* M Φ = L Y; (M Φ diag(2ζω)) */
     mat_mul(lower, y, mphi, N);
     for (int i = 0; i < N; i++)
@@ -269,7 +297,7 @@ static void outputs(PlantData *d, Instance *inst, const double *z, const Eval *e
 {
     double alpha[N], forces[N];
     input_forces(d, tau, forces);
-    acceleration(ev, forces, alpha);
+    acceleration(d, ev, forces, alpha);
     double *y = inst->values;
     for (int i = 0; i < N; i++) {
         y[IDX_THETA[i]] = z[i];
