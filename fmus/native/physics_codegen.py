@@ -3,10 +3,11 @@
 The C is CasADi's code generation of the very kernels the Python plant runs:
 the NumPy path of :mod:`flexarm._kernels` (``assemble``, ``tangent_matrices``)
 evaluated on CasADi SX symbols instead of numbers, so there is no second copy
-of the equations (eq. 1, 5, 8 and the appendix gradients):
-
-* ``flexarm_mass_rhs(θ, θ̇, τ, coeff) -> (M(θ), S(θ, θ̇) + B̄τ)``;
-* ``flexarm_tangents(θ, θ̇, θ̈, coeff) -> (Q, V)`` = ∂(S − Mθ̈)/∂θ at fixed θ̈ and ∂S/∂θ̇.
+of the equations (eq. 1, 5, 8 and the appendix gradients). cos θ and sin θ are
+inputs (the C computes them once per state, with the FMU's own portable sin/cos,
+and shares them between these functions and the kinematics); the factorisation
+of M(θ) and the n = 11 solves are generated too, as straight-line code (see
+:func:`generate_physics`).
 
 ``coeff`` is (M_jk row-major, the non-zero entries of the stiffness matrix
 row-major): the arm's constants are not compiled in but read from
@@ -155,11 +156,13 @@ def generate_physics(out_dir: Path, params: ArmParameters | None = None) -> list
 
     Generated functions (cos θ and sin θ are inputs; ``coeff`` = (M_jk row-major, stiffness non-zeros)):
 
-    * ``flexarm_mass_rhs(cos θ, sin θ, θ̇, coeff) -> (M(θ) lower triangle packed column by column, S(θ, θ̇))``
-      (M is symmetric: the Cholesky factorisation reads only this triangle);
+    * ``flexarm_mass_rhs(cos θ, sin θ, θ̇, coeff) -> (M(θ)'s lower triangle packed column by column, S(θ, θ̇),
+      L, 1/d, d)`` with M = L D Lᵀ (:func:`_ldl`; the C checks d > 0);
     * ``flexarm_tangents(cos θ, sin θ, θ̇, θ̈, coeff) -> (Q, V)`` column-major, Q = ∂(S − Mθ̈)/∂θ at fixed θ̈,
       V = ∂S/∂θ̇;
-    * ``flexarm_input_forces(τ) -> B̄τ``.
+    * ``flexarm_input_forces(τ) -> B̄τ``;
+    * ``flexarm_ldl_solve(L, 1/d, b) -> M⁻¹ b`` and ``flexarm_lu_solve(LU, b permuted) -> W⁻¹ b`` (RODAS4's stage
+      matrix W, factored by plant_linalg.h).
     """
     model = ArmModel(params if params is not None else load_parameters())
     kern = _numpy_kernels()
