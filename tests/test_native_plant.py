@@ -196,3 +196,35 @@ def test_native_plant_runs_alone_in_the_c_host_without_python(plants, tmp_path):
     assert header[1:] == names
     np.testing.assert_array_equal(rows[:, 1:], ref)  # the same binary: bit for bit
 
+
+
+def test_native_plant_state_carries_its_parameters_into_another_instance(plants, tmp_path):
+    """A serialised FMU state restored into an instance set up with another payload, damping and scheme steps as the
+    instance it came from (the model's coefficients follow the restored parameters, not the receiving instance's)."""
+    native = plants[1]
+    unz = str(unpack_alone(native, tmp_path / "p"))
+    params, inputs, _ = _slew_case()
+    source = Slave(native, unz, "source", **params, damping_ratio=0.02, integrator=2)
+    other = Slave(native, unz, "other", **{**params, "payload_mass": 0.0})
+
+    def drive(s, k0, n):
+        rows = []
+        for k in range(k0, k0 + n):
+            s.set(**inputs(k))
+            s.step()
+            rows.append(s.outputs())
+        return np.array(rows)
+
+    try:
+        drive(source, 0, 300)
+        blob = source.fmu.serializeFMUstate(source.fmu.getFMUstate())
+        expected = drive(source, 300, 20)
+        drive(other, 0, 10)  # another history, and its own model built
+        restored = other.fmu.deSerializeFMUstate(blob)
+        other.fmu.setFMUstate(restored)
+        other.fmu.freeFMUstate(restored)
+        other.time = source.time - 20 * 1e-3
+        np.testing.assert_array_equal(drive(other, 300, 20), expected)
+    finally:
+        source.close()
+        other.close()
