@@ -212,7 +212,8 @@ class LqgPoint:
 
 
 def design_point(model: ArmModel, z_bar, tau_bar, V, tip_force_sigma: float, dt: float = 1e-3,
-                 integral_weight: float = INTEGRAL_WEIGHT) -> LqgPoint:
+                 integral_weight: float = INTEGRAL_WEIGHT, motor_torque_sigma: float = MOTOR_TORQUE_SIGMA,
+                 element_force_sigma: float = ELEMENT_FORCE_SIGMA) -> LqgPoint:
     """LQG design at one operating point (module docstring).
 
     Parameters
@@ -230,6 +231,10 @@ def design_point(model: ArmModel, z_bar, tau_bar, V, tip_force_sigma: float, dt:
         Sample time, s.
     integral_weight : float
         Weight of the integrated joint-angle errors.
+    motor_torque_sigma : float
+        Standard deviation of the motor torque error per joint, N·m.
+    element_force_sigma : float
+        Standard deviation of the model-error generalised force on every element, N·m.
     """
     A, B = model.linearize(z_bar, tau_bar)
     B_d, kinds = force_input_matrix(model, z_bar)
@@ -238,7 +243,7 @@ def design_point(model: ArmModel, z_bar, tau_bar, V, tip_force_sigma: float, dt:
     n_u = B.shape[1]
     Phit, Gall = zoh(Ti @ A @ T, Ti @ np.hstack([B, B_d]), dt)
     Gamt, Gdt = Gall[:, :n_u], Gall[:, n_u:]
-    sigma = np.array([{"tip": tip_force_sigma, "motor": MOTOR_TORQUE_SIGMA, "element": ELEMENT_FORCE_SIGMA}[k]
+    sigma = np.array([{"tip": tip_force_sigma, "motor": motor_torque_sigma, "element": element_force_sigma}[k]
                       for k in kinds])
     Wt = (Gdt * sigma**2) @ Gdt.T
     Wt = 0.5 * (Wt + Wt.T)
@@ -345,7 +350,9 @@ class LqgDesign:
 
 
 def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: SensorSettings | None = None,
-               integral_weight: float = INTEGRAL_WEIGHT) -> LqgDesign:
+               integral_weight: float = INTEGRAL_WEIGHT, payload_mass: float = PAYLOAD_MASS_KG,
+               motor_torque_sigma: float = MOTOR_TORQUE_SIGMA,
+               element_force_sigma: float = ELEMENT_FORCE_SIGMA) -> LqgDesign:
     """LQG design at every point of a schedule along a trajectory.
 
     Parameters
@@ -359,6 +366,10 @@ def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: Se
         Noise half-widths for V (default the committed sensor file).
     integral_weight : float
         Weight of the integrated joint-angle errors.
+    payload_mass, motor_torque_sigma, element_force_sigma : float
+        The process-noise model (module docstring): payload the filter absorbs, kg; motor torque error,
+        N·m; model-error force per element, N·m. The committed designs use the defaults;
+        :mod:`flexarm.lqg_tradeoff` varies them.
     """
     traj, traj_path, traj_sha = load_desired(trajectory)
     z, dt = desired_states(traj), float(traj.t[1] - traj.t[0])
@@ -366,10 +377,10 @@ def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: Se
     idx = np.round(times / dt).astype(int)
     V = measurement_covariance(sensors)
     a_tip = rms_tip_acceleration(model, traj)
-    tip_sigma = PAYLOAD_MASS_KG * a_tip
+    tip_sigma = payload_mass * a_tip
     # the feedforward of the last sample is the hold's zero torque
     tau_bar = np.array([traj.tau[k] if k < traj.n_samples else np.zeros(2) for k in idx])
-    points = [design_point(model, z[k], tb, V, tip_sigma, dt, integral_weight)
+    points = [design_point(model, z[k], tb, V, tip_sigma, dt, integral_weight, motor_torque_sigma, element_force_sigma)
               for k, tb in zip(idx, tau_bar)]
     stack = lambda a: np.array([getattr(p, a) for p in points])  # noqa: E731
     meta = {
@@ -379,9 +390,9 @@ def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: Se
         "R": R_PAPER.tolist(),
         "integral_weight": integral_weight,
         "measurements": list(MEASUREMENTS),
-        "process_noise": {"payload_mass_kg": PAYLOAD_MASS_KG, "rms_tip_acceleration_m_s2": a_tip,
-                          "tip_force_sigma_N": tip_sigma, "motor_torque_sigma_Nm": MOTOR_TORQUE_SIGMA,
-                          "element_force_sigma_Nm": ELEMENT_FORCE_SIGMA},
+        "process_noise": {"payload_mass_kg": payload_mass, "rms_tip_acceleration_m_s2": a_tip,
+                          "tip_force_sigma_N": tip_sigma, "motor_torque_sigma_Nm": motor_torque_sigma,
+                          "element_force_sigma_Nm": element_force_sigma},
         "linearization": "about (z_d(t_k), tau_ff(t_k)), 1 ms zero-order hold",
         "sample_time_s": dt,
         "operating_times_s": times.tolist(),

@@ -224,3 +224,16 @@ def test_required_loop_delay_for_the_target_stepping():
         required_loop_delay("parallel")
     with pytest.raises(LqgError, match="feedthrough_fmus"):
         required_loop_delay("jacobi", 0)
+
+
+def test_process_noise_trades_noise_rejection_against_payload_absorption():
+    """The committed filter (W holds the payload's tip force) absorbs the payload but passes noise on; a
+    filter that trusts the model keeps noise out (issue 14's ≤ 2×) and lets the payload through."""
+    from flexarm.lqg_tradeoff import FILTERS, tradeoff_row
+
+    committed, trusting = tradeoff_row(*FILTERS[0]), tradeoff_row(*FILTERS[-1])
+    assert trusting.payload_mass == 0.0
+    assert trusting.noisy / trusting.quiet <= 2.0 < 10.0 < committed.noisy / committed.quiet
+    assert committed.noisy < 0.05  # still the issue's absolute level with noise
+    assert committed.payload < 0.25 * trusting.payload
+    assert max(committed.payload_peak_tau) < 7.0  # within the first joint's limit

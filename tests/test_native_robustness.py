@@ -52,9 +52,3 @@ def _enumeration_start_values(monkeypatch):
 
     monkeypatch.setattr(fmu_harness.Slave, "set", set_values)
 
-
-@pytest.fixture(autouse=True)
-def _only_fmus_with_a_native_build(request, fmus):
-    name = getattr(getattr(request.node, "callspec", None), "params", {}).get("name")
-    if name is not None and name not in fmus:
-        pytest.skip(f"{name} has no native build yet (the LQG controller is a Python FMU only)")

@@ -3,7 +3,7 @@
 Each test names the finding and says whether it HOLDS or DOES NOT HOLD in our model (with the calibrated
 parameters, t_f = 2.058 s); where it does not, the test asserts what our model does instead. The numbers
 and their interpretation are in docs/findings.md (generated data: docs/findings-data.md,
-``python analysis/reexamine.py``). Runs use the default plant (RODAS4, no damping) unless the test is
+``python -m scenarios.reexamine``). Runs use the default plant (RODAS4, no damping) unless the test is
 about the integrator: then the non-dissipative scheme (plant integrator = 2, exponential) is used too.
 """
 

@@ -37,7 +37,7 @@ from pathlib import Path
 import fmpy
 from fmpy.validation import validate_fmu
 
-from . import physics_codegen
+from . import lqg_resources, physics_codegen
 
 ROOT = Path(__file__).resolve().parents[2]
 NATIVE_DIR = Path(__file__).resolve().parent
@@ -209,6 +209,9 @@ HANDLED_PARAMETERS = {
                 "sample_period"},
     **{name: {"gain_set", "schedule_period", "tau1_max", "tau2_max", "omega7_estimate"}
        for name in ("controller", "controller_ff", "controller_fb", "controller_dlqr")},
+    # omega7_estimate: accepted and not used, as by the Python FMU (the Kalman filter estimates every velocity)
+    "controller_lqg": {"gain_set", "schedule_period", "tau1_max", "tau2_max", "omega7_estimate",
+                       "loop_delay_samples", "integral_action"},
 }
 
 
@@ -288,6 +291,7 @@ NATIVE_FMUS = {
     "sensors": ("sensors/sensors.c", "sensors/pcg64.c", "sensors/pcg64.h"),
     **{name: ("controller/controller.c",) for name in ("controller", "controller_ff", "controller_fb",
                                                        "controller_dlqr")},
+    "controller_lqg": ("controller/controller_lqg.c",),
 }
 #: controller variants: (feedforward, feedback, discrete-time gains), as fmus/controller/*.py
 CONTROLLER_VARIANTS = {"controller": (1, 1, False), "controller_ff": (1, 0, False), "controller_fb": (0, 1, False),
@@ -315,6 +319,8 @@ def _stage_sources(name: str, staging: Path, python_fmu: Path) -> tuple[str, str
         physics_codegen.write_arm_resource(res / physics_codegen.ARM_RESOURCE)
     elif name == "sensors":
         physics_codegen.write_sensor_resource(res / physics_codegen.SENSOR_RESOURCE)
+    elif name == "controller_lqg":
+        lqg_resources.write_lqg_resources(res)
     else:
         ff, fb, discrete = CONTROLLER_VARIANTS[name]
         (src / "controller_mode.h").write_text(

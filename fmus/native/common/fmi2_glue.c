@@ -237,6 +237,7 @@ static fmi2Status get_values(fmi2Component c, const fmi2ValueReference vr[], siz
     if (needs_outputs) {
         fmi2Status s = refresh_outputs(inst);
         if (s > fmi2Warning) return s;
+        if (MODEL_INFO.outputs_read != NULL) MODEL_INFO.outputs_read(inst);
     }
     for (size_t k = 0; k < nvr; k++) x[k] = inst->values[find_var(vr[k])];
     return fmi2OK;

@@ -56,6 +56,8 @@ typedef struct {
     fmi2Status (*sample)(struct Instance *inst);
     /* Advance from t to t + h (inputs held); the outputs at t + h. Must leave the state unchanged on error. */
     fmi2Status (*do_step)(struct Instance *inst, double t, double h);
+    /* Optional (NULL: none): the host has just read outputs (after they were brought up to date). */
+    void (*outputs_read)(struct Instance *inst);
 } ModelInfo;
 
 typedef struct Instance {

@@ -1,6 +1,6 @@
 """Re-examine the paper's findings under both integration schemes and structural damping (issue 15, items 3-4).
 
-Run ``python analysis/reexamine.py`` (a few minutes: about 60 three-FMU runs).
+Run ``python -m scenarios.reexamine`` (a few minutes: about 60 three-FMU runs).
 It writes, into ``docs/``:
 
 * ``findings-data.md``: generated tables (linear growth rates per γ and damping
@@ -285,7 +285,7 @@ def _fmt(x, spec=".3f") -> str:
 
 def markdown(data: dict) -> str:
     L = ["# Findings data (generated)", "",
-         "Written by `python analysis/reexamine.py`; do not edit. Interpretation: docs/findings.md.", "",
+         "Written by `python -m scenarios.reexamine`; do not edit. Interpretation: docs/findings.md.", "",
          f"commit {data['commit']}; trajectory sha256 {data['trajectory_sha256'][:16]}...; "
          f"parameters sha256 {data['parameter_sha256'][:16]}...", "",
          "## Linear growth rates (1 ms ZOH, gains as implemented, worst of the 11 scheduled sets)", "",
@@ -354,7 +354,7 @@ def markdown(data: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m scenarios.reexamine", description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=REPO / "results" / "reexamine", help="run results folder")
     ap.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS),
                     help="recompute only these parts (the others are kept from docs/findings-data.json)")

@@ -1,0 +1,310 @@
+/*
+ * Native LQG controller FMU: flexarm.lqg.LqgController in C, stepped as fmus/controller/flexarm_controller_lqg_fmu.py.
+ *
+ * Per 1 ms sample k, with d = loop_delay_samples, j = max(k - d, 0), c(i) = min(i, n_steps) and the design
+ * point in force at each sample (Phi, Gamma, M, K of the schedule; delta = minus the desired value):
+ *   1. time update to j:     x = Phi x_post + Gamma du_(j-1)            (once the filter has started and k >= d)
+ *   2. measurement update:   x_post = x + M (dm - C x),  dm = m - y_d(c(j))
+ *   3. predictor to k:       x_now = x_post, then x_now = Phi x_now + Gamma du_i for the torques sent at j .. k-1
+ *   4. torque:               tau = sat(tau_ff(k) - K x_now - K_xi xi)    (tau_ff = 0 after the slew)
+ *   5. integral action:      xi += dt C_q x_now, only in a sample whose torque does not saturate (anti-windup)
+ * The torque deviations tau - tau_ff of the last d + 1 samples are kept for steps 1 and 3.
+ *
+ * FMU stepping (as the Python FMU): a read of the outputs evaluates the sample from the committed state
+ * ("pending") and marks it delivered; fmi2DoStep commits the sample whose torques the master read last, or the
+ * last evaluated one if the master read none. The resources (lqg_resources.py): the trajectory and the designs
+ * of the three schedules, IEEE-754 bit patterns, SHA-256 checked by the glue.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi2_glue.h"
+#include "model_vars.h"
+
+#define N_MEAS 10
+#define N_STATE 22
+#define N_AUG (N_STATE + 2)
+#define N_WEIGHTS 4
+#define MAX_DELAY 10
+#define N_SCHEDULES 3
+static const char *const SCHEDULE_FILES[N_SCHEDULES] = {"lqg_200ms.txt", "lqg_20ms.txt", "lqg_single.txt"};
+static const double SCHEDULE_PERIODS[N_SCHEDULES] = {0.2, 0.02, 0.0};
+static const int MEAS[N_MEAS] = {IDX_q1_m, IDX_q2_m, IDX_qd1_m, IDX_qd2_m, IDX_eps1_m,
+                                 IDX_eps2_m, IDX_eps3_m, IDX_eps4_m, IDX_eps5_m, IDX_eps6_m};
+
+typedef struct {
+    int count;
+    double *times, *phi, *gamma, *m; /* count; count x 22 x 22; count x 22 x 2; count x 22 x 10 */
+    double *k, *k_integral;          /* count x 4 x 2 x 22; count x 4 x 2 x 24 */
+} Design;
+
+typedef struct {
+    int n_steps;
+    double dt;
+    double *feedforward, *desired; /* (n_steps + 1) x 2 N.m; (n_steps + 1) x 10 desired measurements */
+    double c[N_MEAS * N_STATE];    /* the sensor map */
+    Design designs[N_SCHEDULES];
+    /* the configuration in force (from the parameters) */
+    double key[4];
+    const Design *design;
+    int weight, delay, integral;
+    int *index; /* n_steps + 1: the design point in force at each sample */
+} LqgData;
+
+typedef struct { /* flexarm.lqg.LqgState */
+    long long k;  /* next sample */
+    int started;  /* the filter has taken a measurement */
+    double x_post[N_STATE];
+    double du[MAX_DELAY + 1][2]; /* torque deviations sent at k - 1 - d .. k - 1, oldest first */
+    double xi[2];                /* integrated joint-angle errors, rad s */
+} LqgState;
+
+typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
+    LqgState committed, pending, delivered;
+    int has_pending, has_delivered;
+} FmuState;
+
+/* -- resources -------------------------------------------------------------------------------------------- */
+static double *read_array(Instance *inst, const char *file, const char *text, const char *name, size_t n)
+{
+    double *out = malloc(n * sizeof *out);
+    if (out == NULL) glue_log(inst, fmi2Error, "resources/%s: out of memory for '%s'", file, name);
+    else if (glue_read_doubles(inst, file, text, name, out, n)) free(out), out = NULL;
+    return out;
+}
+
+static void lqg_unload(Instance *inst)
+{
+    LqgData *d = inst->data;
+    if (d == NULL) return;
+    free(d->feedforward), free(d->desired), free(d->index);
+    for (int s = 0; s < N_SCHEDULES; s++) {
+        Design *g = &d->designs[s];
+        free(g->times), free(g->phi), free(g->gamma), free(g->m), free(g->k), free(g->k_integral);
+    }
+    free(d);
+    inst->data = NULL;
+}
+
+static int read_design(Instance *inst, const char *file, const char *text, Design *g, double *c)
+{
+    double count;
+    if (glue_read_doubles(inst, file, text, "count", &count, 1) || glue_read_doubles(inst, file, text, "C", c,
+                                                                                       N_MEAS * N_STATE))
+        return -1;
+    size_t n = (size_t)count;
+    g->count = (int)count;
+    g->times = read_array(inst, file, text, "times", n);
+    g->phi = read_array(inst, file, text, "Phi", n * N_STATE * N_STATE);
+    g->gamma = read_array(inst, file, text, "Gamma", n * N_STATE * 2);
+    g->m = read_array(inst, file, text, "M", n * N_STATE * N_MEAS);
+    g->k = read_array(inst, file, text, "K", n * N_WEIGHTS * 2 * N_STATE);
+    g->k_integral = read_array(inst, file, text, "K_integral", n * N_WEIGHTS * 2 * N_AUG);
+    return g->times && g->phi && g->gamma && g->m && g->k && g->k_integral ? 0 : -1;
+}
+
+static int lqg_load(Instance *inst, char *const *contents, const size_t *sizes)
+{
+    (void)sizes;
+    LqgData *d = calloc(1, sizeof *d);
+    if (d == NULL) return -1;
+    inst->data = d;
+    for (size_t r = 0; r < MODEL_INFO.n_resources; r++) {
+        const char *file = MODEL_INFO.resources[r].file, *text = contents[r];
+        if (strcmp(file, "lqg_trajectory.txt") == 0) {
+            double n;
+            if (glue_read_doubles(inst, file, text, "n_steps", &n, 1) ||
+                glue_read_doubles(inst, file, text, "dt", &d->dt, 1))
+                goto fail;
+            d->n_steps = (int)n;
+            d->feedforward = read_array(inst, file, text, "feedforward_torque", (size_t)(d->n_steps + 1) * 2);
+            d->desired = read_array(inst, file, text, "desired_measurements", (size_t)(d->n_steps + 1) * N_MEAS);
+            d->index = calloc((size_t)d->n_steps + 1, sizeof *d->index);
+            if (!d->feedforward || !d->desired || !d->index) goto fail;
+        }
+        for (int s = 0; s < N_SCHEDULES; s++)
+            if (strcmp(file, SCHEDULE_FILES[s]) == 0 && read_design(inst, file, text, &d->designs[s], d->c)) goto fail;
+    }
+    for (int s = 0; s < N_SCHEDULES; s++)
+        if (d->designs[s].times == NULL || d->index == NULL) {
+            glue_log(inst, fmi2Error, "fmi2Instantiate: resources %s or lqg_trajectory.txt missing from the build",
+                     SCHEDULE_FILES[s]);
+            goto fail;
+        }
+    d->key[0] = -1;
+    return 0;
+fail:
+    lqg_unload(inst);
+    return -1;
+}
+
+/* -- the law -------------------------------------------------------------------------------------------------- */
+/* y = A x for A (rows x cols, row stride `stride`). Compensated (Neumaier) sums: the filter's lightly damped
+   modes accumulate rounding over thousands of samples, and nearly exact dot products keep the native law as
+   close to the exact one as NumPy's (BLAS) is. */
+static void mat_vec(const double *a, int rows, int cols, int stride, const double *x, double *y)
+{
+    for (int r = 0; r < rows; r++) {
+        double sum = 0.0, carry = 0.0;
+        for (int c = 0; c < cols; c++) {
+            double term = a[r * stride + c] * x[c], t = sum + term;
+            carry += fabs(sum) >= fabs(term) ? (sum - t) + term : (term - t) + sum;
+            sum = t;
+        }
+        y[r] = sum + carry;
+    }
+}
+
+/* x <- Phi x + Gamma du at design point i. */
+static void propagate(const Design *g, int i, double *x, const double du[2])
+{
+    double px[N_STATE], gu[N_STATE];
+    mat_vec(g->phi + (size_t)i * N_STATE * N_STATE, N_STATE, N_STATE, N_STATE, x, px);
+    mat_vec(g->gamma + (size_t)i * N_STATE * 2, N_STATE, 2, 2, du, gu);
+    for (int r = 0; r < N_STATE; r++) x[r] = px[r] + gu[r];
+}
+
+static long long clamp(const LqgData *d, long long k) { return k < d->n_steps ? k : d->n_steps; }
+
+/* Torques of sample k from measurements m and the state s after k - 1; `next` the state after k. */
+static void lqg_step(const LqgData *d, const LqgState *s, long long k, const double m[N_MEAS], const double limit[2],
+                     double tau[2], LqgState *next)
+{
+    const Design *g = d->design;
+    const int dl = d->delay;
+    long long j = k - dl > 0 ? k - dl : 0;
+    double x[N_STATE], cx[N_MEAS], innovation[N_MEAS], mi[N_STATE], x_post[N_STATE], x_now[N_STATE];
+    memcpy(x, s->x_post, sizeof x);
+    if (s->started && j > 0 && k - dl >= 0) propagate(g, d->index[clamp(d, j - 1)], x, s->du[0]); /* 1 */
+    const double *y_d = d->desired + clamp(d, j) * N_MEAS;                                            /* 2 */
+    mat_vec(d->c, N_MEAS, N_STATE, N_STATE, x, cx);
+    for (int r = 0; r < N_MEAS; r++) innovation[r] = (m[r] - y_d[r]) - cx[r];
+    mat_vec(g->m + (size_t)d->index[clamp(d, j)] * N_STATE * N_MEAS, N_STATE, N_MEAS, N_MEAS, innovation, mi);
+    for (int r = 0; r < N_STATE; r++) x_post[r] = x[r] + mi[r];
+    memcpy(x_now, x_post, sizeof x_now); /* 3: the torques of samples j .. k - 1 */
+    int first = k - dl >= 0 ? 1 : (int)(dl + 1 - k);
+    for (int row = first, n = 0; row <= dl; row++, n++) propagate(g, d->index[clamp(d, j + n)], x_now, s->du[row]);
+
+    const int i_k = d->index[clamp(d, k)]; /* 4 */
+    const double *slew = k < d->n_steps ? d->feedforward + 2 * k : NULL; /* zero feedforward in the hold */
+    const double ff[2] = {slew ? slew[0] : 0.0, slew ? slew[1] : 0.0};
+    double kx[2], kxi[2] = {0.0, 0.0}, free_tau[2];
+    if (d->integral) {
+        const double *ka = g->k_integral + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_AUG;
+        mat_vec(ka, 2, N_STATE, N_AUG, x_now, kx);
+        mat_vec(ka + N_STATE, 2, 2, N_AUG, s->xi, kxi);
+    } else {
+        mat_vec(g->k + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_STATE, 2, N_STATE, N_STATE, x_now, kx);
+    }
+    int saturated = 0;
+    for (int r = 0; r < 2; r++) {
+        free_tau[r] = ff[r] - kx[r] - kxi[r];
+        tau[r] = fmin(fmax(free_tau[r], -limit[r]), limit[r]);
+        saturated |= tau[r] != free_tau[r];
+    }
+    double cq[2]; /* 5 */
+    mat_vec(d->c, 2, N_STATE, N_STATE, x_now, cq);
+    for (int r = 0; r < 2; r++) next->xi[r] = d->integral && !saturated ? s->xi[r] + d->dt * cq[r] : s->xi[r];
+    for (int row = 0; row < dl; row++) next->du[row][0] = s->du[row + 1][0], next->du[row][1] = s->du[row + 1][1];
+    next->du[dl][0] = tau[0] - ff[0], next->du[dl][1] = tau[1] - ff[1];
+    memcpy(next->x_post, x_post, sizeof x_post);
+    next->k = k + 1;
+    next->started = 1;
+}
+
+/* -- FMI side ------------------------------------------------------------------------------------------------- */
+/* The design, weights and schedule index of the current parameters (recomputed when they change). */
+static fmi2Status configure(Instance *inst)
+{
+    LqgData *d = inst->data;
+    double key[4] = {VALUE(inst, IDX_gain_set), VALUE(inst, IDX_schedule_period), VALUE(inst, IDX_loop_delay_samples),
+                     VALUE(inst, IDX_integral_action)};
+    int s = -1;
+    for (int i = 0; i < N_SCHEDULES; i++)
+        if (fabs(key[1] - SCHEDULE_PERIODS[i]) <= 1e-12) s = i;
+    if (s < 0) {
+        glue_log(inst, fmi2Error, "gain_set = %g, schedule_period = %.17g s, loop_delay_samples = %g: schedule_period: "
+                 "%.17g s is not one of 0.2, 0.02 or 0 (one gain set)", key[0], key[1], key[2], key[1]);
+        return fmi2Error;
+    }
+    if (memcmp(key, d->key, sizeof key) == 0) return fmi2OK;
+    d->design = &d->designs[s];
+    d->weight = (int)key[0] - 1;
+    d->delay = (int)key[2];
+    d->integral = key[3] != 0.0;
+    for (int k = 0; k <= d->n_steps; k++) { /* LqgDesign.index_at: the last operating time <= t + 1e-9 */
+        double t = k * d->dt + 1e-9;
+        int i = 0;
+        while (i + 1 < d->design->count && d->design->times[i + 1] <= t) i++;
+        d->index[k] = i;
+    }
+    memcpy(d->key, key, sizeof key);
+    return fmi2OK;
+}
+
+static fmi2Status lqg_sample(Instance *inst)
+{
+    LqgData *d = inst->data;
+    FmuState *st = inst->state;
+    fmi2Status status = configure(inst);
+    if (status != fmi2OK) return status;
+    double t = inst->time;
+    if (!isfinite(t) || t < -0.5 * d->dt) {
+        glue_log(inst, fmi2Error, "evaluating the outputs at t = %.17g s: t: must be a finite time >= 0 s", t);
+        return fmi2Error;
+    }
+    double k = nearbyint(t / d->dt);
+    if (k != (double)st->committed.k) {
+        glue_log(inst, fmi2Error, "evaluating the outputs at t = %.17g s: k: the controller is at sample %lld, got "
+                 "sample %.0f (one call per sample; controller_lqg starts at t = 0)", t, st->committed.k, k);
+        return fmi2Error;
+    }
+    double m[N_MEAS], tau[2];
+    const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
+    for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
+    lqg_step(d, &st->committed, (long long)k, m, limit, tau, &st->pending);
+    st->has_pending = 1;
+    VALUE(inst, IDX_tau1) = tau[0];
+    VALUE(inst, IDX_tau2) = tau[1];
+    return fmi2OK;
+}
+
+static void lqg_outputs_read(Instance *inst)
+{
+    FmuState *st = inst->state;
+    if (st->has_pending) st->delivered = st->pending, st->has_delivered = 1; /* the plant gets these torques */
+}
+
+static fmi2Status lqg_initialize(Instance *inst)
+{
+    if (!inst->outputs_stale) return fmi2OK; /* exit right after a read, nothing set since: keep that sample */
+    FmuState *st = inst->state;
+    memset(st, 0, sizeof *st); /* on the trajectory, nothing sent, integrators empty */
+    return lqg_sample(inst);
+}
+
+static fmi2Status lqg_do_step(Instance *inst, double t, double h)
+{
+    LqgData *d = inst->data;
+    FmuState *st = inst->state;
+    double end = (t + h) / d->dt;
+    if (fabs(end - nearbyint(end)) > 1e-6) {
+        glue_log(inst, fmi2Error, "fmi2DoStep: step_size: t + h = %.17g s is not on the controller's sample grid "
+                 "(multiples of %g s, the trajectory's sample time)", t + h, d->dt);
+        return fmi2Error;
+    }
+    if (fabs(h - d->dt) > 1e-9) {
+        glue_log(inst, fmi2Error, "fmi2DoStep: step_size: %.17g s; controller_lqg is a 1 ms sampled filter and steps "
+                 "exactly %g s per communication step", h, d->dt);
+        return fmi2Error;
+    }
+    st->committed = st->has_delivered ? st->delivered : st->pending;
+    st->has_pending = st->has_delivered = 0;
+    return fmi2OK;
+}
+
+const ModelInfo MODEL_INFO = {
+    MODEL_IDENTIFIER_STRING, MODEL_GUID_STRING, MODEL_VARS, MODEL_N_VARS, MODEL_RESOURCES, MODEL_N_RESOURCES,
+    sizeof(FmuState), lqg_load, lqg_unload, lqg_initialize, lqg_sample, lqg_do_step, lqg_outputs_read,
+};
