@@ -88,6 +88,27 @@ def plant_step_cost(fmu: Path, tmp: Path, torques: np.ndarray, repeats: int, par
     return best
 
 
+def plant_step_cost_in_c(fmu: Path, tmp: Path, torques: np.ndarray, repeats: int) -> float:
+    """Best wall time per 1 ms step (s) of the same calls from C (benchmarks/plant_step_timing.c, compiled with gcc
+    -O2; it loads the FMU's shipped linux64 binary): the plant's own cost, without Python's ctypes calls."""
+    import fmpy
+
+    with zipfile.ZipFile(fmu) as z:
+        z.extractall(tmp)
+    md = read_model_description(str(fmu))
+    var = {v.name: v for v in md.modelVariables}
+    exe, tau_file = tmp / "plant_step_timing", tmp / "torques.txt"
+    subprocess.run(["gcc", "-std=c99", "-O2", "-I", str(Path(fmpy.__file__).parent / "c-code"), "-o", str(exe),
+                    str(Path(__file__).with_name("plant_step_timing.c")), "-ldl"], check=True, capture_output=True)
+    np.savetxt(tau_file, torques, fmt="%.17g")
+    library = tmp / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
+    outs = ",".join(str(v.valueReference) for v in md.modelVariables if v.causality == "output")
+    run = subprocess.run([str(exe), str(library), (tmp / "resources").as_uri(), md.guid, str(tau_file), str(repeats),
+                          f"{var['tau1'].valueReference},{var['tau2'].valueReference}", outs],
+                         capture_output=True, text=True, check=True)
+    return float(run.stdout.strip()) * 1e-6
+
+
 def library_step_cost(torques: np.ndarray, repeats: int) -> float:
     """Best wall time per 1 ms step (s) of the library: advance (Numba when installed) + observables."""
     model = ArmModel()
@@ -183,6 +204,7 @@ def main() -> None:
 
         t_native = plant_step_cost(native["plant"], tmp / "u1", torques, args.repeats)
         t_calls = plant_step_cost(native["plant"], tmp / "u1", torques, args.repeats, step=False)
+        t_c = plant_step_cost_in_c(native["plant"], tmp / "u3", torques, args.repeats)
         t_damped = plant_step_cost(native["plant"], tmp / "u1", torques, args.repeats, {"damping_ratio": 0.02})
         t_exp = plant_step_cost(native["plant"], tmp / "u1", torques[:500], args.repeats, {"integrator": 2})
         t_lib = library_step_cost(torques, args.repeats)
@@ -190,6 +212,7 @@ def main() -> None:
         print(f"plant, per 1 ms step (2 substeps, torques set and every output read; best of {args.repeats}):")
         print(f"  native FMU (C, via ctypes), rodas4:  {t_native * 1e6:8.1f} us   (goal: <= 8 us)")
         print(f"    of which the three ctypes calls:   {t_calls * 1e6:8.1f} us   (set + get alone, no doStep)")
+        print(f"  native FMU, the same calls from C:   {t_c * 1e6:8.1f} us   (benchmarks/plant_step_timing.c)")
         print(f"  native, damping_ratio = 0.02:        {t_damped * 1e6:8.1f} us")
         print(f"  native, integrator = exponential:    {t_exp * 1e6:8.1f} us")
         print(f"  library step (flexarm, Numba/NumPy): {t_lib * 1e6:8.1f} us")
