@@ -3,8 +3,9 @@
 Prints, in one run:
 
 1. the native plant's cost per 1 ms step (fmi2SetReal + fmi2DoStep + fmi2GetReal of every output, called
-   through ctypes) against the Numba library step (flexarm.integrator.advance + observables, warm) and the
-   Python plant FMU's step;
+   through ctypes), the cost of those calls without the doStep, the step with damping and with the exponential
+   scheme, against the Numba library step (flexarm.integrator.advance + observables, warm) and the Python plant
+   FMU's step;
 2. the time from a fresh unpack to the end of the first fmi2DoStep (instantiate, initialise, one step),
    native and Python;
 3. the real-time factor of table2's first case (plant + sensors + controller, 1 ms) with the Python FMUs
@@ -53,8 +54,13 @@ def _open(fmu: Path, folder: Path):
     return s, {v.name: v for v in md.modelVariables}
 
 
-def plant_step_cost(fmu: Path, tmp: Path, torques: np.ndarray, repeats: int) -> float:
-    """Best wall time per 1 ms step (s) of set torques + doStep + get all outputs."""
+def plant_step_cost(fmu: Path, tmp: Path, torques: np.ndarray, repeats: int, params: dict | None = None,
+                    step: bool = True) -> float:
+    """Best wall time per 1 ms step (s) of set torques + doStep + get all outputs.
+
+    `params` (name -> value) are set in initialisation mode; ``step=False`` leaves out the doStep: the cost of the
+    ctypes calls themselves (what the host pays whatever the model does).
+    """
     s, var = _open(fmu, tmp)
     outs = [v.valueReference for v in var.values() if v.causality == "output"]
     vr_in = (ctypes.c_uint * 2)(var["tau1"].valueReference, var["tau2"].valueReference)
@@ -68,17 +74,41 @@ def plant_step_cost(fmu: Path, tmp: Path, torques: np.ndarray, repeats: int) -> 
         s.reset()
         s.setupExperiment(startTime=0.0)
         s.enterInitializationMode()
+        for name, value in (params or {}).items():
+            (s.setReal if var[name].type == "Real" else s.setInteger)([var[name].valueReference], [value])
         s.exitInitializationMode()
         t0 = time.perf_counter()
         for k, tau in enumerate(torques):
             u[0], u[1] = tau
             set_real(s.component, vr_in, 2, u)
-            do_step(s.component, k * 1e-3, 1e-3, 1)
+            if step:
+                do_step(s.component, k * 1e-3, 1e-3, 1)
             get_real(s.component, vr_out, len(outs), y)
         best = min(best, (time.perf_counter() - t0) / len(torques))
     s.terminate()
     s.freeInstance()
     return best
+
+
+def plant_step_cost_in_c(fmu: Path, tmp: Path, torques: np.ndarray, repeats: int) -> float:
+    """Best wall time per 1 ms step (s) of the same calls from C (benchmarks/plant_step_timing.c, compiled with gcc
+    -O2; it loads the FMU's shipped linux64 binary): the plant's own cost, without Python's ctypes calls."""
+    import fmpy
+
+    with zipfile.ZipFile(fmu) as z:
+        z.extractall(tmp)
+    md = read_model_description(str(fmu))
+    var = {v.name: v for v in md.modelVariables}
+    exe, tau_file = tmp / "plant_step_timing", tmp / "torques.txt"
+    subprocess.run(["gcc", "-std=c99", "-O2", "-I", str(Path(fmpy.__file__).parent / "c-code"), "-o", str(exe),
+                    str(Path(__file__).with_name("plant_step_timing.c")), "-ldl"], check=True, capture_output=True)
+    np.savetxt(tau_file, torques, fmt="%.17g")
+    library = tmp / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
+    outs = ",".join(str(v.valueReference) for v in md.modelVariables if v.causality == "output")
+    run = subprocess.run([str(exe), str(library), (tmp / "resources").as_uri(), md.guid, str(tau_file), str(repeats),
+                          f"{var['tau1'].valueReference},{var['tau2'].valueReference}", outs],
+                         capture_output=True, text=True, check=True)
+    return float(run.stdout.strip()) * 1e-6
 
 
 def library_step_cost(torques: np.ndarray, repeats: int) -> float:
@@ -199,12 +229,20 @@ def main() -> None:
               f"{', '.join(f'{n} {p.stat().st_size / 1024:.0f} KiB' for n, p in native.items())}")
 
         t_native = plant_step_cost(native["plant"], tmp / "u1", torques, args.repeats)
+        t_calls = plant_step_cost(native["plant"], tmp / "u1", torques, args.repeats, step=False)
+        t_c = plant_step_cost_in_c(native["plant"], tmp / "u3", torques, args.repeats)
+        t_damped = plant_step_cost(native["plant"], tmp / "u1", torques, args.repeats, {"damping_ratio": 0.02})
+        t_exp = plant_step_cost(native["plant"], tmp / "u1", torques[:500], args.repeats, {"integrator": 2})
         t_lib = library_step_cost(torques, args.repeats)
         t_py = plant_step_cost(python["plant"], tmp / "u2", torques[:300], 2)
-        print(f"plant, per 1 ms step (2 RODAS4 substeps, every output read; best of {args.repeats}):")
-        print(f"  native FMU (C, via ctypes):        {t_native * 1e6:8.1f} us   (goal: <= 8 us)")
-        print(f"  library step (flexarm, Numba/NumPy): {t_lib * 1e6:6.1f} us")
-        print(f"  Python FMU (pythonfmu):            {t_py * 1e6:8.1f} us")
+        print(f"plant, per 1 ms step (2 substeps, torques set and every output read; best of {args.repeats}):")
+        print(f"  native FMU (C, via ctypes), rodas4:  {t_native * 1e6:8.1f} us   (goal: <= 8 us)")
+        print(f"    of which the three ctypes calls:   {t_calls * 1e6:8.1f} us   (set + get alone, no doStep)")
+        print(f"  native FMU, the same calls from C:   {t_c * 1e6:8.1f} us   (benchmarks/plant_step_timing.c)")
+        print(f"  native, damping_ratio = 0.02:        {t_damped * 1e6:8.1f} us")
+        print(f"  native, integrator = exponential:    {t_exp * 1e6:8.1f} us")
+        print(f"  library step (flexarm, Numba/NumPy): {t_lib * 1e6:8.1f} us")
+        print(f"  Python FMU (pythonfmu), rodas4:      {t_py * 1e6:8.1f} us")
 
         print("first doStep after a fresh unpack, new process (unpack + instantiate + initialise + one step):")
         print(f"  native plant: {first_step(native['plant'], tmp / 'f1'):.3f} s   (goal: < 0.1 s)")

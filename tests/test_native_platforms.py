@@ -40,12 +40,16 @@ def _wine() -> str:
     return wine
 
 
-def test_win64_binary_under_wine_matches_linux64(tmp_path):
+@pytest.mark.parametrize("settings", [(), ("damping_ratio=0.02",), ("integrator=2",)],
+                         ids=["rodas4", "damping", "exponential"])
+def test_win64_binary_under_wine_matches_linux64(tmp_path, settings):
     wine = _wine()
     plant = native_fmus()["plant"]
     unz = unpack_alone(plant, tmp_path / "fmu")
     csv = _torques(tmp_path)
     args = [str(unz), "--steps", str(N_STEPS), "--inputs", str(csv), "--quiet", "--set", "payload_mass=0.275"]
+    for setting in settings:  # the damping matrix (Jacobi, square roots) and the matrix exponential too
+        args += ["--set", setting]
     linux_host = compile_host(tmp_path)
     win_host = compile_host(tmp_path, target="win64")
     header_l, linux = _host_run([str(linux_host), *args], env={})

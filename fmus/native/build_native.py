@@ -196,9 +196,8 @@ const ResourceInfo MODEL_RESOURCES[] = {{
     return header, source
 
 
-#: The parameters each native model implements (or, for the plant's integrator choice and damping, checks at
-#: their defaults and refuses otherwise). A parameter of the Python FMU not listed here stops the build: the
-#: native FMU would silently ignore it.
+#: The parameters each native model implements. A parameter of the Python FMU not listed here stops the build:
+#: the native FMU would silently ignore it.
 HANDLED_PARAMETERS = {
     "plant": {"payload_mass", "q1_0", "q2_0", "substeps", "integrator", "damping_ratio"},
     "sensors": {"noise_enabled", "noise_seed", "encoder_noise_deg", "encoder_quantization", "encoder_counts_per_rev",
@@ -288,7 +287,7 @@ def compile_binary(src_dir: Path, model_identifier: str, platform: str, out_dir:
 # -- one FMU --------------------------------------------------------------------------------------
 #: name -> the C sources of its model (relative to fmus/native/)
 NATIVE_FMUS = {
-    "plant": ("plant/plant.c",),
+    "plant": ("plant/plant.c", "plant/plant_linalg.h"),
     "sensors": ("sensors/sensors.c", "sensors/pcg64.c", "sensors/pcg64.h"),
     **{name: ("controller/controller.c",) for name in ("controller", "controller_ff", "controller_fb",
                                                        "controller_dlqr")},

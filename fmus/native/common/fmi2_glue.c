@@ -111,6 +111,7 @@ static Instance *admit(fmi2Component c, Call call) { return admit_as(c, call, NU
 /* -- variables ----------------------------------------------------------------------------- */
 static long find_var(fmi2ValueReference vr)
 {
+    if (vr < MODEL_INFO.n_vars && MODEL_INFO.vars[vr].vr == vr) return (long)vr; /* the usual numbering: no search */
     for (size_t i = 0; i < MODEL_INFO.n_vars; i++)
         if (MODEL_INFO.vars[i].vr == vr) return (long)i;
     return -1;
@@ -148,8 +149,7 @@ static int check_value(Instance *inst, long i, fmi2ValueReference vr, VarType gi
         return -1;
     }
     const VarInfo *v = &MODEL_INFO.vars[i];
-    char range[96];
-    range_text(v, range, sizeof range);
+    char range[96] = ""; /* formatted only for a message (a set per step must not pay for snprintf) */
     VarType expect = v->type == VT_ENUMERATION ? VT_INTEGER : v->type;
     if (expect != given) {
         glue_log(inst, fmi2Error, "%s: is a %s variable, not %s (set it with fmi2Set%s)", v->name, type_name(v->type),
@@ -161,11 +161,13 @@ static int check_value(Instance *inst, long i, fmi2ValueReference vr, VarType gi
         return -1;
     }
     if (v->causality == CA_PARAMETER && inst->fmi_state > S_INIT) {
+        range_text(v, range, sizeof range);
         glue_log(inst, fmi2Error, "%s: a fixed parameter can be set only before fmi2ExitInitializationMode "
                  "(allowed range %s)", v->name, range);
         return -1;
     }
     if (!isfinite(x) || x < v->min || x > v->max) {
+        range_text(v, range, sizeof range);
         glue_log(inst, fmi2Error, "%s = %.17g%s%s: %s the allowed range %s", v->name, x, v->unit[0] ? " " : "",
                  v->unit, isfinite(x) ? "outside" : "not a finite value in", range);
         if (given == VT_REAL || given == VT_INTEGER) inst->invalid[i] = 1;
@@ -177,9 +179,8 @@ static int check_value(Instance *inst, long i, fmi2ValueReference vr, VarType gi
 static fmi2Status set_values(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, VarType type,
                              const double *x)
 {
-    char fn[32];
-    snprintf(fn, sizeof fn, "fmi2Set%s", type_name(type));
-    Instance *inst = admit_as(c, F_SET, fn);
+    static const char *const fn_name[] = {"fmi2SetReal", "fmi2SetInteger", "fmi2SetBoolean", "fmi2SetInteger"};
+    Instance *inst = admit_as(c, F_SET, fn_name[type]);
     if (inst == NULL) return fmi2Error;
     if (nvr > 0 && (vr == NULL || x == NULL)) {
         glue_log(inst, fmi2Error, "fmi2Set%s: vr[] and value[] must not be NULL", type_name(type));
@@ -211,9 +212,8 @@ static fmi2Status refresh_outputs(Instance *inst)
 
 static fmi2Status get_values(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, VarType type, double *x)
 {
-    char fn[32];
-    snprintf(fn, sizeof fn, "fmi2Get%s", type_name(type));
-    Instance *inst = admit_as(c, F_GET, fn);
+    static const char *const fn_name[] = {"fmi2GetReal", "fmi2GetInteger", "fmi2GetBoolean", "fmi2GetInteger"};
+    Instance *inst = admit_as(c, F_GET, fn_name[type]);
     if (inst == NULL) return fmi2Error;
     if (nvr > 0 && (vr == NULL || x == NULL)) {
         glue_log(inst, fmi2Error, "fmi2Get%s: vr[] and value[] must not be NULL", type_name(type));

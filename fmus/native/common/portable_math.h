@@ -8,4 +8,6 @@
 double flexarm_sin(double x);
 double flexarm_cos(double x);
 double flexarm_tan(double x);
+/* sin x and cos x together (one argument reduction), bit for bit flexarm_sin and flexarm_cos */
+void flexarm_sincos(double x, double *sin_x, double *cos_x);
 #endif

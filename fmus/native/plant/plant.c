@@ -4,9 +4,11 @@
  * The physics is not written here: flexarm_physics.c is generated at build time
  * by CasADi from flexarm._kernels itself (its NumPy path evaluated on symbols,
  * fmus/native/physics_codegen.py): the mass matrix M(θ), the right-hand side
- * S(θ, θ̇) + B̄τ and the tangent matrices ∂(S − Mθ̈)/∂θ, ∂S/∂θ̇. This file holds the numerical
- * method of flexarm._kernels (RODAS4 with the reduced stage system, the same
- * coefficients and substeps), the sensor-point kinematics and the FMI mapping.
+ * S(θ, θ̇), the input forces B̄τ and the tangent matrices ∂(S − Mθ̈)/∂θ, ∂S/∂θ̇, all
+ * from cos θ and sin θ (computed once per state here, shared by every use). This file
+ * holds the numerical methods of flexarm._kernels (RODAS4 with the reduced stage system,
+ * the exponential Rosenbrock-Euler step, the modal damping matrix; the same coefficients
+ * and substeps), the sensor-point kinematics and the FMI mapping.
  * Arm constants come from resources/arm_parameters.txt (SHA-256 checked).
  */
 #include <math.h>
@@ -16,17 +18,36 @@
 #include "fmi2_glue.h"
 #include "flexarm_physics.h"
 #include "model_vars.h"
-#include "portable_math.h"
 #include "plant_constants.h"
+#include "plant_linalg.h"
+#include "portable_math.h"
 
 #define N PLANT_N_ELEMENTS
 #define NZ (2 * N)
+#define NA (NZ + 1) /* the exponential scheme's augmented matrix */
+
+/* The model at one state (θ, θ̇), torque excluded: what every use of that state shares. */
+typedef struct {
+    double c[N], s[N];                     /* cos θ, sin θ */
+    double mass_packed[PLANT_N_MASS_PACKED]; /* M(θ), lower triangle column by column */
+    double unit_lower[PLANT_N_UNIT_LOWER];   /* M = L D Lᵀ: L below the diagonal, column by column */
+    double inverse_pivots[N], pivots[N];   /* 1/d_j, d_j */
+    double force[N];                       /* S(θ, θ̇) − C_d θ̇ */
+} Eval;
 
 typedef struct {
     double mass0[N * N], mass1[N * N]; /* M_jk(payload) = mass0 + payload * mass1, row-major */
     double springs[PLANT_N_SPRING_VALUES];
     double length[N];
-    double coeff[N * N + PLANT_N_SPRING_VALUES]; /* (M_jk row-major, stiffness non-zeros) at the current payload */
+    /* the model at (model_payload, model_ratio) */
+    double coeff[N * N + PLANT_N_SPRING_VALUES]; /* (M_jk row-major, stiffness non-zeros) */
+    double damping[N * N];                        /* C_d, symmetric */
+    int damped, model_ready;
+    double model_payload, model_ratio;
+    /* the evaluation at the last state whose outputs were computed: the next step starts there */
+    Eval cache;
+    double cache_z[NZ];
+    int cache_valid;
     double w[PLANT_WORK_DOUBLES];
     long long iw[PLANT_WORK_INTS];
 } PlantData;
@@ -35,141 +56,122 @@ typedef struct {
     double z[NZ];
     double tau_held[2];
     double last_error;
-    double payload; /* payload of coeff[] */
 } PlantState;
 
-/* -- generated physics, wrapped ---------------------------------------------------------------- */
-static void mass_rhs(PlantData *d, const double *z, const double *tau, double *mass, double *rhs)
+/* -- the model at a state ------------------------------------------------------------------------ */
+static int evaluate(PlantData *d, const double *z, Eval *ev)
 {
-    const double *arg[4] = {z, z + N, tau, d->coeff};
-    double *res[2] = {mass, rhs};
+    for (int i = 0; i < N; i++) flexarm_sincos(z[i], &ev->s[i], &ev->c[i]);
+    const double *arg[4] = {ev->c, ev->s, z + N, d->coeff};
+    double *res[5] = {ev->mass_packed, ev->force, ev->unit_lower, ev->inverse_pivots, ev->pivots};
     flexarm_mass_rhs(arg, res, d->iw, d->w, 0);
+    if (d->damped)
+        for (int i = 0; i < N; i++) {
+            double t = 0.0;
+            for (int j = 0; j < N; j++) t += d->damping[i * N + j] * z[N + j];
+            ev->force[i] -= t;
+        }
+    for (int j = 0; j < N; j++)
+        if (!(ev->pivots[j] > 0.0)) return -1; /* M not positive definite (or not finite) */
+    return 0;
 }
 
-static void tangents(PlantData *d, const double *z, const double *acc, double *q, double *v)
+/* x = M⁻¹ b at the state of `ev` (x and b distinct) */
+static void mass_solve(PlantData *d, const Eval *ev, const double *b, double *x)
 {
-    const double *arg[4] = {z, z + N, acc, d->coeff};
+    const double *arg[3] = {ev->unit_lower, ev->inverse_pivots, b};
+    double *res[1] = {x};
+    flexarm_ldl_solve(arg, res, d->iw, d->w, 0);
+}
+
+static void mass_full(const Eval *ev, double *mass)
+{
+    for (int j = 0, k = 0; j < N; j++)
+        for (int i = j; i < N; i++, k++) mass[j * N + i] = mass[i * N + j] = ev->mass_packed[k];
+}
+
+/* θ̈ = M⁻¹ (S − C_d θ̇ + B̄τ), `forces` = B̄τ */
+static void acceleration(PlantData *d, const Eval *ev, const double *forces, double *acc)
+{
+    double b[N];
+    for (int i = 0; i < N; i++) b[i] = ev->force[i] + forces[i];
+    mass_solve(d, ev, b, acc);
+}
+
+/* x = W⁻¹ b with W's factors from lu_factor */
+static void stage_solve(PlantData *d, const double *lu, const int *piv, const double *b, double *x)
+{
+    double bp[N];
+    for (int i = 0; i < N; i++) bp[i] = b[piv[i]];
+    const double *arg[2] = {lu, bp};
+    double *res[1] = {x};
+    flexarm_lu_solve(arg, res, d->iw, d->w, 0);
+}
+
+/* Q and V − C_d (column-major) at the state of `ev` with rates omega and accelerations acc. */
+static void tangents(PlantData *d, const Eval *ev, const double *omega, const double *acc, double *q, double *v)
+{
+    const double *arg[5] = {ev->c, ev->s, omega, acc, d->coeff};
     double *res[2] = {q, v};
     flexarm_tangents(arg, res, d->iw, d->w, 0);
+    if (d->damped)
+        for (int k = 0; k < N * N; k++) v[k] -= d->damping[k]; /* symmetric: either layout */
 }
 
-/* -- small dense linear algebra (n = 11), as flexarm._kernels ------------------------------------ */
-static int cholesky(double *a) /* lower factor in place (column-major = row-major: a is symmetric) */
+static void input_forces(PlantData *d, const double *tau, double *forces)
 {
-    for (int j = 0; j < N; j++) {
-        double dd = a[j * N + j];
-        for (int k = 0; k < j; k++) dd -= a[j * N + k] * a[j * N + k];
-        if (!(dd > 0.0)) return -1;
-        a[j * N + j] = sqrt(dd);
-        for (int i = j + 1; i < N; i++) {
-            double s = a[i * N + j];
-            for (int k = 0; k < j; k++) s -= a[i * N + k] * a[j * N + k];
-            a[i * N + j] = s / a[j * N + j];
-        }
-    }
-    return 0;
+    const double *arg[1] = {tau};
+    double *res[1] = {forces};
+    flexarm_input_forces(arg, res, d->iw, d->w, 0);
 }
 
-static void cholesky_solve(const double *low, double *x)
+/* -- RODAS4 (flexarm._kernels._rodas4_step_loops) -------------------------------------------------- */
+/* One step of size h from z, whose evaluation is `ev0`; `ev` is workspace. -1 if a matrix is singular. */
+static int rodas4_step(PlantData *d, const double *z, const Eval *ev0, Eval *ev, const double *forces, double h,
+                       double *z_new, double *err)
 {
-    for (int i = 0; i < N; i++) {
-        for (int k = 0; k < i; k++) x[i] -= low[i * N + k] * x[k];
-        x[i] /= low[i * N + i];
-    }
-    for (int i = N - 1; i >= 0; i--) {
-        for (int k = i + 1; k < N; k++) x[i] -= low[k * N + i] * x[k];
-        x[i] /= low[i * N + i];
-    }
-}
-
-static int lu_factor(double *lu, int *piv)
-{
-    for (int i = 0; i < N; i++) piv[i] = i;
-    for (int k = 0; k < N; k++) {
-        int p = k;
-        double big = fabs(lu[k * N + k]);
-        for (int i = k + 1; i < N; i++)
-            if (fabs(lu[i * N + k]) > big) big = fabs(lu[i * N + k]), p = i;
-        if (big == 0.0) return -1;
-        if (p != k) {
-            for (int j = 0; j < N; j++) {
-                double t = lu[k * N + j];
-                lu[k * N + j] = lu[p * N + j];
-                lu[p * N + j] = t;
-            }
-            int t = piv[k];
-            piv[k] = piv[p];
-            piv[p] = t;
-        }
-        for (int i = k + 1; i < N; i++) {
-            lu[i * N + k] /= lu[k * N + k];
-            double f = lu[i * N + k];
-            for (int j = k + 1; j < N; j++) lu[i * N + j] -= f * lu[k * N + j];
-        }
-    }
-    return 0;
-}
-
-static void lu_solve(const double *lu, const int *piv, const double *b, double *x)
-{
-    for (int i = 0; i < N; i++) x[i] = b[piv[i]];
-    for (int i = 0; i < N; i++)
-        for (int k = 0; k < i; k++) x[i] -= lu[i * N + k] * x[k];
-    for (int i = N - 1; i >= 0; i--) {
-        for (int k = i + 1; k < N; k++) x[i] -= lu[i * N + k] * x[k];
-        x[i] /= lu[i * N + i];
-    }
-}
-
-/* θ̈ at (z, τ) into acc; the mass matrix into mass (overwritten by its factor). */
-static int acceleration(PlantData *d, const double *z, const double *tau, double *mass, double *acc)
-{
-    mass_rhs(d, z, tau, mass, acc);
-    if (cholesky(mass) != 0) return -1;
-    cholesky_solve(mass, acc);
-    return 0;
-}
-
-/* One RODAS4 step of size h (flexarm._kernels._rodas4_step_vectorised); -1 if a matrix is singular. */
-static int rodas4_step(PlantData *d, const double *z, const double *tau, double h, double *z_new, double *err)
-{
-    double mass[N * N], chol[N * N], q[N * N], v[N * N], w[N * N], f[NZ], ks[6][NZ], u[NZ], b[N], k_th[N];
+    double mass[N * N], q[N * N], v[N * N], w[N * N], f[NZ], ks[6][NZ], u[NZ], r[N], tm[N], tv[N], k_th[N];
     int piv[N];
-    mass_rhs(d, z, tau, mass, f + N);
-    memcpy(chol, mass, sizeof mass);
-    if (cholesky(chol) != 0) return -1;
-    cholesky_solve(chol, f + N);
-    tangents(d, z, f + N, q, v); /* column-major: q[i + j N] = Q_ij */
+    mass_full(ev0, mass);
+    memcpy(f, z + N, N * sizeof *f);
+    acceleration(d, ev0, forces, f + N);
+    tangents(d, ev0, z + N, f + N, q, v);
     const double g = 1.0 / (RODAS4_GAMMA * h);
     for (int i = 0; i < N; i++)
         for (int j = 0; j < N; j++) w[i * N + j] = g * g * mass[i * N + j] - g * v[i + j * N] - q[i + j * N];
-    if (lu_factor(w, piv) != 0) return -1;
-    memcpy(f, z + N, N * sizeof *f);
+    if (lu_factor(w, piv, N) != 0) return -1;
     memcpy(u, z, sizeof u);
     for (int stage = 0; stage < 6; stage++) {
         if (stage > 0) {
             if (stage < 5) {
-                memcpy(u, z, sizeof u);
-                for (int j = 0; j < stage; j++)
-                    for (int i = 0; i < NZ; i++) u[i] += RODAS4_A[stage][j] * ks[j][i];
+                for (int i = 0; i < NZ; i++) {
+                    double t = z[i];
+                    for (int j = 0; j < stage; j++) t += RODAS4_A[stage][j] * ks[j][i];
+                    u[i] = t;
+                }
             } else {
                 for (int i = 0; i < NZ; i++) u[i] += ks[4][i];
             }
             memcpy(f, u + N, N * sizeof *f);
-            if (acceleration(d, u, tau, chol, f + N) != 0) return -1;
+            if (evaluate(d, u, ev) != 0) return -1;
+            acceleration(d, ev, forces, f + N);
             for (int j = 0; j < stage; j++) {
-                double cj = RODAS4_C[stage][j] / h;
+                const double cj = RODAS4_C[stage][j] / h;
                 for (int i = 0; i < NZ; i++) f[i] += cj * ks[j][i];
             }
         }
-        for (int i = 0; i < N; i++) { /* M (r_ω + g r_θ) − V r_θ */
-            double t = 0.0;
-            for (int j = 0; j < N; j++) t += mass[i * N + j] * (f[N + j] + g * f[j]);
-            double s = 0.0;
-            for (int j = 0; j < N; j++) s += v[i + j * N] * f[j];
-            b[i] = t - s;
+        /* M (r_ω + g r_θ) − V r_θ, row by row in j order; M symmetric and V column-major give columns */
+        for (int j = 0; j < N; j++) r[j] = f[N + j] + g * f[j];
+        for (int i = 0; i < N; i++) tm[i] = tv[i] = 0.0;
+        for (int j = 0; j < N; j++) {
+            const double *mj = mass + j * N, *vj = v + j * N;
+            for (int i = 0; i < N; i++) {
+                tm[i] += mj[i] * r[j];
+                tv[i] += vj[i] * f[j];
+            }
         }
-        lu_solve(w, piv, b, k_th);
+        for (int i = 0; i < N; i++) tm[i] -= tv[i];
+        stage_solve(d, w, piv, tm, k_th);
         for (int i = 0; i < N; i++) {
             ks[stage][i] = k_th[i];
             ks[stage][N + i] = g * k_th[i] - f[i];
@@ -184,12 +186,118 @@ static int rodas4_step(PlantData *d, const double *z, const double *tau, double 
     return 0;
 }
 
-/* -- outputs -------------------------------------------------------------------------------- */
-static int outputs(Instance *inst, const double *z, const double *tau)
+/* -- exponential Rosenbrock-Euler (flexarm._kernels.exponential_euler_step) ------------------------ */
+static int exponential_step(PlantData *d, const double *z, const Eval *ev0, const double *forces, double h,
+                            double *z_new)
 {
-    PlantData *d = inst->data;
-    double mass[N * N], alpha[N];
-    if (acceleration(d, z, tau, mass, alpha) != 0) return -1;
+    double acc[N], q[N * N], v[N * N], aug[NA * NA], e[NA * NA];
+    acceleration(d, ev0, forces, acc);
+    tangents(d, ev0, z + N, acc, q, v);
+    double qv[N * N], vv[N * N];
+    memcpy(qv, q, sizeof qv);
+    memcpy(vv, v, sizeof vv);
+    for (int j = 0; j < N; j++) { /* [∂θ̈/∂θ, ∂θ̈/∂θ̇] = M⁻¹ [Q, V − C_d], column by column */
+        mass_solve(d, ev0, qv + j * N, q + j * N);
+        mass_solve(d, ev0, vv + j * N, v + j * N);
+    }
+    double c = 1.0; /* sqrt(max |∂θ̈_i/∂θ_i|): balances the blocks of hJ */
+    for (int i = 0; i < N; i++) c = fmax(c, sqrt(fabs(q[i * N + i])));
+    memset(aug, 0, sizeof aug);
+    for (int i = 0; i < N; i++) {
+        aug[i * NA + N + i] = h * c;
+        aug[i * NA + NZ] = h * z[N + i];
+        aug[(N + i) * NA + NZ] = h * acc[i] / c;
+        for (int j = 0; j < N; j++) {
+            aug[(N + i) * NA + j] = h * q[j * N + i] / c;
+            aug[(N + i) * NA + N + j] = h * v[j * N + i];
+        }
+    }
+    if (expm(aug, e, NA) != 0) return -1;
+    for (int i = 0; i < N; i++) {
+        z_new[i] = z[i] + e[i * NA + NZ];
+        z_new[N + i] = z[N + i] + c * e[(N + i) * NA + NZ];
+    }
+    return 0;
+}
+
+/* -- modal damping (flexarm.model.modal_damping_matrix) -------------------------------------------- */
+/* C_d = M Φ diag(2ζω_k) Φᵀ M over the flexible modes at the damping configuration, Φ mass-normalised:
+   with M = L Lᵀ and the symmetric eigenproblem of L⁻¹ K_t L⁻ᵀ = Y Λ Yᵀ, M Φ = L Y. */
+static int build_damping(PlantData *d, double ratio)
+{
+    d->damped = 0;
+    memset(d->damping, 0, sizeof d->damping);
+    if (ratio == 0.0) return 0;
+    double z[NZ] = {0}, zero[N] = {0}, acc[N], q[N * N], v[N * N], mass[N * N], kt[N * N], a[N * N], y[N * N],
+           lam[N], lower[N * N];
+    Eval ev;
+    for (int i = 0; i < N; i++) z[i] = PLANT_DAMPING_Q1 + (i >= PLANT_JOINT2_DISTAL ? PLANT_DAMPING_Q2 : 0.0);
+    if (evaluate(d, z, &ev) != 0) return -1;
+    mass_full(&ev, mass);
+    acceleration(d, &ev, zero, acc);
+    tangents(d, &ev, zero, acc, q, v);
+    double qm[N * N];
+    memcpy(qm, q, sizeof qm);
+    for (int j = 0; j < N; j++) mass_solve(d, &ev, qm + j * N, q + j * N); /* A_θ = M⁻¹ Q, column-major */
+    for (int i = 0; i < N; i++) /* K_t = −M A_θ, row-major */
+        for (int j = 0; j < N; j++) {
+            double t = 0.0;
+            for (int k = 0; k < N; k++) t += mass[i * N + k] * q[j * N + k];
+            kt[i * N + j] = -t;
+        }
+    double low[N * N]; /* M = L Lᵀ */
+    memcpy(low, mass, sizeof low);
+    if (chol_factor(low, N) != 0) return -1;
+    for (int i = 0; i < N; i++) /* symmetric part, its columns (= rows) solved with L: L⁻¹ K */
+        for (int j = 0; j < N; j++) a[j * N + i] = 0.5 * (kt[i * N + j] + kt[j * N + i]);
+    for (int j = 0; j < N; j++) chol_forward(low, a + j * N, N);
+    for (int i = 0; i < N; i++) /* (L⁻¹ K)ᵀ's columns solved again: L⁻¹ K L⁻ᵀ */
+        for (int j = 0; j < N; j++) y[i * N + j] = a[j * N + i];
+    for (int j = 0; j < N; j++) chol_forward(low, y + j * N, N);
+    for (int i = 0; i < N; i++)
+        for (int j = 0; j < N; j++) a[i * N + j] = 0.5 * (y[i * N + j] + y[j * N + i]);
+    if (sym_eigen(a, lam, y, N) != 0) return -1;
+    for (int i = 0; i < N; i++) /* L, row-major */
+        for (int j = 0; j < N; j++) lower[i * N + j] = j <= i ? low[j * N + i] : 0.0;
+    double mphi[N * N], scaled[N * N]; /* M Φ = L Y; (M Φ diag(2ζω)) */
+    mat_mul(lower, y, mphi, N);
+    for (int i = 0; i < N; i++)
+        for (int k = 0; k < N; k++)
+            scaled[i * N + k] = k < 2 ? 0.0 : mphi[i * N + k] * (2.0 * ratio * sqrt(fmax(lam[k], 0.0)));
+    double full[N * N]; /* the two smallest (rigid-body) modes dropped above */
+    for (int i = 0; i < N; i++)
+        for (int j = 0; j < N; j++) {
+            double t = 0.0;
+            for (int k = 2; k < N; k++) t += scaled[i * N + k] * mphi[j * N + k];
+            full[i * N + j] = t;
+        }
+    for (int i = 0; i < N; i++)
+        for (int j = 0; j < N; j++) d->damping[i * N + j] = 0.5 * (full[i * N + j] + full[j * N + i]);
+    d->damped = 1;
+    return 0;
+}
+
+/* The model at (payload, ratio): mass and stiffness coefficients, damping matrix. */
+static int set_model(PlantData *d, double payload, double ratio)
+{
+    if (d->model_ready && d->model_payload == payload && d->model_ratio == ratio) return 0;
+    for (int k = 0; k < N * N; k++) d->coeff[k] = d->mass0[k] + payload * d->mass1[k];
+    memcpy(d->coeff + N * N, d->springs, sizeof d->springs);
+    d->cache_valid = 0;
+    d->model_ready = 0;
+    if (build_damping(d, ratio) != 0) return -1;
+    d->model_payload = payload;
+    d->model_ratio = ratio;
+    d->model_ready = 1;
+    return 0;
+}
+
+/* -- outputs -------------------------------------------------------------------------------------- */
+static void outputs(PlantData *d, Instance *inst, const double *z, const Eval *ev, const double *tau)
+{
+    double alpha[N], forces[N];
+    input_forces(d, tau, forces);
+    acceleration(d, ev, forces, alpha);
     double *y = inst->values;
     for (int i = 0; i < N; i++) {
         y[IDX_THETA[i]] = z[i];
@@ -204,7 +312,7 @@ static int outputs(Instance *inst, const double *z, const double *tau)
     /* flexarm._kernels.chain_kinematics for the link tips */
     double x = 0.0, yy = 0.0, ax = 0.0, ay = 0.0;
     for (int i = 0; i < N; i++) {
-        double c = flexarm_cos(z[i]), s = flexarm_sin(z[i]), om2 = z[N + i] * z[N + i], l = d->length[i];
+        const double c = ev->c[i], s = ev->s[i], om2 = z[N + i] * z[N + i], l = d->length[i];
         x += l * c;
         yy += l * s;
         ax += l * (-s * alpha[i] - c * om2);
@@ -222,7 +330,9 @@ static int outputs(Instance *inst, const double *z, const double *tau)
             y[IDX_acc2_n] = -s * ax + c * ay;
         }
     }
-    return 0;
+    memcpy(&d->cache, ev, sizeof *ev);
+    memcpy(d->cache_z, z, sizeof d->cache_z);
+    d->cache_valid = 1;
 }
 
 /* -- model callbacks ----------------------------------------------------------------------------- */
@@ -249,40 +359,45 @@ static void plant_unload(Instance *inst)
     inst->data = NULL;
 }
 
-static void set_payload(PlantData *d, PlantState *st, double payload)
+static double damping_ratio(const Instance *inst)
 {
-    for (int k = 0; k < N * N; k++) d->coeff[k] = d->mass0[k] + payload * d->mass1[k];
-    memcpy(d->coeff + N * N, d->springs, sizeof d->springs);
-    st->payload = payload;
+#ifdef HAS_VAR_damping_ratio
+    return VALUE(inst, IDX_damping_ratio);
+#else
+    (void)inst;
+    return 0.0;
+#endif
+}
+
+static int exponential_scheme(const Instance *inst)
+{
+#ifdef HAS_VAR_integrator /* the Python plant's choice: 1 rodas4, 2 exponential */
+    return VALUE(inst, IDX_integrator) == 2;
+#else
+    (void)inst;
+    return 0;
+#endif
 }
 
 static fmi2Status plant_initialize(Instance *inst)
 {
     PlantState *st = inst->state;
     PlantData *d = inst->data;
-#ifdef HAS_VAR_integrator /* the Python plant's choice of scheme: the native plant has RODAS4 (1) only */
-    if (VALUE(inst, IDX_integrator) != 1) {
-        glue_log(inst, fmi2Error, "fmi2ExitInitializationMode: integrator = %g: the native plant implements 1 "
-                 "(rodas4) only; use the Python plant for the others", VALUE(inst, IDX_integrator));
+    if (set_model(d, VALUE(inst, IDX_payload_mass), damping_ratio(inst)) != 0) {
+        glue_log(inst, fmi2Error, "fmi2ExitInitializationMode: the modal damping matrix could not be built "
+                 "(payload_mass = %g kg, damping_ratio = %g)", VALUE(inst, IDX_payload_mass), damping_ratio(inst));
         return fmi2Error;
     }
-#endif
-#ifdef HAS_VAR_damping_ratio
-    if (VALUE(inst, IDX_damping_ratio) != 0) {
-        glue_log(inst, fmi2Error, "fmi2ExitInitializationMode: damping_ratio = %g: the native plant implements 0 "
-                 "(no structural damping) only; use the Python plant for damping", VALUE(inst, IDX_damping_ratio));
-        return fmi2Error;
-    }
-#endif
-    set_payload(d, st, VALUE(inst, IDX_payload_mass));
     double z[NZ] = {0}, tau[2] = {VALUE(inst, IDX_tau1), VALUE(inst, IDX_tau2)};
     for (int i = 0; i < N; i++) /* flexarm.model.rigid_configuration(q1_0, q2_0), at rest */
         z[i] = VALUE(inst, IDX_q1_0) + (i >= PLANT_JOINT2_DISTAL ? VALUE(inst, IDX_q2_0) : 0.0);
-    if (outputs(inst, z, tau) != 0) {
+    Eval ev;
+    if (evaluate(d, z, &ev) != 0) {
         glue_log(inst, fmi2Error, "fmi2ExitInitializationMode: the mass matrix is not positive definite at "
                  "q1_0 = %g rad, q2_0 = %g rad", VALUE(inst, IDX_q1_0), VALUE(inst, IDX_q2_0));
         return fmi2Error;
     }
+    outputs(d, inst, z, &ev, tau);
     memcpy(st->z, z, sizeof z);
     memcpy(st->tau_held, tau, sizeof tau);
     st->last_error = 0.0;
@@ -293,29 +408,33 @@ static fmi2Status plant_do_step(Instance *inst, double t, double h)
 {
     PlantState *st = inst->state;
     PlantData *d = inst->data;
-    if (st->payload != VALUE(inst, IDX_payload_mass)) set_payload(d, st, VALUE(inst, IDX_payload_mass));
     const double tau[2] = {VALUE(inst, IDX_tau1), VALUE(inst, IDX_tau2)};
-    const int substeps = (int)VALUE(inst, IDX_substeps);
-    double z[NZ], z_new[NZ], err = 0.0;
+    const int substeps = (int)VALUE(inst, IDX_substeps), exponential = exponential_scheme(inst);
+    double z[NZ], z_new[NZ], forces[N], err = 0.0;
+    Eval ev_a, ev_b, *at_z = &ev_a, *work = &ev_b;
+    /* a restored FMU state of another instance may carry another payload or damping */
+    int ok = set_model(d, VALUE(inst, IDX_payload_mass), damping_ratio(inst)) == 0;
     memcpy(z, st->z, sizeof z);
+    if (ok && d->cache_valid && memcmp(d->cache_z, z, sizeof z) == 0) at_z = &d->cache;
+    else ok = ok && evaluate(d, z, at_z) == 0;
+    input_forces(d, tau, forces);
     const double hs = h / substeps;
-    int ok = 1;
     for (int k = 0; k < substeps && ok; k++) {
-        double e;
-        ok = rodas4_step(d, z, tau, hs, z_new, &e) == 0;
+        double e = 0.0;
+        ok = (exponential ? exponential_step(d, z, at_z, forces, hs, z_new)
+                          : rodas4_step(d, z, at_z, work, forces, hs, z_new, &e)) == 0;
         for (int i = 0; i < NZ && ok; i++) ok = isfinite(z_new[i]);
         err = fmax(err, e);
         memcpy(z, z_new, sizeof z);
+        if (at_z == &d->cache) at_z = &ev_a;
+        ok = ok && evaluate(d, z, at_z) == 0; /* the next substep's start, or the outputs' state */
     }
-    /* Outputs are written into the values only after the step succeeded (a failed one changes nothing). */
-    double saved[MODEL_N_VARS];
-    memcpy(saved, inst->values, sizeof saved);
-    if (!ok || outputs(inst, z, tau) != 0) {
-        memcpy(inst->values, saved, sizeof saved);
+    if (!ok) { /* a failed step changes nothing */
         glue_log(inst, fmi2Discard, "fmi2DoStep: state became non-finite (tau1 = %.17g N.m, tau2 = %.17g N.m, "
                  "h = %.17g s, t = %.17g s, substeps = %d); the state stays at t", tau[0], tau[1], h, t, substeps);
         return fmi2Discard;
     }
+    outputs(d, inst, z, at_z, tau);
     memcpy(st->z, z, sizeof z);
     memcpy(st->tau_held, tau, sizeof tau);
     st->last_error = err;
