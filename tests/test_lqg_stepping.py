@@ -97,6 +97,40 @@ def test_python_lqg_with_variable_steps_is_the_library_law(tmp_path):
     np.testing.assert_array_equal(got, library_held(CASES[1], steps))
 
 
+@pytest.mark.parametrize("kind", ["python", "native"])
+def test_lqg_in_jacobi_stepping_at_4ms_holds_the_inputs_set_after_the_read(kind, tmp_path):
+    """Jacobi at 4 ms (read the torques, then set the inputs, then step): the sample of t is the one read (the
+    inputs of the previous point); the 3 samples inside the step hold the inputs set after the read."""
+    fmu = (built_fmus() if kind == "python" else native_fmus())["controller_lqg"]
+    params = CASES[1]
+    n_points = 550
+    s = Slave(fmu, str(unpack_alone(fmu, tmp_path)), "lqg", start=False)
+    s.fmu.setupExperiment(startTime=0.0)
+    s.fmu.enterInitializationMode()
+    s.set(**params)
+    s.set_vector(MEASURED, list(lqg_inputs(0).values()))
+    s.fmu.exitInitializationMode()
+    got = []
+    try:
+        for k in range(n_points):
+            got.append(s.get(["tau1", "tau2"]))
+            s.set_vector(MEASURED, list(lqg_inputs(4 * k + 3).values()))
+            s.fmu.doStep(k * 4e-3, 4e-3)
+    finally:
+        s.close()
+    law = lqg_controller(GAIN_SETS[2], SCHEDULES[0.2], params["loop_delay_samples"], True,
+                         (params["tau1_max"], PEAK_TORQUE[1]))
+    state, read_inputs, ref = law.initial_state(), list(lqg_inputs(0).values()), []
+    for k in range(n_points):
+        tau, state = law.step(state, 4 * k, read_inputs)
+        ref.append(tau)
+        read_inputs = list(lqg_inputs(4 * k + 3).values())
+        for i in range(1, 4):
+            _, state = law.step(state, 4 * k + i, read_inputs)
+    got, ref = np.array(got), np.array(ref)
+    assert _agreement(got, ref) <= (0.0 if kind == "python" else 1e-10), np.abs(got - ref).max(axis=0)
+
+
 @pytest.mark.parametrize("params", CASES, ids=_ids)
 def test_native_lqg_at_4ms_equals_python(params, tmp_path):
     """(b) the native FMU stepped at 4 ms = the Python FMU stepped at 4 ms (1e-10 of the peak torque)."""
