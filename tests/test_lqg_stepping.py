@@ -161,3 +161,24 @@ def test_a_step_off_the_multiples_is_refused_and_changes_nothing(kind, tmp_path)
     np.testing.assert_array_equal(after[0], first[-1])
     ref = library_held(params, [*steps, 4, 1, 2])
     np.testing.assert_allclose(np.vstack([first, after[1:]]), ref, rtol=0, atol=1e-10 * np.abs(ref).max())
+
+
+def test_ssp_export_sets_the_loop_delay_of_its_step(tmp_path):
+    """A Jacobi master stepping 4 ms through sensors and controller delays by 8 samples: the export says so."""
+    import re
+    import zipfile
+
+    from scenarios.config import load_scenario
+    from scenarios.ssp import export_ssp
+
+    sc = load_scenario("lqg_jacobi")
+    sc.cases = [c for c in sc.cases if c.key == "none"]
+    delays = {}
+    for h in (1e-3, 4e-3):
+        sc.step_size = h
+        with zipfile.ZipFile(export_ssp(sc, tmp_path / f"{h:g}", fmu_dir=tmp_path / "fmus")["none"]) as z:
+            text = "".join(z.read(n).decode() for n in z.namelist() if n.endswith(".ssv"))
+        found = re.findall(r'name="loop_delay_samples"[^<]*<ssv:Integer value="(\d+)"', text)
+        assert len(found) == 1, text[:2000]
+        delays[h] = int(found[0])
+    assert delays == {1e-3: 2, 4e-3: 8}
