@@ -34,6 +34,7 @@ import numpy as np
 from .gain_schedule import as_trajectory, desired_states, sample_time
 from .lqg_design import LqgDesign
 from .model import N_STATE
+from .trajectory.io import SAMPLE_TIME
 
 #: Largest loop delay the predictor accepts, samples (the FMU's ``loop_delay_samples`` range).
 MAX_DELAY_SAMPLES = 10
@@ -272,7 +273,7 @@ def simulate_lqg(model, controller: LqgController, n_steps: int | None = None, p
 STEPPINGS = ("gauss-seidel", "jacobi")
 
 
-def required_loop_delay(stepping: str, feedthrough_fmus: int = 2) -> int:
+def required_loop_delay(stepping: str, feedthrough_fmus: int = 2, samples_per_step: int = 1) -> int:
     """The ``loop_delay_samples`` a master's stepping puts into the loop.
 
     Parameters
@@ -281,31 +282,59 @@ def required_loop_delay(stepping: str, feedthrough_fmus: int = 2) -> int:
         Gauss-Seidel (our master's default: each FMU reads its inputs after
         the FMUs before it updated) adds no delay. Jacobi (libcosim's fixed-step
         algorithm, fmpy's ``simulate_ssp``: all outputs read, then all inputs
-        set) adds one sample per direct-feedthrough FMU the signal crosses.
+        set) adds one communication step per direct-feedthrough FMU the signal
+        crosses.
     feedthrough_fmus : int
         Direct-feedthrough FMUs from the plant's outputs to its torque inputs,
         the controller included: 2 with a separate sensors FMU, 1 when the
         controller reads the plant directly.
+    samples_per_step : int
+        The master's communication step in controller samples (1 ms each):
+        a Jacobi master stepping h = n ms delays by ``feedthrough_fmus`` · n
+        samples at its communication points.
 
     Returns
     -------
     int
         Samples (0..:data:`MAX_DELAY_SAMPLES`).
+
+    Raises
+    ------
+    LqgError
+        For an unknown stepping, bad counts, or a delay beyond :data:`MAX_DELAY_SAMPLES`.
     """
     if stepping not in STEPPINGS:
         raise LqgError(f"stepping: {stepping!r} is not one of {STEPPINGS}")
     if isinstance(feedthrough_fmus, bool) or not isinstance(feedthrough_fmus, int) \
             or not 1 <= feedthrough_fmus <= MAX_DELAY_SAMPLES:
         raise LqgError(f"feedthrough_fmus: an integer in 1..{MAX_DELAY_SAMPLES}, got {feedthrough_fmus!r}")
-    return 0 if stepping == "gauss-seidel" else feedthrough_fmus
+    if isinstance(samples_per_step, bool) or not isinstance(samples_per_step, int) or samples_per_step < 1:
+        raise LqgError(f"samples_per_step: an integer >= 1 (the communication step in 1 ms samples), "
+                       f"got {samples_per_step!r}")
+    delay = 0 if stepping == "gauss-seidel" else feedthrough_fmus * samples_per_step
+    if delay > MAX_DELAY_SAMPLES:
+        raise LqgError(f"samples_per_step: Jacobi stepping of {samples_per_step} samples through {feedthrough_fmus} "
+                       f"feedthrough FMUs delays the loop by {delay} samples, more than the predictor covers "
+                       f"(loop_delay_samples 0..{MAX_DELAY_SAMPLES}); step at most "
+                       f"{MAX_DELAY_SAMPLES // feedthrough_fmus} ms")
+    return delay
 
 
-def with_loop_delay(parameters: dict, stepping: str, feedthrough_fmus: int = 2) -> dict:
+def with_loop_delay(parameters: dict, stepping: str, feedthrough_fmus: int = 2, step_size: float | None = None) -> dict:
     """A controller's parameters for a target master: ``loop_delay_samples`` set to :func:`required_loop_delay`.
 
     For exports (SSP) to masters that step differently from the scenario's own:
     the returned copy has ``loop_delay_samples`` replaced; other keys are kept.
+    `step_size` is the master's communication step in s (None: one sample,
+    :data:`flexarm.trajectory.io.SAMPLE_TIME`); it must be a whole multiple of
+    the sample.
     """
+    samples = 1
+    if step_size is not None:
+        samples = int(round(step_size / SAMPLE_TIME))
+        if not np.isfinite(step_size) or samples < 1 or abs(step_size / SAMPLE_TIME - samples) > 1e-6:
+            raise LqgError(f"step_size: {step_size!r} s is not a whole multiple of the controller's sample "
+                           f"({SAMPLE_TIME:g} s)")
     out = dict(parameters)
-    out["loop_delay_samples"] = required_loop_delay(stepping, feedthrough_fmus)
+    out["loop_delay_samples"] = required_loop_delay(stepping, feedthrough_fmus, samples)
     return out

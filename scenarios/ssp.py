@@ -313,7 +313,7 @@ def export_ssp(scenario: Scenario, out_dir: str | Path = DEFAULT_SSP_DIR,
             variables = {v.name: v for v in read_model_description(str(path)).modelVariables}
             params = plan.parameters.get(inst, {})
             if "loop_delay_samples" in variables:  # a predictive controller: set for the masters that read SSPs
-                params = with_loop_delay(params, "jacobi", _feedthrough_fmus(scenario))
+                params = with_loop_delay(params, "jacobi", _feedthrough_fmus(scenario), scenario.step_size)
             values = typed_values(params, variables, f"case {plan.key}, {inst}")
             members[_fmu_path(inst)] = case_fmu(path, values)
             members[_ssv_path(inst)] = parameter_set_xml(plan.key, values, variables, plan.label)

@@ -224,6 +224,14 @@ def test_required_loop_delay_for_the_target_stepping():
         required_loop_delay("parallel")
     with pytest.raises(LqgError, match="feedthrough_fmus"):
         required_loop_delay("jacobi", 0)
+    # a Jacobi master stepping n ms delays by n samples per feedthrough FMU; Gauss-Seidel by none
+    assert required_loop_delay("jacobi", 2, 4) == 8 and required_loop_delay("gauss-seidel", 2, 4) == 0
+    assert with_loop_delay({}, "jacobi", 2, step_size=0.004) == {"loop_delay_samples": 8}
+    assert with_loop_delay({}, "jacobi", 2, step_size=0.001) == {"loop_delay_samples": 2}
+    with pytest.raises(LqgError, match="step_size"):
+        with_loop_delay({}, "jacobi", 2, step_size=0.0015)
+    with pytest.raises(LqgError, match="more than the predictor covers"):
+        required_loop_delay("jacobi", 2, 6)
 
 
 def test_process_noise_trades_noise_rejection_against_payload_absorption():

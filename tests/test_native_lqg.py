@@ -72,8 +72,8 @@ def test_native_lqg_matches_python(params):
     assert np.abs(np.diff(got, axis=0)).max() > 0.01  # the filter and the feedback act
 
 
-def _jacobi_run(fmu, params: dict, n: int, late_inputs: bool) -> np.ndarray:
-    """A Jacobi master: read the torques, then set the inputs, then doStep (inputs set after the read).
+def _jacobi_run(fmu, params: dict, n: int, late_inputs: bool, h: float = 1e-3) -> np.ndarray:
+    """A Jacobi master stepping h: read the torques, then set the inputs, then doStep (inputs set after the read).
 
     The torques are first read in initialisation mode (inputs of sample 5 set there), and the inputs are changed
     before the first step without a read: the first sample committed is the one read. With `late_inputs` the
@@ -96,39 +96,42 @@ def _jacobi_run(fmu, params: dict, n: int, late_inputs: bool) -> np.ndarray:
     rows = [s.getReal(taus)]
     s.exitInitializationMode()
     s.setReal(meas, list(lqg_inputs(9).values()))  # never read: the sample of t = 0 is the one read above
-    s.doStep(0.0, 1e-3)
+    s.doStep(0.0, h)
+    samples = int(round(h / 1e-3))  # 1 ms samples per step: the inputs follow the path at the step's samples
     for k in range(1, n):
         rows.append(s.getReal(taus))
-        s.setReal(meas, list(lqg_inputs(k - 1).values()))
+        s.setReal(meas, list(lqg_inputs(samples * k - 1).values()))
         if late_inputs and k % 3 == 0:
             rows[-1] = s.getReal(taus)  # read again: these torques are the sample's
-            s.setReal(meas, list(lqg_inputs(k + 7).values()))  # set, never read: not committed
-        s.doStep(k * 1e-3, 1e-3)
+            s.setReal(meas, list(lqg_inputs(samples * k + 7).values()))  # set, never read: not committed
+        s.doStep(k * h, h)
     s.terminate()
     s.freeInstance()
     return np.array(rows)
 
 
+@pytest.mark.parametrize("h", [1e-3, 4e-3])
 @pytest.mark.parametrize("late_inputs", [False, True])
-def test_native_lqg_commits_what_the_master_read(tmp_path, late_inputs):
-    """Jacobi stepping (read, set, doStep): native and Python commit the same sample at every step."""
+def test_native_lqg_commits_what_the_master_read(tmp_path, late_inputs, h):
+    """Jacobi stepping (read, set, doStep) at 1 ms and 4 ms (the samples inside the step with the inputs
+    held): native and Python commit the same sample at every step."""
     params = {"loop_delay_samples": 2, "integral_action": True}
     fmus = {}
     for kind, fmu in (("python", built_fmus()["controller_lqg"]), ("native", native_fmus()["controller_lqg"])):
         fmus[kind] = tmp_path / kind / fmu.name
         fmus[kind].parent.mkdir()
         shutil.copy2(fmu, fmus[kind])
-    ref = _jacobi_run(fmus["python"], params, 600, late_inputs)
-    got = _jacobi_run(fmus["native"], params, 600, late_inputs)
+    ref = _jacobi_run(fmus["python"], params, 600, late_inputs, h)
+    got = _jacobi_run(fmus["native"], params, 600, late_inputs, h)
     assert _agreement(got, ref) <= 1e-10
     if late_inputs:  # the uncommitted inputs changed nothing: the same torques as without them up to the reads
-        plain = _jacobi_run(fmus["native"], params, 600, False)
+        plain = _jacobi_run(fmus["native"], params, 600, False, h)
         assert np.abs(plain - got).max() > 1e-6  # the second reads saw other inputs
 
 
 def test_native_lqg_state_reset_and_errors(tmp_path):
     """FMU state get/set and (de)serialise into another instance repeat bit for bit; fmi2Reset starts over;
-    a step other than 1 ms and a bad schedule_period are refused naming them."""
+    a step that is no whole multiple of 1 ms and a bad schedule_period are refused naming them."""
     native = native_fmus()["controller_lqg"]
     unz = unpack_alone(native, tmp_path / "lqg")
     params = {"loop_delay_samples": 3, "integral_action": True, "tau1_max": 5.0}
@@ -158,7 +161,7 @@ def test_native_lqg_state_reset_and_errors(tmp_path):
     a.start(**params)
     np.testing.assert_array_equal(drive(a, 0, 1000), from_start)
     with pytest.raises(FMICallException):
-        a.fmu.doStep(1.0, 2e-3)
+        a.fmu.doStep(1.0, 1.5e-3)
     assert any("step_size" in m and "1 ms" in m for _, m in a.messages)
     a.fmu.doStep(1.0, 1e-3)  # the instance carries on
     for s in (a, b):

@@ -10,9 +10,15 @@ estimates every velocity). The law: :mod:`flexarm.lqg`; the design files:
 ``flexarm/data/lqg/`` (:mod:`flexarm.lqg_design`).
 
 The controller has a state (the filter's estimate, the torques sent, the
-integrators): a communication step must be exactly one 1 ms sample, and the
-sample it commits at ``fmi2DoStep`` is the one whose torques the master *read*
-last (what the plant got), not a re-evaluation with inputs set after that read.
+integrators) and runs at the trajectory's 1 ms sample. A communication step h
+may be any whole multiple n of it (others are refused naming ``step_size``).
+The sample it commits at ``fmi2DoStep`` is the one whose torques the master
+*read* last (what the plant got), not a re-evaluation with inputs set after
+that read; with n > 1 the filter then runs the n - 1 samples inside the step
+with the inputs held (those present at ``fmi2DoStep``), as a sampled-data
+controller does between a master's communication points, so the torques read
+after the step are those of sample (t + h) / 1 ms. ``loop_delay_samples``
+counts 1 ms samples.
 A Gauss-Seidel master sets the inputs and then reads (the measurement of the
 state at t_k: delay 0); a Jacobi master reads first and sets the inputs after,
 so the torques it takes at t_k come from the inputs it set at t_(k-1), the
@@ -92,14 +98,24 @@ class FlexarmControllerLQG(ControllerSlave):
         return values
 
     def commit(self, t: float, h: float) -> None:
-        self.state = self._delivered if self._delivered is not None else self._pending
+        state = self._delivered if self._delivered is not None else self._pending
+        if self._samples_in(h) > 1:  # the samples inside the step, of the inputs held since t
+            held = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)
+            for _ in range(self._samples_in(h) - 1):
+                _, state = self.law.step(state, state.k, held)
+        self.state = state
         self._pending = self._delivered = None
 
+    def _samples_in(self, h: float) -> int:
+        return round(h / self.law.dt)
+
     def check_step(self, t: float, h: float) -> None:
+        dt = self.law.dt
+        if self._samples_in(h) < 1 or abs(h / dt - self._samples_in(h)) > 1e-6:
+            raise ValueError(f"step_size: {h!r} s is not a whole multiple of the controller's 1 ms sample "
+                             f"(allowed: n * {dt:g} s, n = 1, 2, ...; controller_lqg is a sampled filter and "
+                             "runs the samples inside a longer step with its inputs held)")
         super().check_step(t, h)
-        if abs(h - self.law.dt) > 1e-9:
-            raise ValueError(f"step_size: {h!r} s; controller_lqg is a 1 ms sampled filter and steps exactly "
-                             f"{self.law.dt:g} s per communication step")
 
     def get_sample_state(self) -> dict:
         as_dict = lambda s: None if s is None else s.as_dict()  # noqa: E731

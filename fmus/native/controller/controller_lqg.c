@@ -12,8 +12,10 @@
  *
  * FMU stepping (as the Python FMU): a read of the outputs evaluates the sample from the committed state
  * ("pending") and marks it delivered; fmi2DoStep commits the sample whose torques the master read last, or the
- * last evaluated one if the master read none. The resources (lqg_resources.py): the trajectory and the designs
- * of the three schedules, IEEE-754 bit patterns, SHA-256 checked by the glue.
+ * last evaluated one if the master read none; a step of n 1 ms samples (any whole n >= 1) then runs the n - 1
+ * samples inside the step with the inputs held, so the torques read after it are the sample of t + h. The
+ * resources (lqg_resources.py): the trajectory and the designs of the three schedules, IEEE-754 bit patterns,
+ * SHA-256 checked by the glue.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -288,19 +290,30 @@ static fmi2Status lqg_do_step(Instance *inst, double t, double h)
 {
     LqgData *d = inst->data;
     FmuState *st = inst->state;
-    double end = (t + h) / d->dt;
+    double n = nearbyint(h / d->dt), end = (t + h) / d->dt;
+    if (n < 1 || fabs(h / d->dt - n) > 1e-6) {
+        glue_log(inst, fmi2Error, "fmi2DoStep: step_size: %.17g s is not a whole multiple of the controller's 1 ms "
+                 "sample (allowed: n * %g s, n = 1, 2, ...; controller_lqg is a sampled filter and runs the samples "
+                 "inside a longer step with its inputs held)", h, d->dt);
+        return fmi2Error;
+    }
     if (fabs(end - nearbyint(end)) > 1e-6) {
         glue_log(inst, fmi2Error, "fmi2DoStep: step_size: t + h = %.17g s is not on the controller's sample grid "
                  "(multiples of %g s, the trajectory's sample time)", t + h, d->dt);
         return fmi2Error;
     }
-    if (fabs(h - d->dt) > 1e-9) {
-        glue_log(inst, fmi2Error, "fmi2DoStep: step_size: %.17g s; controller_lqg is a 1 ms sampled filter and steps "
-                 "exactly %g s per communication step", h, d->dt);
-        return fmi2Error;
-    }
     st->committed = st->has_delivered ? st->delivered : st->pending;
     st->has_pending = st->has_delivered = 0;
+    if (n > 1) { /* the samples inside the step, of the inputs held since t (their torques are not published) */
+        double m[N_MEAS], tau[2];
+        const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
+        for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
+        for (double i = 1; i < n; i++) {
+            LqgState next;
+            lqg_step(d, &st->committed, st->committed.k, m, limit, tau, &next);
+            st->committed = next;
+        }
+    }
     return fmi2OK;
 }
 
