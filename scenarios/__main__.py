@@ -34,8 +34,8 @@ def main(argv=None) -> int:
                                         "3 results folder unusable, 130 interrupted (see docs/outcomes.md).")
     sub = ap.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list the shipped scenarios")
-    run = sub.add_parser("run", help="run scenarios: table1, table2, table3, all, or a path to a scenario file")
-    run.add_argument("scenarios", nargs="+")
+    run = sub.add_parser("run", help="run scenarios: shipped names (see list), all, or scenario files")
+    run.add_argument("scenarios", nargs="+", help="shipped scenario names (python -m scenarios list), all, or files")
     run.add_argument("--out", type=Path, default=DEFAULT_OUT,
                      help="results folder, relative to the current directory (default: ./results); "
                           "a scenario writes OUT/<name>/, replacing an earlier run's folder when it completes")
@@ -57,7 +57,7 @@ def main(argv=None) -> int:
     sweep.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
     ssp = sub.add_parser("export-ssp", help="write a scenario's cases as SSP 1.0 packages (one .ssp per case)")
-    ssp.add_argument("scenario", help="table1, table2, table3 or a path to a scenario file")
+    ssp.add_argument("scenario", help="a shipped scenario (see: python -m scenarios list) or a path to a scenario file")
     ssp.add_argument("--out", type=Path, default=Path("build") / "ssp",
                      help="folder for <scenario>/<case>.ssp, relative to the current directory (default: ./build/ssp)")
     ssp.add_argument("--case", action="append", help="export only this case (repeatable; default: all)")
@@ -92,9 +92,9 @@ def _kind_options(parser) -> None:
     """--native / --python (override the scenario file's ``kind``) and the native FMUs' folder."""
     kind = parser.add_mutually_exclusive_group()
     kind.add_argument("--native", dest="kind", action="store_const", const="native",
-                      help="run the native (plain C) FMUs, whatever the scenario's kind says")
+                      help="use the native (plain C) FMUs, whatever the scenario's kind says")
     kind.add_argument("--python", dest="kind", action="store_const", const="python",
-                      help="run the Python FMUs, whatever the scenario's kind says")
+                      help="use the Python FMUs, whatever the scenario's kind says")
     parser.add_argument("--native-fmu-dir", type=Path, default=DEFAULT_NATIVE_FMU_DIR,
                         help="where built native FMUs live (their Python twins live in --fmu-dir)")
 
