@@ -174,3 +174,24 @@ def drive(slave: Slave, name: str, k0: int, n: int) -> np.ndarray:
         slave.fmu.doStep(k * DT, DT)
         slave.time = (k + 1) * DT
     return np.array(rows)
+
+
+def extract_ssp_fmus(ssp, folder) -> dict[str, str]:
+    """An SSP archive's FMUs as files (instance -> path), so that two masters run exactly the same binaries."""
+    import io
+    import zipfile
+
+    from lxml import etree
+
+    from scenarios.ssp import NS
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    with zipfile.ZipFile(ssp) as zf:
+        doc = etree.parse(io.BytesIO(zf.read("SystemStructure.ssd")))
+        names = {}
+        for comp in doc.iterfind("ssd:System/ssd:Elements/ssd:Component", NS):
+            target = folder / comp.get("source").split("/")[-1]
+            target.write_bytes(zf.read(comp.get("source")))
+            names[comp.get("name")] = str(target)
+    return names

@@ -17,14 +17,14 @@ import numpy as np
 import pytest
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
-from fmu_harness import Slave, built_fmus
+from fmu_harness import Slave, built_fmus, extract_ssp_fmus
 from lxml import etree
 from native_fmus import native_fmus
 
 from scenarios import runner
 from scenarios.config import ScenarioError, load_scenario
 from scenarios.master import logging_callbacks
-from scenarios.ssp import NATIVE_START_VALUES, NS, export_ssp, validate_ssp
+from scenarios.ssp import NATIVE_START_VALUES, export_ssp, validate_ssp
 
 #: simulate_ssp or libcosim against our master in the mode that steps as they do, over the whole run.
 TOLERANCE = 1e-9
@@ -51,23 +51,10 @@ def ff_native(tmp_path_factory, folders):
                       cases=["ff"], kind="native", **folders)["ff"]
 
 
-def _extract_fmus(ssp, folder) -> dict[str, str]:
-    """The archive's FMUs as files (instance -> path), so that both masters run the same binaries."""
-    folder.mkdir(parents=True, exist_ok=True)
-    with zipfile.ZipFile(ssp) as zf:
-        doc = etree.parse(io.BytesIO(zf.read("SystemStructure.ssd")))
-        names = {}
-        for comp in doc.iterfind("ssd:System/ssd:Elements/ssd:Component", NS):
-            target = folder / comp.get("source").split("/")[-1]
-            target.write_bytes(zf.read(comp.get("source")))
-            names[comp.get("name")] = str(target)
-    return names
-
-
 def _ours(scenario: str, ssp, folder, algorithm: str, parameters: dict | None = None):
     """Our master on the archive's FMUs; `parameters` None: nothing set (the archive's values are the defaults)."""
     sc = load_scenario(scenario)
-    setup = runner.prepare(sc, names=_extract_fmus(ssp, folder))
+    setup = runner.prepare(sc, names=extract_ssp_fmus(ssp, folder))
     assert set(setup.fmu_kinds().values()) == {"native"}
     params = {} if parameters is None else setup.case_parameters(parameters)
     with setup.open_master(algorithm) as m:

@@ -14,6 +14,7 @@ import zipfile
 import numpy as np
 import pytest
 from fmpy import read_model_description
+from fmu_harness import extract_ssp_fmus
 from lxml import etree
 
 from scenarios import runner
@@ -140,24 +141,12 @@ def test_a_case_fmu_runs_its_case_with_nothing_set(ff_ssp, tmp_path):
 def _run_open_loop_ours(ff_ssp, tmp_path, algorithm: str) -> tuple[runner.Setup, dict]:
     sc = load_scenario("compare_ff_fb")
     case = next(c for c in sc.cases if c.key == "ff")
-    setup = runner.prepare(sc, names=_extract_fmus(ff_ssp, tmp_path))
+    setup = runner.prepare(sc, names=extract_ssp_fmus(ff_ssp, tmp_path))
     with setup.open_master(algorithm) as m:  # the archive's FMUs already hold the case's values
         ours = m.run({}, setup.record, setup.n_steps, sc.step_size)
     assert ours["status"] == "ok", ours["message"]
     assert case.fmus["controller"] == "controller_ff"
     return setup, ours
-
-
-def _extract_fmus(ssp, folder) -> dict[str, str]:
-    """The archive's FMUs as files, so that both masters run exactly the same binaries."""
-    with zipfile.ZipFile(ssp) as zf:
-        doc = etree.parse(io.BytesIO(zf.read("SystemStructure.ssd")))
-        names = {}
-        for comp in doc.iterfind("ssd:System/ssd:Elements/ssd:Component", NS):
-            target = folder / comp.get("source").split("/")[-1]
-            target.write_bytes(zf.read(comp.get("source")))
-            names[comp.get("name")] = str(target)
-    return names
 
 
 def _worst(theirs: dict, ours: dict) -> tuple[str, float]:
@@ -209,7 +198,7 @@ def test_libcosim_matches_our_jacobi_master_closed_loop(table2_ssp, tmp_path):
     assert proc.returncode == 0, f"libcosim run failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr[-3000:]}"
     lc = dict(np.load(out))
     sc = load_scenario("table2")
-    setup = runner.prepare(sc, names=_extract_fmus(table2_ssp["none"], tmp_path))
+    setup = runner.prepare(sc, names=extract_ssp_fmus(table2_ssp["none"], tmp_path))
     with setup.open_master("jacobi") as m:
         ours = m.run({}, setup.record, setup.n_steps, sc.step_size)
     assert ours["status"] == "ok", ours["message"]
