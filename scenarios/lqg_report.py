@@ -41,6 +41,27 @@ def _fmt(v) -> str:
     return "unbounded" if v is None else f"{v:.4g}"
 
 
+COLUMNS = ("paper LQR", "our LQR (GS)", "LQG (GS)", "LQG+I (GS)", "LQG (Jacobi, d=2)", "LQG+I (Jacobi)")
+
+
+def comparison_cells(paper: dict, lqr: dict, lqg_gs: dict, lqg_jacobi: dict, case: str, key: str) -> list[str]:
+    """One row's cells (:data:`COLUMNS`) for a Table 2 case and a metric; runs are case key -> metrics."""
+    p = paper["table2"].get(case)
+    pv = None if p is None or isinstance(p, dict) else p[paper["metrics"].index(key)]
+    vals = [lqr[case], lqg_gs[case], lqg_gs[f"{case}_integral"], lqg_jacobi[case], lqg_jacobi[f"{case}_integral"]]
+    return [_fmt(pv)] + [_fmt(None if v is None else v[key]) for v in vals]
+
+
+def comparison_markdown(paper: dict, lqr: dict, lqg_gs: dict, lqg_jacobi: dict) -> str:
+    """The four Table 2 cases, every metric, as a Markdown table with the columns of :data:`COLUMNS`."""
+    lines = ["| case | metric | " + " | ".join(COLUMNS) + " |", "|---|---|" + "---|" * len(COLUMNS)]
+    for case in CASES:
+        for n, (key, label) in enumerate(ROWS):
+            cells = comparison_cells(paper, lqr, lqg_gs, lqg_jacobi, case, key)
+            lines.append(f"| {case if n == 0 else ''} | {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     """Run the scenarios and print the comparison."""
     ap = argparse.ArgumentParser(prog="python -m scenarios.lqg_report", description=__doc__.split("\n")[0])
@@ -48,7 +69,6 @@ def main(argv=None) -> int:
     ap.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR)
     args = ap.parse_args(argv)
     paper = tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
-    metric_names = paper["metrics"]
     with tempfile.TemporaryDirectory() as tmp:
         out = args.out or Path(tmp)
         lqg, jac = load_scenario("lqg"), load_scenario("lqg_jacobi")
@@ -63,16 +83,12 @@ def main(argv=None) -> int:
         lqr1 = _with_gain_set(load_scenario("table2"), "gamma1")
         lqr1.name = "table1_lqr"
         runs["our LQR gamma1 (GS)"] = _run(lqr1, out, args.fmu_dir)
-    cols = ["paper LQR", "our LQR (GS)", "LQG (GS)", "LQG+I (GS)", "LQG (Jacobi, d=2)", "LQG+I (Jacobi)"]
+    gs_runs = (runs["our LQR (GS)"], runs["LQG (GS)"], runs["LQG (Jacobi, d=2)"])
     for case in CASES:
-        p = paper["table2"].get(case)
         print(f"\n== Table 2 case '{case}' (gamma = 0.1 weights)")
-        print(f"{'':28s}" + "".join(f"{c:>19s}" for c in cols))
+        print(f"{'':28s}" + "".join(f"{c:>19s}" for c in COLUMNS))
         for key, label in ROWS:
-            pv = None if p is None or isinstance(p, dict) else p[metric_names.index(key)]
-            vals = [pv, runs["our LQR (GS)"][case], runs["LQG (GS)"][case], runs["LQG (GS)"][f"{case}_integral"],
-                    runs["LQG (Jacobi, d=2)"][case], runs["LQG (Jacobi, d=2)"][f"{case}_integral"]]
-            cells = [_fmt(vals[0])] + [_fmt(None if v is None else v[key]) for v in vals[1:]]
+            cells = comparison_cells(paper, *gs_runs, case, key)
             print(f"{label:28s}" + "".join(f"{c:>19s}" for c in cells))
     lqr, jacobi = runs["our LQR (GS)"], runs["LQG (Jacobi, d=2)"]
     print("\n== Acceptance (issue 14)")

@@ -93,6 +93,22 @@ def run_page_scenarios(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) 
     return out
 
 
+def lqg_comparison_section(runs: dict[str, tuple]) -> str:
+    """The LQG beside the paper's LQR and ours, per Table 2 case, from the page's own runs ('' without them)."""
+    from .lqg_report import comparison_markdown
+
+    if not {"table2", "lqg", "lqg_jacobi"} <= set(runs):
+        return ""
+    paper = tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
+    lqr, gs, jac = ({r.key: r.metrics for r in runs[name][1]} for name in ("table2", "lqg", "lqg_jacobi"))
+    return "\n".join([
+        "## LQG beside the paper's LQR and ours", "",
+        "Table 2's cases (γ = 0.1 weights) from the `table2`, `lqg` and `lqg_jacobi` runs above; +I: integral "
+        "action; GS: Gauss-Seidel stepping; Jacobi: loop delay 2. `python -m scenarios.lqg_report` prints the "
+        "same with issue 14's acceptance figures.", "",
+        comparison_markdown(paper, lqr, gs, jac), ""])
+
+
 def lqg_tradeoff_section(progress: bool = False) -> str:
     """The LQG process-noise trade-off (:mod:`flexarm.lqg_tradeoff`) as a page section."""
     from flexarm.lqg_tradeoff import LOOP_DELAY, tradeoff_markdown, tradeoff_rows
@@ -147,7 +163,8 @@ def splice_readme(readme_text: str, block: str) -> str:
 def expected_files(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> dict[Path, str]:
     """Path -> the text it must hold after a fresh run."""
     chain = verify_data_chain()
-    page, block = render(run_page_scenarios(fmu_dir, progress), chain, (lqg_tradeoff_section(progress),))
+    runs = run_page_scenarios(fmu_dir, progress)
+    page, block = render(runs, chain, (lqg_comparison_section(runs), lqg_tradeoff_section(progress)))
     return {RESULTS_PAGE: page, README: splice_readme(README.read_text(), block)}
 
 
