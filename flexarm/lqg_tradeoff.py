@@ -7,7 +7,8 @@ makes the filter fast: it follows the payload's force, and passes the encoders' 
 it trust the model: the noise stays out, and so does the payload. This module designs the LQG for a few
 process-noise models and runs the library loop (delay 2, as under a Jacobi master) to show where each
 lands; ``python -m scenarios results-page`` prints the table on the results page, and
-``python -m flexarm.lqg_tradeoff`` prints it alone.
+``python -m flexarm.lqg_tradeoff`` prints it alone. The last row is the multiple-model bank of
+:mod:`flexarm.lqg_bank`, which does not trade: it knows the payload as a family of models.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 
 from .gain_schedule import default_trajectory_path
 from .lqg import LqgController, simulate_lqg
+from .lqg_bank import DEFAULT_MASSES, BankController, design_bank
 from .lqg_design import ELEMENT_FORCE_SIGMA, MOTOR_TORQUE_SIGMA, PAYLOAD_MASS_KG, design_lqg
 from .model import ArmModel, N
 from .parameters import load_parameters
@@ -33,6 +35,8 @@ FILTERS = (
 #: The loop delay the comparison runs at (a Jacobi master with separate sensors and controller FMUs).
 LOOP_DELAY = 2
 NOISE_SEED = 1
+#: Label of the multiple-model bank's row.
+BANK_LABEL = f"bank of {len(DEFAULT_MASSES)} payload models ({DEFAULT_MASSES[0]:g}-{DEFAULT_MASSES[-1]:g} kg)"
 
 
 @dataclass(frozen=True)
@@ -76,14 +80,31 @@ def _rms_position_deg(states, controller: LqgController) -> float:
 def tradeoff_row(label: str, payload_mass: float, model_scale: float) -> TradeoffRow:
     """Design the LQG with this process noise (200 ms schedule) and run the five library loops."""
     params = load_parameters()
-    model, loaded = ArmModel(params), ArmModel(params.with_payload(PAYLOAD_MASS_KG))
     traj = default_trajectory_path()
-    design = design_lqg(model, traj, "200ms", payload_mass=payload_mass,
+    design = design_lqg(ArmModel(params), traj, "200ms", payload_mass=payload_mass,
                         motor_torque_sigma=model_scale * MOTOR_TORQUE_SIGMA,
                         element_force_sigma=model_scale * ELEMENT_FORCE_SIGMA)
+    return _measured_row(label, payload_mass, model_scale, lambda gain_set, integral: LqgController(
+        traj, design, gain_set, LOOP_DELAY, integral, params.peak_torque))
+
+
+def bank_tradeoff_row(masses=DEFAULT_MASSES) -> TradeoffRow:
+    """The same five loops with the multiple-model bank (:mod:`flexarm.lqg_bank`; no payload in any W)."""
+    params = load_parameters()
+    traj = default_trajectory_path()
+    bank = design_bank(params, masses, traj)
+    label = BANK_LABEL if tuple(masses) == DEFAULT_MASSES else f"bank of payload models {tuple(masses)} kg"
+    return _measured_row(label, 0.0, 1.0, lambda gain_set, integral: BankController(
+        traj, bank, gain_set, LOOP_DELAY, integral, params.peak_torque))
+
+
+def _measured_row(label: str, payload_mass: float, model_scale: float, make_controller) -> TradeoffRow:
+    """Run the five loops with controllers from ``make_controller(gain_set, integral_action)``."""
+    params = load_parameters()
+    model, loaded = ArmModel(params), ArmModel(params.with_payload(PAYLOAD_MASS_KG))
 
     def run(plant, gain_set, integral, noise):
-        c = LqgController(traj, design, gain_set, LOOP_DELAY, integral, params.peak_torque)
+        c = make_controller(gain_set, integral)
         sensors = SensorBank(SensorSettings(noise_enabled=True, noise_seed=NOISE_SEED)) if noise else None
         states, torques = simulate_lqg(plant, c, sensors=sensors)
         return _rms_position_deg(states, c), tuple(float(v) for v in np.max(np.abs(torques), axis=0))
@@ -94,13 +115,18 @@ def tradeoff_row(label: str, payload_mass: float, model_scale: float) -> Tradeof
     return TradeoffRow(label, payload_mass, model_scale, quiet, noisy, quiet_i, noisy_i, payload, peak)
 
 
-def tradeoff_rows(filters=FILTERS, progress=None) -> list[TradeoffRow]:
-    """:func:`tradeoff_row` for each ``(label, payload_mass, model_scale)``; ``progress(label)`` before each."""
+def tradeoff_rows(filters=FILTERS, progress=None, bank: bool = True) -> list[TradeoffRow]:
+    """:func:`tradeoff_row` for each ``(label, payload_mass, model_scale)``, then (``bank``)
+    :func:`bank_tradeoff_row`; ``progress(label)`` before each."""
     rows = []
     for label, mass, scale in filters:
         if progress is not None:
             progress(label)
         rows.append(tradeoff_row(label, mass, scale))
+    if bank:
+        if progress is not None:
+            progress(BANK_LABEL)
+        rows.append(bank_tradeoff_row())
     return rows
 
 

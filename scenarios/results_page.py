@@ -120,7 +120,9 @@ def lqg_tradeoff_section(progress: bool = False) -> str:
         "elements. Issue 14 asks for both: noise raising the γ = 1 error by at most 2×, and the payload error "
         "at most half our LQR's (table2 `tip_noise`). A filter fast enough to follow the payload's force passes "
         "the sensors' noise on; one that trusts the model keeps the noise out and the payload in "
-        "([control.md](control.md)).", "",
+        "([control.md](control.md)). The last row does not trade: a bank of filters, one per payload mass, each "
+        "knowing its model's drift along the path, with the posterior over the masses weighting their feedback "
+        "([flexarm/lqg_bank.py](../flexarm/lqg_bank.py)).", "",
         tradeoff_markdown(tradeoff_rows(progress=report)), ""])
 
 

@@ -1,0 +1,320 @@
+"""A multiple-model LQG: a bank of Kalman filters, one per payload mass (issue 14's two goals at once).
+
+The committed LQG (:mod:`flexarm.lqg`) absorbs the unknown payload as white process noise in its
+filter, which makes the filter fast and lets the sensors' noise through; a filter that trusts the
+model keeps the noise out and the payload in (:mod:`flexarm.lqg_tradeoff`). Here the payload is a
+*known family of models* instead.
+
+Identification filters
+    One per payload mass m on a grid (:data:`DEFAULT_MASSES`), each designed by
+    :func:`flexarm.lqg_design.design_lqg` on the arm with that payload (``params.with_payload(m)``)
+    linearised about the desired trajectory and the nominal feedforward τ_ff, with the committed
+    motor and element process noise but no tip force. Each carries the affine drift of its model
+    along the path: τ_ff is designed for m = 0, so a loaded arm does not stay on z_d,
+
+        δx_{j+1} = Φ_m δx_j + Γ_m δu_j + d_m,j,   d_m,j = Ψ_m [0; α_m(z_d,j, τ_ff,j) − α_0(z_d,j, τ_ff,j)]
+
+    (Ψ = ∫₀^dt e^{As} ds at the schedule point, α the element accelerations of eq. 5, rad/s²):
+    that drift is what the payload does. Each innovation e (at the filter's sample j = k − d) adds
+    its Gaussian log-likelihood −½(eᵀS⁻¹e + log det S), S = C P⁻ Cᵀ + V, to the model's log
+    posterior; the posterior is floored at :data:`POSTERIOR_FLOOR` so that the bank can switch.
+Quiet filter
+    The arm without payload with model-trusting process noise (motor and element terms ×
+    :data:`QUIET_SCALE`): it stands in for the m = 0 model in the control law, so that with no
+    payload the sensors' noise stays out. Its likelihood is not used (a model-trusting filter's
+    small S would win or lose on its confidence, not on the mass). While the posterior has ruled
+    out the unloaded arm (p_0 < :data:`QUIET_RESEED_BELOW`) it is re-seeded from the unloaded
+    identification filter's estimate each sample, so that a later switch to m = 0 starts from an
+    estimate of the real arm rather than one it drifted to under the payload. (Re-seeding at a
+    higher p_0 lets noise in: at p_0 < 0.01 the γ = 1 noise ratio is ×6.9 instead of ×1.4.)
+
+The torque is τ_ff + Σ_m p_m (−K_m x̂_m − K_ξ,m ξ) with the posterior p (``select="mixture"``)
+or the most probable model alone (``"map"``); K_m the LQR gains of model m's design. Every filter
+predicts across the loop delay as :class:`flexarm.lqg.LqgController` does (drift included), and
+the integrators ξ integrate the weighted joint-angle estimate (conditional integration, no wind-up).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .gain_schedule import as_trajectory, default_trajectory_path, desired_states, sample_time
+from .lqg import MAX_DELAY_SAMPLES, LqgError
+from .lqg_design import ELEMENT_FORCE_SIGMA, MOTOR_TORQUE_SIGMA, LqgDesign, design_lqg
+from .lqr_design import scaling_transform, zoh
+from .model import N_STATE, ArmModel, N
+from .parameters import ArmParameters
+
+#: Payload masses of the identification filters, kg.
+DEFAULT_MASSES = (0.0, 0.025, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4)
+#: Scale of the committed motor and element process-noise terms in the quiet filter.
+QUIET_SCALE = 0.01
+#: Smallest posterior probability of a model (lets the bank switch).
+POSTERIOR_FLOOR = 1e-4
+#: Posterior of the unloaded model below which the quiet filter is re-seeded (10 × the floor).
+QUIET_RESEED_BELOW = 1e-3
+SELECTIONS = ("mixture", "map")
+
+
+@dataclass
+class BankModel:
+    """One filter of the bank.
+
+    Attributes
+    ----------
+    mass : float
+        Payload mass of its model, kg.
+    design : LqgDesign
+        The LQG designed on the arm with that payload.
+    drift : ndarray, shape (n_steps + 1, 22)
+        d_j: the state drift over the sample from j under τ_ff (rad, rad/s).
+    S_inv : ndarray, shape (n_points, 10, 10)
+        Inverse innovation covariances per schedule point (1/rad², s²/rad²).
+    log_det_S : ndarray, shape (n_points,)
+    """
+
+    mass: float
+    design: LqgDesign
+    drift: np.ndarray
+    S_inv: np.ndarray
+    log_det_S: np.ndarray
+
+
+@dataclass
+class PayloadBank:
+    """The identification filters (increasing mass, the first without payload) and the quiet filter."""
+
+    models: list[BankModel]
+    quiet: BankModel
+
+    @property
+    def masses(self) -> np.ndarray:
+        """Payload masses of the identification filters, kg, shape (n_models,)."""
+        return np.array([b.mass for b in self.models])
+
+
+def design_bank_model(params: ArmParameters, mass: float, trajectory=None, schedule: str = "200ms",
+                      model_scale: float = 1.0) -> BankModel:
+    """One filter: the LQG of the arm with payload ``mass`` (kg), its drift along the path and its S.
+
+    Parameters
+    ----------
+    params : ArmParameters
+        The arm (its own payload is replaced by ``mass``).
+    mass : float
+        kg.
+    trajectory : TrajectoryResult or path-like, optional
+        Default the committed trajectory.
+    schedule : str
+    model_scale : float
+        Scale of the committed motor and element process-noise terms (no tip force in W).
+    """
+    trajectory = default_trajectory_path() if trajectory is None else trajectory
+    traj = as_trajectory(trajectory)
+    nominal, loaded = ArmModel(params.with_payload(0.0)), ArmModel(params.with_payload(mass))
+    design = design_lqg(loaded, trajectory, schedule, payload_mass=0.0,
+                        motor_torque_sigma=model_scale * MOTOR_TORQUE_SIGMA,
+                        element_force_sigma=model_scale * ELEMENT_FORCE_SIGMA)
+    z, dt, n = desired_states(traj), sample_time(traj), traj.n_samples
+    E = np.zeros((N_STATE, N))
+    E[N:] = np.eye(N)
+    psi = []  # Ψ[:, N:] per point: the state change over a sample from an acceleration held over it
+    for zb, tb in zip(design.operating_points, design.tau_bar):
+        A, _ = loaded.linearize(zb, tb)
+        T = scaling_transform(loaded, zb)
+        Ti = np.linalg.inv(T)
+        psi.append(T @ zoh(Ti @ A @ T, Ti @ E, dt)[1])
+    drift = np.zeros((n + 1, N_STATE))
+    for j in range(n + 1):
+        tau = traj.tau[j] if j < n else np.zeros(2)
+        th, om = z[j, :N], z[j, N:]
+        d_alpha = loaded.acceleration(th, om, tau) - nominal.acceleration(th, om, tau)
+        drift[j] = psi[design.index_at(j * dt)] @ d_alpha
+    S = design.C @ design.P_prior @ design.C.T + design.V
+    return BankModel(float(mass), design, drift, np.linalg.inv(S), np.linalg.slogdet(S)[1])
+
+
+def design_bank(params: ArmParameters, masses=DEFAULT_MASSES, trajectory=None, schedule: str = "200ms",
+                quiet_scale: float = QUIET_SCALE) -> PayloadBank:
+    """The identification filters for ``masses`` (kg, increasing, the first 0) and the quiet filter.
+
+    Raises
+    ------
+    LqgError
+        If the masses are not increasing from 0.
+    """
+    masses = [float(m) for m in masses]
+    if len(masses) < 2 or masses[0] != 0.0 or np.any(np.diff(masses) <= 0):
+        raise LqgError(f"masses: at least two increasing payload masses starting at 0 kg, got {masses!r}")
+    return PayloadBank([design_bank_model(params, m, trajectory, schedule) for m in masses],
+                       design_bank_model(params, 0.0, trajectory, schedule, quiet_scale))
+
+
+@dataclass
+class BankState:
+    """What the bank carries from one sample to the next (see :class:`flexarm.lqg.LqgState`).
+
+    Attributes
+    ----------
+    k : int
+    x_post : ndarray, shape (n_models + 1, 22)
+        Each filter's posterior error estimate at sample max(k − 1 − d, 0) (the quiet filter last).
+    log_p : ndarray, shape (n_models,)
+        Log posterior probabilities of the models.
+    du : ndarray, shape (d + 1, 2)
+        τ − τ_ff sent at samples k − 1 − d .. k − 1, N·m.
+    xi : ndarray, shape (2,)
+        Integrated joint-angle errors, rad·s.
+    started : bool
+    """
+
+    k: int
+    x_post: np.ndarray
+    log_p: np.ndarray
+    du: np.ndarray
+    xi: np.ndarray
+    started: bool = False
+
+
+class BankController:
+    """Multiple-model LQG with the stepping API of :class:`flexarm.lqg.LqgController` (works with
+    :func:`flexarm.lqg.simulate_lqg`).
+
+    Parameters
+    ----------
+    trajectory : TrajectoryResult or path-like
+    bank : PayloadBank
+    gain_set : str
+    loop_delay_samples : int
+        0..10.
+    integral_action : bool
+    saturation : (float, float)
+        Torque limits, N·m.
+    select : {"mixture", "map"}
+        Posterior-weighted sum of the models' feedback, or the most probable model's.
+    floor : float
+        Smallest posterior probability, in (0, 1/n_models).
+    reseed_below : float
+        Posterior of the unloaded model below which the quiet filter is re-seeded.
+    """
+
+    def __init__(self, trajectory, bank: PayloadBank, gain_set: str = "gamma0.1", loop_delay_samples: int = 0,
+                 integral_action: bool = False, saturation=(7.0, 2.25), select: str = "mixture",
+                 floor: float = POSTERIOR_FLOOR, reseed_below: float = QUIET_RESEED_BELOW):
+        if isinstance(loop_delay_samples, bool) or int(loop_delay_samples) != loop_delay_samples \
+                or not 0 <= loop_delay_samples <= MAX_DELAY_SAMPLES:
+            raise LqgError(f"loop_delay_samples: must be an integer in 0..{MAX_DELAY_SAMPLES}, "
+                           f"got {loop_delay_samples!r}")
+        if select not in SELECTIONS:
+            raise LqgError(f"select: {select!r} is not one of {SELECTIONS}")
+        if not 0.0 < floor < 1.0 / len(bank.models):
+            raise LqgError(f"floor: a probability in (0, 1/{len(bank.models)}), got {floor!r}")
+        self.trajectory = as_trajectory(trajectory)
+        self.z = desired_states(self.trajectory)
+        self.bank = bank
+        self.masses = bank.masses
+        self._filters = bank.models + [bank.quiet]
+        self.design = bank.quiet.design  # C, for simulate_lqg
+        self.delay = int(loop_delay_samples)
+        self.integral_action = bool(integral_action)
+        self.saturation = np.asarray(saturation, dtype=float)
+        self.select, self.log_floor, self.reseed_below = select, float(np.log(floor)), float(reseed_below)
+        self.dt = sample_time(self.trajectory)
+        self.n_steps = self.trajectory.n_samples
+        w = self.design.weight_index(gain_set)
+        self._K = [b.design.K_integral[:, w, :, :N_STATE] if integral_action else b.design.K[:, w]
+                   for b in self._filters]
+        self._K_xi = [b.design.K_integral[:, w, :, N_STATE:] for b in self._filters]
+        self._index = np.array([self.design.index_at(k * self.dt) for k in range(self.n_steps + 1)])
+        self._y_d = self.z @ self.design.C.T
+        self._Cq = self.design.C[0:2]
+        #: Posterior probabilities after each sample (a record for analysis), each shape (n_models,).
+        self.history: list[np.ndarray] = []
+
+    def _c(self, k: int) -> int:
+        return min(k, self.n_steps)
+
+    def feedforward(self, k: int) -> np.ndarray:
+        """Nominal feedforward torque of sample k, N·m (0 after the slew)."""
+        return self.trajectory.tau[k].copy() if k < self.n_steps else np.zeros(2)
+
+    def initial_state(self) -> BankState:
+        """On the trajectory, uniform posterior, nothing sent, integrators empty."""
+        n_m = len(self.bank.models)
+        return BankState(0, np.zeros((n_m + 1, N_STATE)), np.full(n_m, -np.log(n_m)),
+                         np.zeros((self.delay + 1, 2)), np.zeros(2))
+
+    def weights(self, log_p) -> np.ndarray:
+        """Each filter's weight in the control law, shape (n_models + 1,): the quiet filter takes m = 0's."""
+        p = np.exp(log_p)
+        if self.select == "map":
+            p = (np.arange(len(p)) == np.argmax(p)).astype(float)
+        return np.append(0.0, np.append(p[1:], p[0]))
+
+    def step(self, state: BankState, k: int, measurements) -> tuple[np.ndarray, BankState]:
+        """Torques of sample k and the state after it (as :meth:`flexarm.lqg.LqgController.step`).
+
+        Parameters
+        ----------
+        state : BankState
+        k : int
+            Sample index; must be ``state.k``.
+        measurements : array_like, shape (10,)
+            q1, q2 (rad), q̇1, q̇2 (rad/s), ε1..ε6 (rad) of the plant state at k − d.
+
+        Returns
+        -------
+        tau : ndarray, shape (2,)
+            N·m.
+        new_state : BankState
+        """
+        if k != state.k:
+            raise LqgError(f"k: the controller is at sample {state.k}, got sample {k} (one call per sample)")
+        m = np.asarray(measurements, dtype=float)
+        if m.shape != (10,) or not np.isfinite(m).all():
+            raise LqgError(f"measurements: expected 10 finite values (q1, q2 rad; qd1, qd2 rad/s; "
+                           f"eps1..eps6 rad), got {measurements!r}")
+        d = self.delay
+        j = max(k - d, 0)
+        fresh = k - d >= 0
+        i_j = self._index[self._c(j)]
+        dy = m - self._y_d[self._c(j)]
+        sent = state.du[1:] if fresh else state.du[d + 1 - k:]  # torques of samples j .. k − 1
+        x_post, x_now = np.empty_like(state.x_post), np.empty_like(state.x_post)
+        log_p = state.log_p.copy()
+        for n_f, b in enumerate(self._filters):
+            x = state.x_post[n_f]
+            if state.started and j > 0 and fresh:  # time update from j − 1, drift included
+                i_p = self._index[self._c(j - 1)]
+                x = b.design.Phi[i_p] @ x + b.design.Gamma[i_p] @ state.du[0] + b.drift[self._c(j - 1)]
+            e = dy - b.design.C @ x
+            if fresh and j > 0 and n_f < len(log_p):
+                log_p[n_f] -= 0.5 * (e @ b.S_inv[i_j] @ e + b.log_det_S[i_j])
+            x_post[n_f] = x_now[n_f] = x + b.design.M[i_j] @ e
+            for q, du in enumerate(sent):
+                i_s = self._index[self._c(j + q)]
+                x_now[n_f] = b.design.Phi[i_s] @ x_now[n_f] + b.design.Gamma[i_s] @ du + b.drift[self._c(j + q)]
+        log_p -= np.logaddexp.reduce(log_p)
+        log_p = np.maximum(log_p, self.log_floor)
+        log_p -= np.logaddexp.reduce(log_p)
+        p = np.exp(log_p)
+        self.history.append(p)
+        if p[0] < self.reseed_below:  # the unloaded arm is ruled out: the quiet filter follows its fast twin
+            x_post[-1], x_now[-1] = x_post[0], x_now[0]
+        weights = self.weights(log_p)
+        i_k = self._index[self._c(k)]
+        ff = self.feedforward(k)
+        fb, x_sel = np.zeros(2), np.zeros(N_STATE)
+        for n_f, wt in enumerate(weights):
+            if wt > 0.0:
+                fb -= wt * (self._K[n_f][i_k] @ x_now[n_f]
+                            + (self._K_xi[n_f][i_k] @ state.xi if self.integral_action else 0.0))
+                x_sel += wt * x_now[n_f]
+        tau_free = ff + fb
+        tau = np.minimum(np.maximum(tau_free, -self.saturation), self.saturation)
+        xi = state.xi
+        if self.integral_action and np.array_equal(tau, tau_free):
+            xi = xi + self.dt * (self._Cq @ x_sel)
+        return tau, BankState(k + 1, x_post, log_p, np.vstack([state.du[1:], tau - ff]), xi, True)
