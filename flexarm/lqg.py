@@ -80,6 +80,32 @@ class LqgState:
                    np.array(d["xi"], dtype=float), bool(d["started"]))
 
 
+def check_loop_delay(value) -> int:
+    """``loop_delay_samples`` as an int, or :class:`LqgError` naming the allowed range."""
+    if isinstance(value, bool) or int(value) != value or not 0 <= value <= MAX_DELAY_SAMPLES:
+        raise LqgError(f"loop_delay_samples: must be an integer in 0..{MAX_DELAY_SAMPLES}, got {value!r}")
+    return int(value)
+
+
+def check_saturation(value) -> np.ndarray:
+    """Torque limits |τ1|, |τ2| (N·m) as an array of shape (2,), or :class:`LqgError`."""
+    sat = np.asarray(value, dtype=float)
+    if sat.shape != (2,) or not np.all(np.isfinite(sat)) or np.any(sat <= 0):
+        raise LqgError(f"saturation: two finite torque limits > 0 N·m, got {value!r}")
+    return sat
+
+
+def check_sample_input(state_k: int, k: int, measurements) -> np.ndarray:
+    """The ten measurements of sample k as an array, or :class:`LqgError` (wrong sample, shape or value)."""
+    if k != state_k:
+        raise LqgError(f"k: the controller is at sample {state_k}, got sample {k} (one call per sample)")
+    m = np.asarray(measurements, dtype=float)
+    if m.shape != (10,) or not np.isfinite(m).all():
+        raise LqgError(f"measurements: expected 10 finite values (q1, q2 rad; qd1, qd2 rad/s; "
+                       f"eps1..eps6 rad), got {measurements!r}")
+    return m
+
+
 class LqgController:
     """Feedforward + LQG tracking controller with a 1 ms stepping API.
 
@@ -99,19 +125,13 @@ class LqgController:
 
     def __init__(self, trajectory, design: LqgDesign, gain_set: str = "gamma0.1", loop_delay_samples: int = 0,
                  integral_action: bool = False, saturation=(7.0, 2.25)):
-        if isinstance(loop_delay_samples, bool) or int(loop_delay_samples) != loop_delay_samples \
-                or not 0 <= loop_delay_samples <= MAX_DELAY_SAMPLES:
-            raise LqgError(f"loop_delay_samples: must be an integer in 0..{MAX_DELAY_SAMPLES}, "
-                           f"got {loop_delay_samples!r}")
-        sat = np.asarray(saturation, dtype=float)
-        if sat.shape != (2,) or not np.all(np.isfinite(sat)) or np.any(sat <= 0):
-            raise LqgError(f"saturation: two finite torque limits > 0 N·m, got {saturation!r}")
+        delay, sat = check_loop_delay(loop_delay_samples), check_saturation(saturation)
         self.trajectory = as_trajectory(trajectory)
         #: Desired states at every sample, shape (n_steps + 1, 22).
         self.z = desired_states(self.trajectory)
         self.design = design
         self.gain_set = gain_set
-        self.delay = int(loop_delay_samples)
+        self.delay = delay
         self.integral_action = bool(integral_action)
         self.saturation = sat
         self.dt = sample_time(self.trajectory)
@@ -186,12 +206,7 @@ class LqgController:
             Motor torques, N·m.
         new_state : LqgState
         """
-        if k != state.k:
-            raise LqgError(f"k: the controller is at sample {state.k}, got sample {k} (one call per sample)")
-        m = np.asarray(measurements, dtype=float)
-        if m.shape != (10,) or not np.isfinite(m).all():
-            raise LqgError(f"measurements: expected 10 finite values (q1, q2 rad; qd1, qd2 rad/s; "
-                           f"eps1..eps6 rad), got {measurements!r}")
+        m = check_sample_input(state.k, k, measurements)
         x_post, x_now = self.estimate(state, k, m)
         i_k = self._index[self._c(k)]
         ff = self.feedforward(k)

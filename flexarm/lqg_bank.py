@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .gain_schedule import as_trajectory, default_trajectory_path, desired_states, sample_time
-from .lqg import MAX_DELAY_SAMPLES, LqgError
+from .lqg import LqgError, check_loop_delay, check_sample_input, check_saturation
 from .lqg_design import ELEMENT_FORCE_SIGMA, MOTOR_TORQUE_SIGMA, LqgDesign, design_lqg
 from .lqr_design import scaling_transform, zoh
 from .model import N_STATE, ArmModel, N
@@ -203,10 +203,7 @@ class BankController:
     def __init__(self, trajectory, bank: PayloadBank, gain_set: str = "gamma0.1", loop_delay_samples: int = 0,
                  integral_action: bool = False, saturation=(7.0, 2.25), select: str = "mixture",
                  floor: float = POSTERIOR_FLOOR, reseed_below: float = QUIET_RESEED_BELOW):
-        if isinstance(loop_delay_samples, bool) or int(loop_delay_samples) != loop_delay_samples \
-                or not 0 <= loop_delay_samples <= MAX_DELAY_SAMPLES:
-            raise LqgError(f"loop_delay_samples: must be an integer in 0..{MAX_DELAY_SAMPLES}, "
-                           f"got {loop_delay_samples!r}")
+        delay, sat = check_loop_delay(loop_delay_samples), check_saturation(saturation)
         if select not in SELECTIONS:
             raise LqgError(f"select: {select!r} is not one of {SELECTIONS}")
         if not 0.0 < floor < 1.0 / len(bank.models):
@@ -217,9 +214,9 @@ class BankController:
         self.masses = bank.masses
         self._filters = bank.models + [bank.quiet]
         self.design = bank.quiet.design  # C, for simulate_lqg
-        self.delay = int(loop_delay_samples)
+        self.delay = delay
         self.integral_action = bool(integral_action)
-        self.saturation = np.asarray(saturation, dtype=float)
+        self.saturation = sat
         self.select, self.log_floor, self.reseed_below = select, float(np.log(floor)), float(reseed_below)
         self.dt = sample_time(self.trajectory)
         self.n_steps = self.trajectory.n_samples
@@ -270,12 +267,7 @@ class BankController:
             N·m.
         new_state : BankState
         """
-        if k != state.k:
-            raise LqgError(f"k: the controller is at sample {state.k}, got sample {k} (one call per sample)")
-        m = np.asarray(measurements, dtype=float)
-        if m.shape != (10,) or not np.isfinite(m).all():
-            raise LqgError(f"measurements: expected 10 finite values (q1, q2 rad; qd1, qd2 rad/s; "
-                           f"eps1..eps6 rad), got {measurements!r}")
+        m = check_sample_input(state.k, k, measurements)
         d = self.delay
         j = max(k - d, 0)
         fresh = k - d >= 0
