@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import sys
 import tempfile
 import tomllib
 from pathlib import Path
@@ -33,8 +34,17 @@ def _with_gain_set(scenario, gain_set: str):
     return sc
 
 
+class LqgReportError(Exception):
+    """A run of the report ended with an FMU error: it is no figure, so nothing is printed for it."""
+
+
 def _run(scenario, out: Path, fmu_dir: Path) -> dict:
-    return {r.key: r.metrics for r in run_scenario(scenario, out, fmu_dir, progress=False)}
+    """Case key -> metrics (None only for an unbounded run); an FMU error raises :class:`LqgReportError`."""
+    results = run_scenario(scenario, out, fmu_dir, progress=False)
+    failed = [f"{r.key}: {r.message}" for r in results if r.status == "error"]
+    if failed:
+        raise LqgReportError(f"scenario {scenario.name} had FMU errors: {'; '.join(failed)}")
+    return {r.key: r.metrics for r in results}
 
 
 def _fmt(v) -> str:
@@ -68,6 +78,14 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=None, help="results folder (default: a temporary folder)")
     ap.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR)
     args = ap.parse_args(argv)
+    try:
+        return _report(args)
+    except LqgReportError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+
+
+def _report(args) -> int:
     paper = tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
     with tempfile.TemporaryDirectory() as tmp:
         out = args.out or Path(tmp)

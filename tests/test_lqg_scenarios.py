@@ -83,3 +83,20 @@ def test_fmu_in_gauss_seidel_stepping_equals_the_library_loop_without_delay(tmp_
     n = min(len(theta), len(states))
     assert n > 2000
     assert np.max(np.abs(theta[:n] - states[:n, :11])) < 1e-9
+
+
+def test_lqg_report_refuses_to_print_a_run_that_ended_with_an_fmu_error(monkeypatch, capsys):
+    """An FMU error is no figure: the report exits 1 naming it and prints no table (not 'unbounded')."""
+    from types import SimpleNamespace
+
+    from scenarios import lqg_report
+
+    def failing(scenario, out, fmu_dir, progress=False):
+        return [SimpleNamespace(key=c.key, status="error", message="plant: fmi2DoStep returned fmi2Error",
+                                metrics=None) for c in scenario.cases]
+
+    monkeypatch.setattr(lqg_report, "run_scenario", failing)
+    assert lqg_report.main([]) == 1
+    captured = capsys.readouterr()
+    assert "error: scenario table2 had FMU errors: none: plant: fmi2DoStep returned fmi2Error" in captured.err
+    assert "unbounded" not in captured.out and "==" not in captured.out
