@@ -3,9 +3,10 @@
 Runs, through the FMUs and our master: ``table2`` (our γ = 0.1 LQR,
 Gauss-Seidel), ``lqg`` (Gauss-Seidel) and ``lqg_jacobi`` (Jacobi stepping,
 delay 2), the last with Table 2's and with Table 1's weights (noise
-robustness), integral action off and on, and prints per Table 2 case the
-paper's LQR, our LQR and the LQG variants, then the acceptance figures of the
-issue. The paper's numbers come from ``scenarios/paper_tables.toml`` and are
+robustness), integral action off and on, each with both estimators (one
+Kalman filter; the payload bank, cases ``*_bank``), and prints per Table 2
+case the paper's LQR, our LQR and the LQG variants, then the acceptance
+figures of the issue per estimator. The paper's numbers come from ``scenarios/paper_tables.toml`` and are
 only printed beside ours.
 """
 
@@ -51,14 +52,22 @@ def _fmt(v) -> str:
     return "unbounded" if v is None else f"{v:.4g}"
 
 
-COLUMNS = ("paper LQR", "our LQR (GS)", "LQG (GS)", "LQG+I (GS)", "LQG (Jacobi, d=2)", "LQG+I (Jacobi)")
+#: The LQG scenarios' case-key suffixes of each estimator (``controller_lqg``'s ``estimator``).
+ESTIMATORS = {"kalman": "", "payload_bank": "_bank"}
+#: Columns after the paper's: (label, run, case-key suffix); runs 0 our LQR, 1 LQG Gauss-Seidel, 2 LQG Jacobi.
+_LQG_COLUMNS = (("our LQR (GS)", 0, ""), ("LQG (GS)", 1, ""), ("LQG+I (GS)", 1, "_integral"),
+                ("LQG (Jacobi)", 2, ""), ("LQG+I (Jacobi)", 2, "_integral"), ("bank (GS)", 1, "_bank"),
+                ("bank+I (GS)", 1, "_bank_integral"), ("bank (Jacobi)", 2, "_bank"),
+                ("bank+I (Jacobi)", 2, "_bank_integral"))
+COLUMNS = ("paper LQR", *(label for label, _, _ in _LQG_COLUMNS))
 
 
 def comparison_cells(paper: dict, lqr: dict, lqg_gs: dict, lqg_jacobi: dict, case: str, key: str) -> list[str]:
     """One row's cells (:data:`COLUMNS`) for a Table 2 case and a metric; runs are case key -> metrics."""
     p = paper["table2"].get(case)
     pv = None if p is None or isinstance(p, dict) else p[paper["metrics"].index(key)]
-    vals = [lqr[case], lqg_gs[case], lqg_gs[f"{case}_integral"], lqg_jacobi[case], lqg_jacobi[f"{case}_integral"]]
+    runs = (lqr, lqg_gs, lqg_jacobi)
+    vals = [runs[r][f"{case}{suffix}"] for _, r, suffix in _LQG_COLUMNS]
     return [_fmt(pv)] + [_fmt(None if v is None else v[key]) for v in vals]
 
 
@@ -104,31 +113,36 @@ def _report(args) -> int:
     gs_runs = (runs["our LQR (GS)"], runs["LQG (GS)"], runs["LQG (Jacobi, d=2)"])
     for case in CASES:
         print(f"\n== Table 2 case '{case}' (gamma = 0.1 weights)")
-        print(f"{'':28s}" + "".join(f"{c:>19s}" for c in COLUMNS))
+        print(f"{'':28s}" + "".join(f"{c:>16s}" for c in COLUMNS))
         for key, label in ROWS:
             cells = comparison_cells(paper, *gs_runs, case, key)
-            print(f"{label:28s}" + "".join(f"{c:>19s}" for c in cells))
+            print(f"{label:28s}" + "".join(f"{c:>16s}" for c in cells))
     lqr, jacobi = runs["our LQR (GS)"], runs["LQG (Jacobi, d=2)"]
-    print("\n== Acceptance (issue 14)")
-    for case in CASES:
-        bound = max(1.5 * lqr[case]["rms_position_error"], 0.05) if lqr[case] else None
-        ours = jacobi[case]["rms_position_error"] if jacobi[case] else None
-        ok = ours is not None and bound is not None and ours <= bound
-        print(f"Jacobi d=2, {case:10s}: rms position {_fmt(ours)} deg, bound max(1.5 x LQR, 0.05) = "
-              f"{_fmt(bound)} deg: {'met' if ok else 'NOT met'}")
     g1, l1 = runs["LQG gamma1 (Jacobi)"], runs["our LQR gamma1 (GS)"]
-    for name, r in (("LQG gamma1, Jacobi d=2", g1), ("our LQR gamma1, GS", l1)):
-        for base in ("none", "tip"):
-            a, b = r[base], r[f"{base}_noise" if base == "tip" else "noise"]
-            ratio = b["rms_position_error"] / a["rms_position_error"] if a and b else None
-            print(f"noise robustness, {name}, {base:4s}: rms position {_fmt(a and a['rms_position_error'])} -> "
-                  f"{_fmt(b and b['rms_position_error'])} deg with noise, ratio {_fmt(ratio)}")
-    for name, key in (("without", "tip"), ("with", "tip_integral")):
-        m = jacobi[key]
-        print(f"payload 0.275 kg, LQG Jacobi {name} integral action: rms position {_fmt(m['rms_position_error'])} "
-              f"deg, rms velocity {_fmt(m['rms_velocity_error'])} deg/s, peak torques {_fmt(m['peak_tau1'])} / "
-              f"{_fmt(m['peak_tau2'])} N.m (our LQR: {_fmt(lqr['tip']['rms_position_error'])} deg, "
-              f"{_fmt(lqr['tip']['rms_velocity_error'])} deg/s)")
+    for estimator, sfx in ESTIMATORS.items():
+        print(f"\n== Acceptance (issue 14), estimator = {estimator}")
+        for case in CASES:
+            bound = max(1.5 * lqr[case]["rms_position_error"], 0.05) if lqr[case] else None
+            ours = jacobi[case + sfx]["rms_position_error"] if jacobi[case + sfx] else None
+            ok = ours is not None and bound is not None and ours <= bound
+            print(f"Jacobi d=2, {case:10s}: rms position {_fmt(ours)} deg, bound max(1.5 x LQR, 0.05) = "
+                  f"{_fmt(bound)} deg: {'met' if ok else 'NOT met'}")
+        for name, r, s, integrals in (("LQG gamma1, Jacobi d=2", g1, sfx, (False, True)),
+                                      ("our LQR gamma1, GS", l1, "", (False,))):
+            for base, noisy in (("none", "noise"), ("tip", "tip_noise")):
+                for integral in integrals:
+                    i = "_integral" if integral else ""
+                    a, b = r[base + s + i], r[noisy + s + i]
+                    ratio = b["rms_position_error"] / a["rms_position_error"] if a and b else None
+                    print(f"noise robustness, {name}, {base + i:13s}: rms position "
+                          f"{_fmt(a and a['rms_position_error'])} -> {_fmt(b and b['rms_position_error'])} deg "
+                          f"with noise, ratio {_fmt(ratio)}")
+        for name, key in (("without", "tip"), ("with", "tip_integral")):
+            m = jacobi[key.replace("tip", "tip" + sfx)]  # tip_bank, tip_bank_integral
+            print(f"payload 0.275 kg, LQG Jacobi {name} integral action: rms position "
+                  f"{_fmt(m and m['rms_position_error'])} deg, rms velocity {_fmt(m and m['rms_velocity_error'])} "
+                  f"deg/s, peak torques {_fmt(m and m['peak_tau1'])} / {_fmt(m and m['peak_tau2'])} N.m (our LQR: "
+                  f"{_fmt(lqr['tip']['rms_position_error'])} deg, {_fmt(lqr['tip']['rms_velocity_error'])} deg/s)")
     return 0
 
 

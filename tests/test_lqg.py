@@ -249,10 +249,40 @@ def test_process_noise_trades_noise_rejection_against_payload_absorption():
 
 @pytest.fixture(scope="module")
 def payload_bank():
-    from flexarm.lqg_bank import design_bank
+    from flexarm.lqg_bank import PayloadBank
+
+    return PayloadBank.load()  # the committed bank (what controller_lqg's estimator = payload_bank runs)
+
+
+def test_committed_payload_bank_is_what_its_command_designs(payload_bank):
+    """The committed bank file regenerates from the committed parameters and trajectory
+    (``python -m flexarm.lqr --write``): a fresh design equals it to rounding."""
+    from flexarm.lqg_bank import DEFAULT_MASSES, design_bank
     from flexarm.parameters import load_parameters
 
-    return design_bank(load_parameters())
+    fresh = design_bank(load_parameters())
+    assert tuple(payload_bank.masses) == DEFAULT_MASSES and payload_bank.quiet.mass == 0.0
+    for new, old in zip(fresh.filters, payload_bank.filters):
+        assert new.mass == old.mass
+        for name in ("Phi", "Gamma", "M", "K", "K_integral", "P_prior"):
+            a, b = getattr(new.design, name), getattr(old.design, name)
+            assert np.abs(a - b).max() <= 1e-8 * np.abs(b).max(), (old.mass, name)
+        for a, b in ((new.drift, old.drift), (new.S_inv, old.S_inv), (new.log_det_S, old.log_det_S)):
+            assert np.abs(a - b).max() <= 1e-8 * max(np.abs(b).max(), 1e-300)
+    assert payload_bank.metadata["npz_sha256"] and payload_bank.metadata["trajectory_sha256"]
+
+
+def test_payload_bank_file_refuses_a_schedule_without_a_bank_and_a_stale_file(tmp_path, payload_bank):
+    from flexarm.gain_schedule import GainError, StaleDataError
+    from flexarm.lqg_bank import PayloadBank
+
+    with pytest.raises(GainError, match="schedule"):
+        PayloadBank.load("20ms")
+    path = payload_bank.save(tmp_path)
+    assert PayloadBank.load(directory=tmp_path).masses.tolist() == payload_bank.masses.tolist()
+    path.write_bytes(path.read_bytes()[:-10] + b"0123456789")  # the arrays no longer match their record
+    with pytest.raises(StaleDataError, match="bank_200ms.npz"):
+        PayloadBank.load(directory=tmp_path)
 
 
 def run_bank(bank, payload_mass, gain_set, integral_action, noise):

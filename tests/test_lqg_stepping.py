@@ -16,6 +16,7 @@ from test_native_lqg import MEASURED, lqg_inputs
 
 from flexarm.control import PEAK_TORQUE
 from flexarm.lqg import lqg_controller
+from flexarm.lqg_bank import bank_controller
 
 GAIN_SETS = {1: "gamma1", 2: "gamma0.1", 3: "gamma0", 4: "eq32"}
 SCHEDULES = {0.2: "200ms", 0.02: "20ms", 0.0: "single"}
@@ -23,6 +24,11 @@ CASES = [
     {"loop_delay_samples": 0, "gain_set": 1, "schedule_period": 0.02},
     {"loop_delay_samples": 8, "integral_action": True, "tau1_max": 5.0},  # Jacobi at 4 ms: 2 x 4 samples
     {"loop_delay_samples": 10, "gain_set": 4, "schedule_period": 0.0, "tau2_max": 0.5},
+]
+#: The payload bank (estimator = 2), 200 ms schedule only.
+BANK_CASES = [
+    {"estimator": 2, "loop_delay_samples": 8, "integral_action": True, "tau1_max": 5.0},
+    {"estimator": 2, "loop_delay_samples": 0, "gain_set": 1, "tau2_max": 0.5},
 ]
 N_SAMPLES = 2200  # the slew (2058 samples) and a hold
 
@@ -37,9 +43,10 @@ def library_held(params: dict, steps: list[int]) -> np.ndarray:
     Returns the torques at the communication points (len(steps) + 1 rows); the inputs at the point of
     sample s are ``lqg_inputs(s)``.
     """
-    law = lqg_controller(GAIN_SETS[params.get("gain_set", 2)], SCHEDULES[params.get("schedule_period", 0.2)],
-                         params.get("loop_delay_samples", 0), params.get("integral_action", False),
-                         (params.get("tau1_max", PEAK_TORQUE[0]), params.get("tau2_max", PEAK_TORQUE[1])))
+    factory = bank_controller if params.get("estimator", 1) == 2 else lqg_controller
+    law = factory(GAIN_SETS[params.get("gain_set", 2)], SCHEDULES[params.get("schedule_period", 0.2)],
+                  params.get("loop_delay_samples", 0), params.get("integral_action", False),
+                  (params.get("tau1_max", PEAK_TORQUE[0]), params.get("tau2_max", PEAK_TORQUE[1])))
     state, s, rows = law.initial_state(), 0, []
     for n in [*steps, 1]:
         m = list(lqg_inputs(s).values())
@@ -78,7 +85,7 @@ def _agreement(got: np.ndarray, ref: np.ndarray) -> float:
     return float((np.abs(got - ref).max(axis=0) / np.abs(ref).max(axis=0)).max())
 
 
-@pytest.mark.parametrize("params", CASES, ids=_ids)
+@pytest.mark.parametrize("params", CASES + BANK_CASES, ids=_ids)
 def test_python_lqg_at_4ms_is_the_library_law_with_held_measurements(params, tmp_path):
     """(a) 4 ms steps = the library stepped every 1 ms, each measurement held over its 4 samples."""
     steps = [4] * (N_SAMPLES // 4)
@@ -182,3 +189,34 @@ def test_ssp_export_sets_the_loop_delay_of_its_step(tmp_path):
         assert len(found) == 1, text[:2000]
         delays[h] = int(found[0])
     assert delays == {1e-3: 2, 4e-3: 8}
+
+
+def test_python_bank_state_restores_bit_for_bit_and_bad_estimators_are_refused(tmp_path):
+    """The payload bank's FMU state (filters, posterior, torques sent, integrators) round-trips through
+    fmi2GetFMUstate / fmi2SetFMUstate; an unknown estimator, or the bank on a schedule without one, is refused
+    by name."""
+    fmu = built_fmus()["controller_lqg"]
+    s = Slave(fmu, str(unpack_alone(fmu, tmp_path / "state")), "lqg", **BANK_CASES[0])
+    try:
+        run_steps(s, [1] * 300)
+        saved = s.fmu.getFMUState()
+        first = run_steps(s, [1] * 200, s0=300)
+        s.fmu.setFMUState(saved)
+        again = run_steps(s, [1] * 200, s0=300)
+        s.fmu.freeFMUState(saved)
+    finally:
+        s.close()
+    np.testing.assert_array_equal(again, first)
+    for bad, words in (({"estimator": 3}, ("estimator", "kalman", "payload_bank")),
+                       ({"estimator": 2, "schedule_period": 0.02}, ("estimator", "schedule_period"))):
+        s = Slave(fmu, str(unpack_alone(fmu, tmp_path / f"bad{len(bad)}")), "lqg", start=False)
+        try:
+            s.fmu.setupExperiment(startTime=0.0)
+            with pytest.raises(FMICallException):
+                s.fmu.enterInitializationMode()
+                s.set(**bad)
+                s.fmu.exitInitializationMode()
+            text = " ".join(m for status, m in s.messages if status >= ERROR)
+            assert all(w in text for w in words), (bad, s.messages)
+        finally:
+            s.close()
