@@ -36,16 +36,28 @@ the integrators ξ integrate the weighted joint-angle estimate (conditional inte
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from .gain_schedule import as_trajectory, default_trajectory_path, desired_states, sample_time
-from .lqg import LqgError, check_loop_delay, check_sample_input, check_saturation
-from .lqg_design import ELEMENT_FORCE_SIGMA, MOTOR_TORQUE_SIGMA, LqgDesign, design_lqg
+from .gain_schedule import (
+    REGENERATE_COMMAND,
+    GainError,
+    as_trajectory,
+    default_trajectory_path,
+    desired_states,
+    read_design_metadata,
+    sample_time,
+)
+from .lqg import LqgController, LqgError, check_loop_delay, check_sample_input, check_saturation
+from .lqg_design import DEFAULT_LQG_DIR, ELEMENT_FORCE_SIGMA, MOTOR_TORQUE_SIGMA, LqgDesign, design_lqg
 from .lqr_design import scaling_transform, zoh
 from .model import N_STATE, ArmModel, N
 from .parameters import ArmParameters
+from .provenance import sha256_file, write_atomic
 
 #: Payload masses of the identification filters, kg.
 DEFAULT_MASSES = (0.0, 0.025, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4)
@@ -56,6 +68,29 @@ POSTERIOR_FLOOR = 1e-4
 #: Posterior of the unloaded model below which the quiet filter is re-seeded (10 × the floor).
 QUIET_RESEED_BELOW = 1e-3
 SELECTIONS = ("mixture", "map")
+#: Schedules that have a committed bank (the 20 ms one would be ten times the size for no measured gain).
+BANK_SCHEDULES = ("200ms",)
+BANK_FILE_FORMAT = "flexarm-lqg-bank/1"
+#: What each filter's design keeps in the bank file (what the control law and the likelihoods use).
+BANK_DESIGN_ARRAYS = ("times", "operating_points", "tau_bar", "Phi", "Gamma", "W", "M", "P_prior", "P_post",
+                      "K", "K_integral", "C", "V")
+
+
+def drift_along_path(design: LqgDesign, psi: np.ndarray, delta_acceleration: np.ndarray, dt: float) -> np.ndarray:
+    """The state drift d_j = Ψ_i(j) Δα_j over each sample (rad, rad/s), shape (n_steps + 1, 22).
+
+    Parameters
+    ----------
+    design : LqgDesign
+        Gives the schedule point i(j) in force at t_j = j dt.
+    psi : ndarray, shape (n_points, 22, 11)
+        ∫₀^dt e^{As} ds E per point (E puts an acceleration on the velocity rows), s, s².
+    delta_acceleration : ndarray, shape (n_steps + 1, 11)
+        α_m − α_0 along the path, rad/s².
+    dt : float
+        s.
+    """
+    return np.array([psi[design.index_at(j * dt)] @ a for j, a in enumerate(delta_acceleration)])
 
 
 @dataclass
@@ -68,18 +103,28 @@ class BankModel:
         Payload mass of its model, kg.
     design : LqgDesign
         The LQG designed on the arm with that payload.
-    drift : ndarray, shape (n_steps + 1, 22)
-        d_j: the state drift over the sample from j under τ_ff (rad, rad/s).
+    psi : ndarray, shape (n_points, 22, 11)
+        Ψ E per schedule point: the state change over a sample from an element acceleration held over it.
+    delta_acceleration : ndarray, shape (n_steps + 1, 11)
+        α_m − α_0 at (z_d,j, τ_ff,j): what the payload adds to the element accelerations, rad/s².
     S_inv : ndarray, shape (n_points, 10, 10)
         Inverse innovation covariances per schedule point (1/rad², s²/rad²).
     log_det_S : ndarray, shape (n_points,)
+    drift : ndarray, shape (n_steps + 1, 22)
+        d_j = Ψ Δα_j: the state drift over the sample from j under τ_ff (rad, rad/s); derived.
     """
 
     mass: float
     design: LqgDesign
-    drift: np.ndarray
+    psi: np.ndarray
+    delta_acceleration: np.ndarray
     S_inv: np.ndarray
     log_det_S: np.ndarray
+    drift: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self):
+        dt = float(self.design.metadata.get("sample_time_s", 1e-3))
+        self.drift = drift_along_path(self.design, self.psi, self.delta_acceleration, dt)
 
 
 @dataclass
@@ -88,11 +133,66 @@ class PayloadBank:
 
     models: list[BankModel]
     quiet: BankModel
+    metadata: dict = field(default_factory=dict)
 
     @property
     def masses(self) -> np.ndarray:
         """Payload masses of the identification filters, kg, shape (n_models,)."""
         return np.array([b.mass for b in self.models])
+
+    @property
+    def filters(self) -> list[BankModel]:
+        """The identification filters, then the quiet filter (the order of the file's arrays)."""
+        return self.models + [self.quiet]
+
+    @property
+    def schedule(self) -> str:
+        return self.quiet.design.schedule
+
+    def save(self, directory=None) -> Path:
+        """Write ``bank_<schedule>.npz`` and ``.json`` atomically; returns the npz path.
+
+        Each array is stacked over the filters (identification filters by mass, the quiet filter last).
+        """
+        directory = Path(directory) if directory is not None else DEFAULT_LQG_DIR
+        npz_path = directory / f"bank_{self.schedule}.npz"
+        arrays = {name: np.array([getattr(b.design, name) for b in self.filters]) for name in BANK_DESIGN_ARRAYS}
+        arrays.update(masses=self.masses, **{name: np.array([getattr(b, name) for b in self.filters])
+                                             for name in ("psi", "delta_acceleration", "S_inv", "log_det_S")})
+        write_atomic(npz_path, lambda f: np.savez_compressed(f, **arrays))
+        meta = dict(self.metadata)
+        meta.update(format=BANK_FILE_FORMAT, schedule=self.schedule, npz_file=npz_path.name,
+                    npz_sha256=sha256_file(npz_path))
+        write_atomic(directory / f"bank_{self.schedule}.json", json.dumps(meta, indent=2) + "\n")
+        return npz_path
+
+    @classmethod
+    def load(cls, schedule: str = "200ms", directory=None) -> PayloadBank:
+        """Load a committed bank, checking its data chain (:func:`flexarm.gain_schedule.read_design_metadata`).
+
+        Raises
+        ------
+        GainError
+            If ``schedule`` has no bank or the file is missing; StaleDataError if its inputs changed.
+        """
+        if schedule not in BANK_SCHEDULES:
+            raise GainError(f"schedule: the payload bank exists for {BANK_SCHEDULES}, not {schedule!r}")
+        directory = Path(directory) if directory is not None else DEFAULT_LQG_DIR
+        npz_path = directory / f"bank_{schedule}.npz"
+        if not npz_path.exists():
+            raise GainError(f"LQG bank file {npz_path} does not exist; run `{REGENERATE_COMMAND}`")
+        meta = read_design_metadata(directory / f"bank_{schedule}.json", npz_path)
+        if meta.get("format") != BANK_FILE_FORMAT:
+            raise GainError(f"{npz_path}: format {meta.get('format')!r}, expected {BANK_FILE_FORMAT!r}")
+        with np.load(npz_path) as d:
+            a = {k: d[k] for k in d.files}
+        filters = []
+        for f, mass in enumerate(list(a["masses"]) + [0.0]):
+            design = LqgDesign(schedule=schedule, metadata=meta["designs"][f],
+                               **{name: a[name][f] for name in BANK_DESIGN_ARRAYS})
+            filters.append(BankModel(float(mass), design, a["psi"][f], a["delta_acceleration"][f],
+                                     a["S_inv"][f], a["log_det_S"][f]))
+        return cls(filters[:-1], filters[-1], meta)
 
 
 def design_bank_model(params: ArmParameters, mass: float, trajectory=None, schedule: str = "200ms",
@@ -126,14 +226,14 @@ def design_bank_model(params: ArmParameters, mass: float, trajectory=None, sched
         T = scaling_transform(loaded, zb)
         Ti = np.linalg.inv(T)
         psi.append(T @ zoh(Ti @ A @ T, Ti @ E, dt)[1])
-    drift = np.zeros((n + 1, N_STATE))
-    for j in range(n + 1):
-        tau = traj.tau[j] if j < n else np.zeros(2)
-        th, om = z[j, :N], z[j, N:]
-        d_alpha = loaded.acceleration(th, om, tau) - nominal.acceleration(th, om, tau)
-        drift[j] = psi[design.index_at(j * dt)] @ d_alpha
+    d_alpha = np.zeros((n + 1, N))
+    if mass != 0.0:  # the unloaded arm is the nominal one: no drift
+        for j in range(n + 1):
+            tau = traj.tau[j] if j < n else np.zeros(2)
+            th, om = z[j, :N], z[j, N:]
+            d_alpha[j] = loaded.acceleration(th, om, tau) - nominal.acceleration(th, om, tau)
     S = design.C @ design.P_prior @ design.C.T + design.V
-    return BankModel(float(mass), design, drift, np.linalg.inv(S), np.linalg.slogdet(S)[1])
+    return BankModel(float(mass), design, np.array(psi), d_alpha, np.linalg.inv(S), np.linalg.slogdet(S)[1])
 
 
 def design_bank(params: ArmParameters, masses=DEFAULT_MASSES, trajectory=None, schedule: str = "200ms",
@@ -148,8 +248,40 @@ def design_bank(params: ArmParameters, masses=DEFAULT_MASSES, trajectory=None, s
     masses = [float(m) for m in masses]
     if len(masses) < 2 or masses[0] != 0.0 or np.any(np.diff(masses) <= 0):
         raise LqgError(f"masses: at least two increasing payload masses starting at 0 kg, got {masses!r}")
-    return PayloadBank([design_bank_model(params, m, trajectory, schedule) for m in masses],
-                       design_bank_model(params, 0.0, trajectory, schedule, quiet_scale))
+    models = [design_bank_model(params, m, trajectory, schedule) for m in masses]
+    quiet = design_bank_model(params, 0.0, trajectory, schedule, quiet_scale)
+    first = quiet.design.metadata
+    meta = {
+        "description": "multiple-model LQG: one Kalman filter per payload mass (the arm with that payload, "
+                       "its drift along the path under tau_ff) and a model-trusting quiet filter of the unloaded "
+                       "arm (flexarm.lqg_bank); arrays stacked over the filters, the quiet filter last",
+        "masses_kg": masses, "quiet_scale": quiet_scale,
+        "posterior_floor": POSTERIOR_FLOOR, "quiet_reseed_below": QUIET_RESEED_BELOW,
+        **{k: first[k] for k in ("sample_time_s", "trajectory_file", "trajectory_sha256", "parameter_file",
+                                 "parameter_sha256", "commit", "created_utc", "versions", "weights",
+                                 "measurements", "operating_times_s")},
+        "designs": [b.design.metadata for b in models + [quiet]],
+    }
+    return PayloadBank(models, quiet, meta)
+
+
+@functools.lru_cache(maxsize=2)
+def load_bank(schedule: str = "200ms") -> PayloadBank:
+    """The committed bank of a schedule, loaded once per process (treat it as read-only)."""
+    return PayloadBank.load(schedule)
+
+
+def bank_controller(gain_set: str = "gamma0.1", schedule: str = "200ms", loop_delay_samples: int = 0,
+                    integral_action: bool = False, saturation=None) -> BankController:
+    """The multiple-model LQG of the committed trajectory and bank (as :func:`flexarm.lqg.lqg_controller`;
+    torque limits from the parameter file by default). It keeps no posterior history."""
+    from .parameters import load_parameters
+
+    sat = load_parameters().peak_torque if saturation is None else saturation
+    c = BankController(default_trajectory_path(), load_bank(schedule), gain_set, loop_delay_samples,
+                       integral_action, sat)
+    c.history = None
+    return c
 
 
 @dataclass
@@ -176,6 +308,18 @@ class BankState:
     du: np.ndarray
     xi: np.ndarray
     started: bool = False
+
+    def as_dict(self) -> dict:
+        """JSON-serialisable form (FMU state)."""
+        return {"k": self.k, "x_post": self.x_post.tolist(), "log_p": self.log_p.tolist(), "du": self.du.tolist(),
+                "xi": self.xi.tolist(), "started": self.started}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> BankState:
+        """Inverse of :meth:`as_dict`."""
+        return cls(int(d["k"]), np.array(d["x_post"], dtype=float).reshape(-1, N_STATE),
+                   np.array(d["log_p"], dtype=float), np.array(d["du"], dtype=float).reshape(-1, 2),
+                   np.array(d["xi"], dtype=float), bool(d["started"]))
 
 
 class BankController:
@@ -227,8 +371,11 @@ class BankController:
         self._index = np.array([self.design.index_at(k * self.dt) for k in range(self.n_steps + 1)])
         self._y_d = self.z @ self.design.C.T
         self._Cq = self.design.C[0:2]
-        #: Posterior probabilities after each sample (a record for analysis), each shape (n_models,).
-        self.history: list[np.ndarray] = []
+        #: Posterior probabilities after each sample (a record for analysis), each shape (n_models,);
+        #: None turns the record off (a long-lived controller, as in the FMU).
+        self.history: list[np.ndarray] | None = []
+
+    sample_index = LqgController.sample_index
 
     def _c(self, k: int) -> int:
         return min(k, self.n_steps)
@@ -292,7 +439,8 @@ class BankController:
         log_p = np.maximum(log_p, self.log_floor)
         log_p -= np.logaddexp.reduce(log_p)
         p = np.exp(log_p)
-        self.history.append(p)
+        if self.history is not None:
+            self.history.append(p)
         if p[0] < self.reseed_below:  # the unloaded arm is ruled out: the quiet filter follows its fast twin
             x_post[-1], x_now[-1] = x_post[0], x_now[0]
         weights = self.weights(log_p)

@@ -3,7 +3,8 @@
 ``python -m flexarm.lqr`` designs every gain set (:mod:`flexarm.gain_sets`) on
 every schedule (:mod:`flexarm.gain_schedule`), prints the diagnostics of
 :mod:`flexarm.lqr_design` and, with ``--write``, writes the files in
-``flexarm/data/gains/`` (and the LQG design files, :mod:`flexarm.lqg`). This
+``flexarm/data/gains/`` (and the LQG design and payload-bank files, :mod:`flexarm.lqg_design`,
+:mod:`flexarm.lqg_bank`). This
 module also re-exports the names of those three modules, so ``flexarm.lqr.X``
 keeps working.
 """
@@ -42,6 +43,7 @@ from .gain_sets import (  # noqa: F401 - re-exported
     resolve_gain_set,
     state_weight,
 )
+from .lqg_bank import BANK_SCHEDULES, design_bank
 from .lqg_design import DEFAULT_LQG_DIR, design_lqg
 from .lqr_design import (  # noqa: F401 - re-exported
     DEFAULT_DT,
@@ -131,6 +133,11 @@ def main(argv=None) -> int:
                   f"{np.abs(lqg.M).max():.4g}, filter spectral radius {rho_f:.6f}")
             if args.write:
                 print(f"  wrote {lqg.save(args.lqg_out)}")
+            if sched in BANK_SCHEDULES:  # the multiple-model LQG's filters (controller_lqg estimator=payload_bank)
+                bank = design_bank(model.params, trajectory=args.trajectory, schedule=sched)
+                print(f"LQG bank {sched}: {len(bank.filters)} filters, payload masses {bank.masses.tolist()} kg")
+                if args.write:
+                    print(f"  wrote {bank.save(args.lqg_out)}")
     return 0
 
 

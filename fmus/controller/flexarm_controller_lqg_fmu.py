@@ -4,7 +4,10 @@ Same interface as the other controllers (:mod:`flexarm_controller_base`) plus
 ``loop_delay_samples`` (Integer 0..10: samples between the plant state and the
 measurement this FMU receives; 2 for Jacobi stepping with separate sensors and
 controller FMUs, 0 for our Gauss-Seidel master) and ``integral_action``
-(Boolean). ``gain_set`` names the LQR weights (their discrete-time design);
+(Boolean) and ``estimator`` (1 ``kalman``: one steady-state Kalman filter per
+schedule point, :mod:`flexarm.lqg`; 2 ``payload_bank``: a bank of filters, one
+per payload mass, :mod:`flexarm.lqg_bank`, 200 ms schedule only). ``gain_set``
+names the LQR weights (their discrete-time design);
 ``omega7`` / ``omega7_estimate`` is accepted and not used (the Kalman filter
 estimates every velocity). The law: :mod:`flexarm.lqg`; the design files:
 ``flexarm/data/lqg/`` (:mod:`flexarm.lqg_design`).
@@ -34,14 +37,32 @@ import numpy as np
 from flexarm_controller_base import VARIABLES, ControllerSlave
 from flexarm_fmu_base import Var, pin_module_namespace, variable_table
 
-from flexarm.lqg import MAX_DELAY_SAMPLES, LqgController, LqgState, lqg_controller
+from flexarm.lqg import MAX_DELAY_SAMPLES, LqgController, lqg_controller
+from flexarm.lqg_bank import BANK_SCHEDULES, BankController, bank_controller
 
 pin_module_namespace(globals())  # pythonfmu 0.7.0 drops a reference per instantiation (see there)
 
+#: ``estimator`` choices: how the 22 states are estimated.
+ESTIMATOR_ITEMS = (
+    (1, "kalman", "one steady-state Kalman filter per schedule point, the payload absorbed as process noise"),
+    (2, "payload_bank", "a bank of Kalman filters, one per payload mass 0-0.4 kg, weighted by their innovations' "
+                        "likelihood (schedule_period 0.2 s only)"),
+)
+DEFAULT_ESTIMATOR = 1
+
 
 @functools.lru_cache(maxsize=16)
-def _law(name: str, schedule: str, tau1_max: float, tau2_max: float, delay: int, integral: bool) -> LqgController:
+def _law(name: str, schedule: str, tau1_max: float, tau2_max: float, delay: int, integral: bool,
+         estimator: int) -> LqgController | BankController:
     """The control law of one configuration, built once per process (immutable; the state lives in the slave)."""
+    if estimator == 2:
+        if schedule not in BANK_SCHEDULES:
+            raise ValueError(f"estimator = 2 (payload_bank) needs schedule_period = 0.2 s (the bank exists for "
+                             f"{', '.join(BANK_SCHEDULES)}), got the {schedule} schedule")
+        return bank_controller(name, schedule, delay, integral, (tau1_max, tau2_max))
+    if estimator != 1:
+        raise ValueError(f"estimator: {estimator!r} is not one of "
+                         + ", ".join(f"{v} ({n})" for v, n, _ in ESTIMATOR_ITEMS))
     return lqg_controller(name, schedule, delay, integral, (tau1_max, tau2_max))
 
 
@@ -57,6 +78,9 @@ class FlexarmControllerLQG(ControllerSlave):
         Var("integral_action", "parameter", "fixed", None,
             "Feed back the integrated joint-angle errors (anti-windup: frozen while a torque saturates)",
             False, type="Boolean"),
+        Var("estimator", "parameter", "fixed", None,
+            "State estimator: one Kalman filter (kalman) or a bank of filters, one per payload mass (payload_bank)",
+            DEFAULT_ESTIMATOR, 1, len(ESTIMATOR_ITEMS), type="Integer", choices=ESTIMATOR_ITEMS),
     ])
     DISCRETE = True
     description = "Sandia two-link flexible arm: feedforward + discrete-time LQG controller (Kalman filter, " \
@@ -64,14 +88,14 @@ class FlexarmControllerLQG(ControllerSlave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.state: LqgState | None = None
-        self._pending: LqgState | None = None  # the state after the last evaluated sample
-        self._delivered: LqgState | None = None  # ... of the evaluation whose torques were last read
+        self.state = None  # LqgState or BankState (the estimator's)
+        self._pending = None  # the state after the last evaluated sample
+        self._delivered = None  # ... of the evaluation whose torques were last read
 
     def _config(self) -> tuple:
         name, schedule, tau1_max, tau2_max, _omega7 = super()._config()
         return (name, schedule, tau1_max, tau2_max, int(self.value("loop_delay_samples")),
-                bool(self.value("integral_action")))
+                bool(self.value("integral_action")), int(self.value("estimator")))
 
     def setup(self) -> None:
         key = self._config()
@@ -80,7 +104,8 @@ class FlexarmControllerLQG(ControllerSlave):
         except (ValueError, OSError) as exc:
             raise ValueError(f"gain_set = {self.value('gain_set')!r}, schedule_period = "
                              f"{self.value('schedule_period')!r} s, loop_delay_samples = "
-                             f"{self.value('loop_delay_samples')!r}: {exc}") from None
+                             f"{self.value('loop_delay_samples')!r}, estimator = {self.value('estimator')!r}: "
+                             f"{exc}") from None
         self._key = key
         self.state = self.law.initial_state()
         self._pending = None
@@ -124,7 +149,8 @@ class FlexarmControllerLQG(ControllerSlave):
     def set_sample_state(self, state: dict) -> None:
         if self.law is None or self._key != self._config():
             self.setup()
-        from_dict = lambda d: None if d is None else LqgState.from_dict(d)  # noqa: E731
+        state_type = type(self.law.initial_state())
+        from_dict = lambda d: None if d is None else state_type.from_dict(d)  # noqa: E731
         if state.get("lqg") is not None:
             self.state = from_dict(state["lqg"])
         self._pending, self._delivered = from_dict(state.get("pending")), from_dict(state.get("delivered"))
