@@ -211,7 +211,7 @@ HANDLED_PARAMETERS = {
        for name in ("controller", "controller_ff", "controller_fb", "controller_dlqr")},
     # omega7_estimate: accepted and not used, as by the Python FMU (the Kalman filter estimates every velocity)
     "controller_lqg": {"gain_set", "schedule_period", "tau1_max", "tau2_max", "omega7_estimate",
-                       "loop_delay_samples", "integral_action"},
+                       "loop_delay_samples", "integral_action", "estimator"},
 }
 
 

@@ -230,6 +230,13 @@ static fmi2Status configure(Instance *inst)
                  "%.17g s is not one of 0.2, 0.02 or 0 (one gain set)", key[0], key[1], key[2], key[1]);
         return fmi2Error;
     }
+#ifdef HAS_VAR_estimator
+    if (VALUE(inst, IDX_estimator) != 1) { /* 2 payload_bank: not in this native build (refused, never ignored) */
+        glue_log(inst, fmi2Error, "estimator = %g: the native controller_lqg implements only 1 (kalman); "
+                 "2 (payload_bank) runs in the Python FMU", VALUE(inst, IDX_estimator));
+        return fmi2Error;
+    }
+#endif
     if (memcmp(key, d->key, sizeof key) == 0) return fmi2OK;
     d->design = &d->designs[s];
     d->weight = (int)key[0] - 1;
