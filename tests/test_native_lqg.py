@@ -120,12 +120,14 @@ def _jacobi_run(fmu, params: dict, n: int, late_inputs: bool, h: float = 1e-3) -
     return np.array(rows)
 
 
+@pytest.mark.parametrize("estimator", [1, 2])
 @pytest.mark.parametrize("h", [1e-3, 4e-3])
 @pytest.mark.parametrize("late_inputs", [False, True])
-def test_native_lqg_commits_what_the_master_read(tmp_path, late_inputs, h):
+def test_native_lqg_commits_what_the_master_read(tmp_path, late_inputs, h, estimator):
     """Jacobi stepping (read, set, doStep) at 1 ms and 4 ms (the samples inside the step with the inputs
-    held): native and Python commit the same sample at every step."""
-    params = {"loop_delay_samples": 2, "integral_action": True}
+    held): native and Python commit the same sample at every step, both estimators (the bank within 1e-9 of the
+    peak torque: see the module docstring)."""
+    params = {"loop_delay_samples": 2, "integral_action": True, "estimator": estimator}
     fmus = {}
     for kind, fmu in (("python", built_fmus()["controller_lqg"]), ("native", native_fmus()["controller_lqg"])):
         fmus[kind] = tmp_path / kind / fmu.name
@@ -133,7 +135,8 @@ def test_native_lqg_commits_what_the_master_read(tmp_path, late_inputs, h):
         shutil.copy2(fmu, fmus[kind])
     ref = _jacobi_run(fmus["python"], params, 600, late_inputs, h)
     got = _jacobi_run(fmus["native"], params, 600, late_inputs, h)
-    assert _agreement(got, ref) <= 1e-10
+    # the bank's likelihoods on these off-model inputs: measured up to 5.9e-10 (committing another sample: ~1 N.m)
+    assert _agreement(got, ref) <= (1e-10 if estimator == 1 else 1e-9)
     if late_inputs:  # the uncommitted inputs changed nothing: the same torques as without them up to the reads
         plain = _jacobi_run(fmus["native"], params, 600, False, h)
         assert np.abs(plain - got).max() > 1e-6  # the second reads saw other inputs
@@ -270,7 +273,8 @@ def test_win64_lqg_under_wine_matches_linux64(tmp_path, estimator):
 TABLE2_CASES = ("none", "noise", "tip", "tip_noise")
 
 
-def _run_scenario(scenario: str, fmus: dict, folder, keys) -> dict:
+def _run_scenario(scenario: str, fmus: dict, folder, keys, controller: dict | None = None) -> dict:
+    """The recorded signals of the cases `keys` of `scenario`, the controller's parameters updated by `controller`."""
     from scenarios.config import load_scenario
     from scenarios.runner import prepare, simulate_case
 
@@ -284,7 +288,9 @@ def _run_scenario(scenario: str, fmus: dict, folder, keys) -> dict:
             continue
         setup = prepare(sc, folder, names=case.fmus or None, build=False)
         with setup.open_master(sc.algorithm) as m:
-            out, _ = simulate_case(setup, m, case.parameters)
+            parameters = {**case.parameters, "controller": {**case.parameters.get("controller", {}),
+                                                            **(controller or {})}}
+            out, _ = simulate_case(setup, m, parameters)
             assert out["status"] == "ok", out.get("message")
         signals[case.key] = out["signals"]
     return signals
@@ -409,24 +415,30 @@ def test_native_bank_takes_the_posterior_decisions_of_python():
         assert _agreement(np.array(taus), torques) > 1e-3, other
 
 
-@pytest.mark.parametrize("scenario, keys", [
-    ("lqg", ("noise_bank", "tip_noise_bank", "noise_bank_integral", "tip_noise_bank_integral")),
-    ("lqg_jacobi", ("noise_bank", "tip_bank", "tip_noise_bank", "tip_noise_bank_integral")),
-])
-def test_closed_loop_native_bank_equals_python(tmp_path, scenario, keys):
+SATURATED_GAMMA1 = {"gain_set": "gamma1", "tau1_max": 5.55}
+
+
+@pytest.mark.parametrize("scenario, keys, controller", [
+    ("lqg", ("noise_bank", "tip_noise_bank", "noise_bank_integral", "tip_noise_bank_integral"), {}),
+    ("lqg_jacobi", ("noise_bank", "tip_bank", "tip_noise_bank", "tip_noise_bank_integral"), {}),
+    ("lqg", ("tip_noise_bank", "tip_noise_bank_integral"), SATURATED_GAMMA1),
+    ("lqg_jacobi", ("noise_bank_integral", "tip_noise_bank_integral"), SATURATED_GAMMA1),
+], ids=("lqg", "lqg_jacobi", "lqg-gamma1-saturated", "lqg_jacobi-gamma1-saturated"))
+def test_closed_loop_native_bank_equals_python(tmp_path, scenario, keys, controller):
     """Plant + sensors + controller_lqg with estimator = payload_bank, native set against Python set, with and
-    without the 0.275 kg payload, noise, integral action: every signal within 1e-9 of its peak (measured: at most
-    6e-10, the torques of the payload with integral action; about 2e-11 without a payload)."""
+    without the 0.275 kg payload, noise, integral action, gamma0.1 and gamma1 with tau1 <= 5.55 N.m (saturated in
+    most of the slew): every signal within 1e-9 of its peak (measured: at most 5.8e-10, the torques of the payload
+    with integral action; about 2e-11 without a payload and saturation)."""
     python, native = built_fmus(), native_fmus()
-    ref = _run_scenario(scenario, python, tmp_path / "python", keys)
-    got = _run_scenario(scenario, native, tmp_path / "native", keys)
+    ref = _run_scenario(scenario, python, tmp_path / "python", keys, controller)
+    got = _run_scenario(scenario, native, tmp_path / "native", keys, controller)
     assert set(ref) == set(got) == set(keys)
     for key in keys:
         for name, r in ref[key].items():
             r, g = np.asarray(r), np.asarray(got[key][name])
             assert np.abs(g - r).max() <= max(1e-9 * np.abs(r).max(), 1e-12), (scenario, key, name)
-        tip = np.hypot(np.asarray(got[key]["plant.tip_x"]), np.asarray(got[key]["plant.tip_y"]))
-        assert np.isfinite(tip).all()
+        saturated = (np.abs(np.asarray(got[key]["controller.tau1"])) == controller.get("tau1_max", 7.0)).sum()
+        assert (saturated > 1000) == ("tau1_max" in controller), (key, saturated)
 
 
 def test_native_bank_state_and_refusals(tmp_path):
@@ -472,3 +484,25 @@ def test_native_bank_state_and_refusals(tmp_path):
     c.set(schedule_period=0.2)
     c.fmu.exitInitializationMode()
     c.fmu.freeInstance()
+
+
+@pytest.mark.parametrize("case, n", [(BANK_CASES[1], 4), (BANK_CASES[3], 2)], ids=("payload-4ms", "integral-2ms"))
+def test_native_bank_at_n_ms_equals_python(tmp_path, case, n):
+    """Steps of n ms (Gauss-Seidel; the bank runs the n - 1 samples inside each step with the measurements held):
+    native = Python within 1e-9 of the peak torque, on the recorded measurements of the communication points
+    (measured 4.8e-11 and 7.6e-11; held measurements are off the models, and other configurations reach 1.6e-9,
+    the law's conditioning there: see docs/native-fmus.md)."""
+    received, _, _ = recorded_loop(*case)
+    params = _bank_params(*case[1:])
+    rows = {}
+    for kind, fmu in (("python", built_fmus()["controller_lqg"]), ("native", native_fmus()["controller_lqg"])):
+        s = Slave(fmu, unpack_alone(fmu, tmp_path / kind), kind, **params)
+        out = []
+        for k in range(0, N_STEPS, n):
+            s.set_vector(list(MEASURED), [float(v) for v in received[k]])
+            out.append(s.get(["tau1", "tau2"]))
+            s.fmu.doStep(k * 1e-3, n * 1e-3)
+        s.fmu.freeInstance()
+        rows[kind] = np.array(out)
+    assert _agreement(rows["native"], rows["python"]) <= 1e-9, _agreement(rows["native"], rows["python"])
+    assert np.abs(np.diff(rows["native"], axis=0)).max() > 0.01
