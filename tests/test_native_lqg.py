@@ -1,4 +1,5 @@
-"""The native (C) LQG controller FMU against the Python one: the law, its stepping, its state, closed loop.
+"""The native (C) LQG controller FMU against the Python one: the law, its stepping, its state, closed loop;
+for both estimators (1 kalman, 2 payload_bank).
 
 What is compared: the two torques of ``controller_lqg`` over the whole slew plus a hold (2200 samples),
 the native FMU against the Python FMU driven by the same inputs; and Table 2's four cases closed loop
@@ -6,10 +7,18 @@ the native FMU against the Python FMU driven by the same inputs; and Table 2's f
 Python set. The inputs follow the path with small perturbations of every measurement (the regime the
 filter runs in); far off the path the filter's lightly damped modes accumulate rounding, and two correct
 implementations differ by up to 1e-10 of the peak torque (measured with the robustness tests' inputs).
+
+The payload bank (estimator = 2) is driven with measurement sequences recorded in closed loops of the
+library (plant with or without payload, noisy sensors): its posterior weighs each filter by its
+innovations' likelihood, and inputs that no model explains (the sinusoids above) make the likelihoods,
+and so the torques, sensitive to the last bit. Where the law itself is that sensitive (a payload with
+integral action, in open loop: one measurement changed by 1e-15 of itself moves the Python law's torques
+by 0.4 of their peak) only the closed loop is compared.
 """
 
 from __future__ import annotations
 
+import functools
 import shutil
 import struct
 import subprocess
@@ -23,7 +32,8 @@ from fmpy.fmi2 import FMU2Slave
 from fmu_harness import Slave, built_fmus
 from native_fmus import compile_host, native_fmus, read_host_csv, run_fmpy, unpack_alone, wine_env
 
-from flexarm.lqg import lqg_controller
+from flexarm.lqg import lqg_controller, simulate_lqg
+from flexarm.lqg_bank import BankController, bank_controller, load_bank
 
 N_STEPS = 2200  # the slew (2058 samples) and a hold after it
 MEASURED = ("q1_m", "q2_m", "qd1_m", "qd2_m", "eps1_m", "eps2_m", "eps3_m", "eps4_m", "eps5_m", "eps6_m")
@@ -110,12 +120,14 @@ def _jacobi_run(fmu, params: dict, n: int, late_inputs: bool, h: float = 1e-3) -
     return np.array(rows)
 
 
+@pytest.mark.parametrize("estimator", [1, 2])
 @pytest.mark.parametrize("h", [1e-3, 4e-3])
 @pytest.mark.parametrize("late_inputs", [False, True])
-def test_native_lqg_commits_what_the_master_read(tmp_path, late_inputs, h):
+def test_native_lqg_commits_what_the_master_read(tmp_path, late_inputs, h, estimator):
     """Jacobi stepping (read, set, doStep) at 1 ms and 4 ms (the samples inside the step with the inputs
-    held): native and Python commit the same sample at every step."""
-    params = {"loop_delay_samples": 2, "integral_action": True}
+    held): native and Python commit the same sample at every step, both estimators (the bank within 1e-9 of the
+    peak torque: see the module docstring)."""
+    params = {"loop_delay_samples": 2, "integral_action": True, "estimator": estimator}
     fmus = {}
     for kind, fmu in (("python", built_fmus()["controller_lqg"]), ("native", native_fmus()["controller_lqg"])):
         fmus[kind] = tmp_path / kind / fmu.name
@@ -123,7 +135,8 @@ def test_native_lqg_commits_what_the_master_read(tmp_path, late_inputs, h):
         shutil.copy2(fmu, fmus[kind])
     ref = _jacobi_run(fmus["python"], params, 600, late_inputs, h)
     got = _jacobi_run(fmus["native"], params, 600, late_inputs, h)
-    assert _agreement(got, ref) <= 1e-10
+    # the bank's likelihoods on these off-model inputs: measured up to 5.9e-10 (committing another sample: ~1 N.m)
+    assert _agreement(got, ref) <= (1e-10 if estimator == 1 else 1e-9)
     if late_inputs:  # the uncommitted inputs changed nothing: the same torques as without them up to the reads
         plain = _jacobi_run(fmus["native"], params, 600, False, h)
         assert np.abs(plain - got).max() > 1e-6  # the second reads saw other inputs
@@ -180,7 +193,7 @@ def test_native_lqg_state_reset_and_errors(tmp_path):
 
 def test_native_lqg_interface_and_resources():
     """The Python FMU's variables exactly; the matrices travel as resources, written from flexarm/data/lqg."""
-    from fmus.native.lqg_resources import SCHEDULES, TRAJECTORY_RESOURCE, design_resource
+    from fmus.native.lqg_resources import SCHEDULES, TRAJECTORY_RESOURCE, bank_resource, design_resource
 
     native = native_fmus()["controller_lqg"]
     md, py_md = read_model_description(str(native)), read_model_description(str(built_fmus()["controller_lqg"]))
@@ -191,8 +204,10 @@ def test_native_lqg_interface_and_resources():
     assert md.coSimulation.modelIdentifier == "FlexarmControllerLQGNative"
     with zipfile.ZipFile(native) as z:
         resources = sorted(n.removeprefix("resources/") for n in z.namelist() if n.startswith("resources/"))
-        assert resources == sorted([TRAJECTORY_RESOURCE, *(design_resource(s) for s in SCHEDULES)])
+        assert resources == sorted([TRAJECTORY_RESOURCE, *(design_resource(s) for s in SCHEDULES),
+                                    bank_resource("200ms")])
         text = z.read(f"resources/{design_resource('200ms')}").decode()
+        bank_text = z.read(f"resources/{bank_resource('200ms')}").decode()
     from flexarm.lqg_design import LqgDesign
 
     design = LqgDesign.load("200ms")
@@ -200,6 +215,16 @@ def test_native_lqg_interface_and_resources():
     at = lines.index(f"M {design.M.size}")
     first = [struct.unpack(">d", bytes.fromhex(h))[0] for h in lines[at + 1].split()]
     np.testing.assert_array_equal(first, design.M.ravel()[:8])  # bit patterns, exact
+    bank = load_bank("200ms")
+    lines = bank_text.splitlines()
+    for name, values in (("psi", np.array([b.psi for b in bank.filters])),
+                         ("delta_acceleration", np.array([b.delta_acceleration for b in bank.filters])),
+                         ("S_inv", np.array([b.S_inv for b in bank.filters]))):
+        at = lines.index(f"{name} {values.size}")
+        row = values[0].size // 8 + 3  # a row inside the second filter's array
+        got = [struct.unpack(">d", bytes.fromhex(h))[0] for h in lines[at + 1 + row].split()]
+        np.testing.assert_array_equal(got, values.ravel()[8 * row:8 * row + 8], err_msg=name)
+    assert "bank_200ms.npz sha256 " in bank_text.splitlines()[1]
 
 
 def test_native_lqg_refuses_a_changed_resource(tmp_path):
@@ -220,7 +245,9 @@ def test_native_lqg_refuses_a_changed_resource(tmp_path):
     assert any("lqg_20ms.txt" in m and "SHA-256" in m for m in messages), messages
 
 
-def test_win64_lqg_under_wine_matches_linux64(tmp_path):
+@pytest.mark.parametrize("estimator", [1, 2])
+def test_win64_lqg_under_wine_matches_linux64(tmp_path, estimator):
+    """Both estimators (1 kalman, 2 payload_bank): the win64 binary under wine gives linux64's bits."""
     wine = shutil.which("wine") or shutil.which("wine64")
     if wine is None:
         pytest.skip("wine is not installed (Debian: apt-get install wine64); the win64 binary was built but not run")
@@ -229,7 +256,7 @@ def test_win64_lqg_under_wine_matches_linux64(tmp_path):
     csv.write_text(",".join(MEASURED) + "\n" + "".join(
         ",".join(repr(v) for v in lqg_inputs(k).values()) + "\n" for k in range(N_STEPS)))
     args = [str(unz), "--steps", str(N_STEPS), "--inputs", str(csv), "--quiet", "--set", "loop_delay_samples=2",
-            "--set", "integral_action=true", "--set", "tau1_max=5.0"]
+            "--set", "integral_action=true", "--set", "tau1_max=5.0", "--set", f"estimator={estimator}"]
     runs = []
     for cmd, env in (([str(compile_host(tmp_path))], {}),  # env -i: no Python anywhere
                      ([wine, str(compile_host(tmp_path, target="win64"))], wine_env())):
@@ -246,7 +273,8 @@ def test_win64_lqg_under_wine_matches_linux64(tmp_path):
 TABLE2_CASES = ("none", "noise", "tip", "tip_noise")
 
 
-def _run_scenario(scenario: str, fmus: dict, folder, keys) -> dict:
+def _run_scenario(scenario: str, fmus: dict, folder, keys, controller: dict | None = None) -> dict:
+    """The recorded signals of the cases `keys` of `scenario`, the controller's parameters updated by `controller`."""
     from scenarios.config import load_scenario
     from scenarios.runner import prepare, simulate_case
 
@@ -260,7 +288,9 @@ def _run_scenario(scenario: str, fmus: dict, folder, keys) -> dict:
             continue
         setup = prepare(sc, folder, names=case.fmus or None, build=False)
         with setup.open_master(sc.algorithm) as m:
-            out, _ = simulate_case(setup, m, case.parameters)
+            parameters = {**case.parameters, "controller": {**case.parameters.get("controller", {}),
+                                                            **(controller or {})}}
+            out, _ = simulate_case(setup, m, parameters)
             assert out["status"] == "ok", out.get("message")
         signals[case.key] = out["signals"]
     return signals
@@ -279,3 +309,200 @@ def test_closed_loop_native_set_equals_python_set(tmp_path, scenario, keys):
         for name, r in ref[key].items():
             r, g = np.asarray(r), np.asarray(got[key][name])
             assert np.abs(g - r).max() <= max(1e-10 * np.abs(r).max(), 1e-12), (scenario, key, name)
+
+
+# -- the payload bank (estimator = 2) ----------------------------------------------------------------------------
+GAIN_SET_NAMES = {1: "gamma1", 2: "gamma0.1"}
+NOISE_SEED = 1  # the scenarios' sensors seed
+BANK = {"estimator": 2, "schedule_period": 0.2}
+
+
+@functools.cache
+def recorded_loop(payload_mass: float, gain_set: int, delay: int, integral: bool, tau1_max: float):
+    """A closed loop of the library (plant with `payload_mass` kg, noisy sensors, the bank law of this
+    configuration), N_STEPS samples.
+
+    Returns
+    -------
+    received : ndarray, shape (N_STEPS + 1, 10)
+        The measurements the law received at each sample (those of the plant at k - delay).
+    torques : ndarray, shape (N_STEPS, 2)
+        Its torques, N.m.
+    law : BankController
+        The law, with its posterior history.
+    """
+    from flexarm.model import ArmModel
+    from flexarm.parameters import load_parameters
+    from flexarm.sensors import SensorBank, SensorSettings, true_signals_from_state
+
+    params = load_parameters()
+    model = ArmModel(params.with_payload(payload_mass))
+    law = bank_controller(GAIN_SET_NAMES[gain_set], "200ms", delay, integral, (tau1_max, params.peak_torque[1]))
+    law.history = []
+
+    def sensors():
+        return SensorBank(SensorSettings(noise_enabled=True, noise_seed=NOISE_SEED))
+
+    states, torques = simulate_lqg(model, law, n_steps=N_STEPS, sensors=sensors())
+    again, measured = sensors(), []  # the same seed and signals: simulate_lqg's measurements, once more
+    for k, z in enumerate(states):
+        measured.append(again.measure(true_signals_from_state(model, z, torques[k - 1] if k else np.zeros(2)))[:10])
+    received = np.array([measured[max(k - delay, 0)] for k in range(N_STEPS + 1)])
+    replay = bank_controller(GAIN_SET_NAMES[gain_set], "200ms", delay, integral, law.saturation)
+    state = replay.initial_state()
+    for k in range(N_STEPS):  # the record is what the law saw: replayed, the same torques bit for bit
+        tau, state = replay.step(state, k, received[k])
+        np.testing.assert_array_equal(tau, torques[k])
+    return received, torques, law
+
+
+def recorded_inputs(received: np.ndarray):
+    return lambda k: {n: float(v) for n, v in zip(MEASURED, received[k])}
+
+
+#: Recorded loops replayed (payload kg, gain_set, loop delay, integral action, tau1_max N.m): a payload and none,
+#: delay 0 and 2, both gain sets, integral action, and a shoulder limit of 5.55 N.m (below the feedforward's 5.6 N.m
+#: peak: the arm falls behind and the torque sits at the limit in most of the slew, the anti-windup active). A
+#: payload with integral action is compared in closed loop only (see the module docstring). Saturated, the law is
+#: sensitive at the 1e-9 level (the arm far off the path, the innovations large): with a 5.4 N.m limit one
+#: measurement changed by 1e-15 of itself moves the Python law's torques by up to 1e-9 of their peak.
+BANK_CASES = [(0.275, 2, 0, False, 7.0), (0.275, 1, 2, False, 7.0), (0.0, 1, 0, True, 7.0), (0.0, 2, 2, True, 7.0),
+              (0.275, 2, 0, False, 5.55), (0.0, 1, 2, True, 5.55)]
+
+
+def _bank_params(gain_set, delay, integral, tau1_max) -> dict:
+    return {**BANK, "gain_set": gain_set, "loop_delay_samples": delay, "integral_action": integral,
+            "tau1_max": tau1_max}
+
+
+@pytest.mark.parametrize("case", BANK_CASES, ids=lambda c: "payload={}-gain_set={}-delay={}-integral={}-tau1_max={}"
+                         .format(*c))
+def test_native_bank_matches_python_on_recorded_measurements(case):
+    """estimator = payload_bank: the native FMU's torques within 1e-9 of the Python FMU's peak on the recorded
+    measurements of a closed loop (measured: at most 3e-10, with saturation; 2e-11 without)."""
+    payload, gain_set, delay, integral, tau1_max = case
+    received, torques, _ = recorded_loop(*case)
+    params = _bank_params(gain_set, delay, integral, tau1_max)
+    _, ref = run_fmpy(built_fmus()["controller_lqg"], N_STEPS, recorded_inputs(received), params)
+    _, got = run_fmpy(native_fmus()["controller_lqg"], N_STEPS, recorded_inputs(received), params)
+    np.testing.assert_array_equal(ref[:N_STEPS], torques)  # the Python FMU is the library law
+    assert _agreement(got, ref) <= 1e-9, (case, _agreement(got, ref))
+    saturated = (np.abs(ref[:, 0]) == tau1_max).sum()
+    assert (saturated > 1000) == (tau1_max < 5.6), saturated  # the limit acts where it is below the peak
+
+
+def test_native_bank_takes_the_posterior_decisions_of_python():
+    """Through a payload run (0.275 kg, noise) the posterior floors the unlikely models and re-seeds the quiet
+    filter; the native FMU gives the Python FMU's torques (1e-9 of the peak), while a law without the re-seeding
+    or with another floor gives torques 1e-3 of the peak or more away: the native bank takes the same decisions."""
+    case = BANK_CASES[0]
+    received, torques, law = recorded_loop(*case)
+    p = np.array(law.history)
+    assert (p[:, 0] < law.reseed_below).sum() > 100  # the quiet filter is re-seeded ...
+    assert (p[:, 0] >= law.reseed_below).sum() > 100  # ... not always
+    floored = ((p == p.min(axis=1, keepdims=True)).sum(axis=1) >= 2) & (p.min(axis=1) < 1e-3)  # held at the floor
+    assert floored.mean() > 0.5 and np.allclose(p.min(axis=1)[floored], np.exp(law.log_floor), rtol=0.01)
+    params = _bank_params(*case[1:])
+    _, got = run_fmpy(native_fmus()["controller_lqg"], N_STEPS, recorded_inputs(received), params)
+    assert _agreement(got[:N_STEPS], torques) <= 1e-9
+    bank = load_bank("200ms")
+    for other in ({"reseed_below": 0.0}, {"floor": 1e-5}):
+        variant = BankController(law.trajectory, bank, "gamma0.1", 0, False, law.saturation, **other)
+        state, taus = variant.initial_state(), []
+        for k in range(N_STEPS):
+            tau, state = variant.step(state, k, received[k])
+            taus.append(tau)
+        assert _agreement(np.array(taus), torques) > 1e-3, other
+
+
+SATURATED_GAMMA1 = {"gain_set": "gamma1", "tau1_max": 5.55}
+
+
+@pytest.mark.parametrize("scenario, keys, controller", [
+    ("lqg", ("noise_bank", "tip_noise_bank", "noise_bank_integral", "tip_noise_bank_integral"), {}),
+    ("lqg_jacobi", ("noise_bank", "tip_bank", "tip_noise_bank", "tip_noise_bank_integral"), {}),
+    ("lqg", ("tip_noise_bank", "tip_noise_bank_integral"), SATURATED_GAMMA1),
+    ("lqg_jacobi", ("noise_bank_integral", "tip_noise_bank_integral"), SATURATED_GAMMA1),
+], ids=("lqg", "lqg_jacobi", "lqg-gamma1-saturated", "lqg_jacobi-gamma1-saturated"))
+def test_closed_loop_native_bank_equals_python(tmp_path, scenario, keys, controller):
+    """Plant + sensors + controller_lqg with estimator = payload_bank, native set against Python set, with and
+    without the 0.275 kg payload, noise, integral action, gamma0.1 and gamma1 with tau1 <= 5.55 N.m (saturated in
+    most of the slew): every signal within 1e-9 of its peak (measured: at most 5.8e-10, the torques of the payload
+    with integral action; about 2e-11 without a payload and saturation)."""
+    python, native = built_fmus(), native_fmus()
+    ref = _run_scenario(scenario, python, tmp_path / "python", keys, controller)
+    got = _run_scenario(scenario, native, tmp_path / "native", keys, controller)
+    assert set(ref) == set(got) == set(keys)
+    for key in keys:
+        for name, r in ref[key].items():
+            r, g = np.asarray(r), np.asarray(got[key][name])
+            assert np.abs(g - r).max() <= max(1e-9 * np.abs(r).max(), 1e-12), (scenario, key, name)
+        saturated = (np.abs(np.asarray(got[key]["controller.tau1"])) == controller.get("tau1_max", 7.0)).sum()
+        assert (saturated > 1000) == ("tau1_max" in controller), (key, saturated)
+
+
+def test_native_bank_state_and_refusals(tmp_path):
+    """The bank's state (nine filters, the posterior) round-trips through get/set and (de)serialise bit for bit;
+    estimator out of range and payload_bank on another schedule are refused naming them."""
+    native = native_fmus()["controller_lqg"]
+    unz = unpack_alone(native, tmp_path / "bank")
+    received, _, _ = recorded_loop(*BANK_CASES[1])
+    params = _bank_params(*BANK_CASES[1][1:])
+
+    def drive(s: Slave, k0: int, n: int) -> np.ndarray:
+        rows = []
+        for k in range(k0, k0 + n):
+            s.set_vector(list(MEASURED), [float(v) for v in received[k]])
+            rows.append(s.get(["tau1", "tau2"]))
+            s.fmu.doStep(k * 1e-3, 1e-3)
+        return np.array(rows)
+
+    a = Slave(native, unz, "a", **params)
+    drive(a, 0, 700)
+    blob = a.fmu.serializeFMUstate(a.fmu.getFMUstate())
+    first = drive(a, 700, 300)
+    b = Slave(native, unz, "b")  # estimator 1: the state brings the parameters along
+    drive(b, 0, 5)
+    b.fmu.setFMUstate(b.fmu.deSerializeFMUstate(blob))
+    np.testing.assert_array_equal(drive(b, 700, 300), first)
+    kalman = Slave(native, unz, "kalman", **{**params, "estimator": 1})
+    kalman_torques = drive(kalman, 0, 1000)[700:]
+    assert np.abs(kalman_torques - first).max() > 1e-3  # the bank is not the single filter
+    for s in (a, b, kalman):
+        s.fmu.freeInstance()
+    c = Slave(native, unz, "c", start=False)
+    c.fmu.setupExperiment(startTime=0.0)
+    c.fmu.enterInitializationMode()
+    for bad in (0, 3):
+        with pytest.raises(FMICallException):
+            c.set(estimator=bad)
+        assert "estimator" in c.messages[-1][1] and "range" in c.messages[-1][1], c.messages[-1]
+    c.set(estimator=2, schedule_period=0.02)
+    with pytest.raises(FMICallException):
+        c.fmu.exitInitializationMode()
+    assert "estimator" in c.messages[-1][1] and "schedule_period" in c.messages[-1][1], c.messages[-1]
+    c.set(schedule_period=0.2)
+    c.fmu.exitInitializationMode()
+    c.fmu.freeInstance()
+
+
+@pytest.mark.parametrize("case, n", [(BANK_CASES[1], 4), (BANK_CASES[3], 2)], ids=("payload-4ms", "integral-2ms"))
+def test_native_bank_at_n_ms_equals_python(tmp_path, case, n):
+    """Steps of n ms (Gauss-Seidel; the bank runs the n - 1 samples inside each step with the measurements held):
+    native = Python within 1e-9 of the peak torque, on the recorded measurements of the communication points
+    (measured 4.8e-11 and 7.6e-11; held measurements are off the models, and other configurations reach 1.6e-9,
+    the law's conditioning there: see docs/native-fmus.md)."""
+    received, _, _ = recorded_loop(*case)
+    params = _bank_params(*case[1:])
+    rows = {}
+    for kind, fmu in (("python", built_fmus()["controller_lqg"]), ("native", native_fmus()["controller_lqg"])):
+        s = Slave(fmu, unpack_alone(fmu, tmp_path / kind), kind, **params)
+        out = []
+        for k in range(0, N_STEPS, n):
+            s.set_vector(list(MEASURED), [float(v) for v in received[k]])
+            out.append(s.get(["tau1", "tau2"]))
+            s.fmu.doStep(k * 1e-3, n * 1e-3)
+        s.fmu.freeInstance()
+        rows[kind] = np.array(out)
+    assert _agreement(rows["native"], rows["python"]) <= 1e-9, _agreement(rows["native"], rows["python"])
+    assert np.abs(np.diff(rows["native"], axis=0)).max() > 0.01

@@ -291,7 +291,7 @@ NATIVE_FMUS = {
     "sensors": ("sensors/sensors.c", "sensors/pcg64.c", "sensors/pcg64.h"),
     **{name: ("controller/controller.c",) for name in ("controller", "controller_ff", "controller_fb",
                                                        "controller_dlqr")},
-    "controller_lqg": ("controller/controller_lqg.c",),
+    "controller_lqg": ("controller/controller_lqg.c", "controller/controller_lqg.h", "controller/lqg_bank.c"),
 }
 #: controller variants: (feedforward, feedback, discrete-time gains), as fmus/controller/*.py
 CONTROLLER_VARIANTS = {"controller": (1, 1, False), "controller_ff": (1, 0, False), "controller_fb": (0, 1, False),

@@ -16,6 +16,9 @@
  * samples inside the step with the inputs held, so the torques read after it are the sample of t + h. The
  * resources (lqg_resources.py): the trajectory and the designs of the three schedules, IEEE-754 bit patterns,
  * SHA-256 checked by the glue.
+ *
+ * estimator = 2 (payload_bank) runs the bank of lqg_bank.c (flexarm.lqg_bank.BankController) instead of the
+ * single filter, with the same stepping.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -24,43 +27,16 @@
 #include "fmi2_glue.h"
 #include "model_vars.h"
 
-#define N_MEAS 10
-#define N_STATE 22
-#define N_AUG (N_STATE + 2)
-#define N_WEIGHTS 4
-#define MAX_DELAY 10
+#include "controller_lqg.h"
+
 #define N_SCHEDULES 3
 static const char *const SCHEDULE_FILES[N_SCHEDULES] = {"lqg_200ms.txt", "lqg_20ms.txt", "lqg_single.txt"};
 static const double SCHEDULE_PERIODS[N_SCHEDULES] = {0.2, 0.02, 0.0};
+#define BANK_FILE "lqg_bank_200ms.txt"
+#define ESTIMATOR_KALMAN 1
+#define ESTIMATOR_PAYLOAD_BANK 2
 static const int MEAS[N_MEAS] = {IDX_q1_m, IDX_q2_m, IDX_qd1_m, IDX_qd2_m, IDX_eps1_m,
                                  IDX_eps2_m, IDX_eps3_m, IDX_eps4_m, IDX_eps5_m, IDX_eps6_m};
-
-typedef struct {
-    int count;
-    double *times, *phi, *gamma, *m; /* count; count x 22 x 22; count x 22 x 2; count x 22 x 10 */
-    double *k, *k_integral;          /* count x 4 x 2 x 22; count x 4 x 2 x 24 */
-} Design;
-
-typedef struct {
-    int n_steps;
-    double dt;
-    double *feedforward, *desired; /* (n_steps + 1) x 2 N.m; (n_steps + 1) x 10 desired measurements */
-    double c[N_MEAS * N_STATE];    /* the sensor map */
-    Design designs[N_SCHEDULES];
-    /* the configuration in force (from the parameters) */
-    double key[4];
-    const Design *design;
-    int weight, delay, integral;
-    int *index; /* n_steps + 1: the design point in force at each sample */
-} LqgData;
-
-typedef struct { /* flexarm.lqg.LqgState */
-    long long k;  /* next sample */
-    int started;  /* the filter has taken a measurement */
-    double x_post[N_STATE];
-    double du[MAX_DELAY + 1][2]; /* torque deviations sent at k - 1 - d .. k - 1, oldest first */
-    double xi[2];                /* integrated joint-angle errors, rad s */
-} LqgState;
 
 typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
     LqgState committed, pending, delivered;
@@ -68,7 +44,7 @@ typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
 } FmuState;
 
 /* -- resources -------------------------------------------------------------------------------------------- */
-static double *read_array(Instance *inst, const char *file, const char *text, const char *name, size_t n)
+double *lqg_read_array(Instance *inst, const char *file, const char *text, const char *name, size_t n)
 {
     double *out = malloc(n * sizeof *out);
     if (out == NULL) glue_log(inst, fmi2Error, "resources/%s: out of memory for '%s'", file, name);
@@ -81,10 +57,12 @@ static void lqg_unload(Instance *inst)
     LqgData *d = inst->data;
     if (d == NULL) return;
     free(d->feedforward), free(d->desired), free(d->index);
-    for (int s = 0; s < N_SCHEDULES; s++) {
+    for (int s = 0; d->designs != NULL && s < N_SCHEDULES; s++) {
         Design *g = &d->designs[s];
         free(g->times), free(g->phi), free(g->gamma), free(g->m), free(g->k), free(g->k_integral);
     }
+    free(d->designs);
+    bank_free(&d->bank);
     free(d);
     inst->data = NULL;
 }
@@ -97,12 +75,12 @@ static int read_design(Instance *inst, const char *file, const char *text, Desig
         return -1;
     size_t n = (size_t)count;
     g->count = (int)count;
-    g->times = read_array(inst, file, text, "times", n);
-    g->phi = read_array(inst, file, text, "Phi", n * N_STATE * N_STATE);
-    g->gamma = read_array(inst, file, text, "Gamma", n * N_STATE * 2);
-    g->m = read_array(inst, file, text, "M", n * N_STATE * N_MEAS);
-    g->k = read_array(inst, file, text, "K", n * N_WEIGHTS * 2 * N_STATE);
-    g->k_integral = read_array(inst, file, text, "K_integral", n * N_WEIGHTS * 2 * N_AUG);
+    g->times = lqg_read_array(inst, file, text, "times", n);
+    g->phi = lqg_read_array(inst, file, text, "Phi", n * N_STATE * N_STATE);
+    g->gamma = lqg_read_array(inst, file, text, "Gamma", n * N_STATE * 2);
+    g->m = lqg_read_array(inst, file, text, "M", n * N_STATE * N_MEAS);
+    g->k = lqg_read_array(inst, file, text, "K", n * N_WEIGHTS * 2 * N_STATE);
+    g->k_integral = lqg_read_array(inst, file, text, "K_integral", n * N_WEIGHTS * 2 * N_AUG);
     return g->times && g->phi && g->gamma && g->m && g->k && g->k_integral ? 0 : -1;
 }
 
@@ -112,6 +90,8 @@ static int lqg_load(Instance *inst, char *const *contents, const size_t *sizes)
     LqgData *d = calloc(1, sizeof *d);
     if (d == NULL) return -1;
     inst->data = d;
+    d->designs = calloc(N_SCHEDULES, sizeof *d->designs);
+    if (d->designs == NULL) goto fail;
     for (size_t r = 0; r < MODEL_INFO.n_resources; r++) {
         const char *file = MODEL_INFO.resources[r].file, *text = contents[r];
         if (strcmp(file, "lqg_trajectory.txt") == 0) {
@@ -120,20 +100,28 @@ static int lqg_load(Instance *inst, char *const *contents, const size_t *sizes)
                 glue_read_doubles(inst, file, text, "dt", &d->dt, 1))
                 goto fail;
             d->n_steps = (int)n;
-            d->feedforward = read_array(inst, file, text, "feedforward_torque", (size_t)(d->n_steps + 1) * 2);
-            d->desired = read_array(inst, file, text, "desired_measurements", (size_t)(d->n_steps + 1) * N_MEAS);
+            d->feedforward = lqg_read_array(inst, file, text, "feedforward_torque", (size_t)(d->n_steps + 1) * 2);
+            d->desired = lqg_read_array(inst, file, text, "desired_measurements", (size_t)(d->n_steps + 1) * N_MEAS);
             d->index = calloc((size_t)d->n_steps + 1, sizeof *d->index);
             if (!d->feedforward || !d->desired || !d->index) goto fail;
         }
         for (int s = 0; s < N_SCHEDULES; s++)
             if (strcmp(file, SCHEDULE_FILES[s]) == 0 && read_design(inst, file, text, &d->designs[s], d->c)) goto fail;
     }
+    for (size_t r = 0; r < MODEL_INFO.n_resources; r++) /* after the trajectory: the drift needs n_steps, dt */
+        if (strcmp(MODEL_INFO.resources[r].file, BANK_FILE) == 0 &&
+            bank_load(inst, MODEL_INFO.resources[r].file, contents[r], d))
+            goto fail;
     for (int s = 0; s < N_SCHEDULES; s++)
         if (d->designs[s].times == NULL || d->index == NULL) {
             glue_log(inst, fmi2Error, "fmi2Instantiate: resources %s or lqg_trajectory.txt missing from the build",
                      SCHEDULE_FILES[s]);
             goto fail;
         }
+    if (d->bank.times == NULL) {
+        glue_log(inst, fmi2Error, "fmi2Instantiate: resource %s missing from the build", BANK_FILE);
+        goto fail;
+    }
     d->key[0] = -1;
     return 0;
 fail:
@@ -145,7 +133,7 @@ fail:
 /* y = A x for A (rows x cols, row stride `stride`). Compensated (Neumaier) sums: the filter's lightly damped
    modes accumulate rounding over thousands of samples, and nearly exact dot products keep the native law as
    close to the exact one as NumPy's (BLAS) is. */
-static void mat_vec(const double *a, int rows, int cols, int stride, const double *x, double *y)
+void lqg_mat_vec(const double *a, int rows, int cols, int stride, const double *x, double *y)
 {
     for (int r = 0; r < rows; r++) {
         double sum = 0.0, carry = 0.0;
@@ -159,11 +147,11 @@ static void mat_vec(const double *a, int rows, int cols, int stride, const doubl
 }
 
 /* x <- Phi x + Gamma du at design point i. */
-static void propagate(const Design *g, int i, double *x, const double du[2])
+void lqg_propagate(const Design *g, int i, double *x, const double du[2])
 {
     double px[N_STATE], gu[N_STATE];
-    mat_vec(g->phi + (size_t)i * N_STATE * N_STATE, N_STATE, N_STATE, N_STATE, x, px);
-    mat_vec(g->gamma + (size_t)i * N_STATE * 2, N_STATE, 2, 2, du, gu);
+    lqg_mat_vec(g->phi + (size_t)i * N_STATE * N_STATE, N_STATE, N_STATE, N_STATE, x, px);
+    lqg_mat_vec(g->gamma + (size_t)i * N_STATE * 2, N_STATE, 2, 2, du, gu);
     for (int r = 0; r < N_STATE; r++) x[r] = px[r] + gu[r];
 }
 
@@ -175,18 +163,20 @@ static void lqg_step(const LqgData *d, const LqgState *s, long long k, const dou
 {
     const Design *g = d->design;
     const int dl = d->delay;
+    memset(next, 0, sizeof *next); /* the bank's rows unused */
     long long j = k - dl > 0 ? k - dl : 0;
     double x[N_STATE], cx[N_MEAS], innovation[N_MEAS], mi[N_STATE], x_post[N_STATE], x_now[N_STATE];
-    memcpy(x, s->x_post, sizeof x);
-    if (s->started && j > 0 && k - dl >= 0) propagate(g, d->index[clamp(d, j - 1)], x, s->du[0]); /* 1 */
+    memcpy(x, s->x_post[0], sizeof x);
+    if (s->started && j > 0 && k - dl >= 0) lqg_propagate(g, d->index[clamp(d, j - 1)], x, s->du[0]); /* 1 */
     const double *y_d = d->desired + clamp(d, j) * N_MEAS;                                            /* 2 */
-    mat_vec(d->c, N_MEAS, N_STATE, N_STATE, x, cx);
+    lqg_mat_vec(d->c, N_MEAS, N_STATE, N_STATE, x, cx);
     for (int r = 0; r < N_MEAS; r++) innovation[r] = (m[r] - y_d[r]) - cx[r];
-    mat_vec(g->m + (size_t)d->index[clamp(d, j)] * N_STATE * N_MEAS, N_STATE, N_MEAS, N_MEAS, innovation, mi);
+    lqg_mat_vec(g->m + (size_t)d->index[clamp(d, j)] * N_STATE * N_MEAS, N_STATE, N_MEAS, N_MEAS, innovation, mi);
     for (int r = 0; r < N_STATE; r++) x_post[r] = x[r] + mi[r];
     memcpy(x_now, x_post, sizeof x_now); /* 3: the torques of samples j .. k - 1 */
     int first = k - dl >= 0 ? 1 : (int)(dl + 1 - k);
-    for (int row = first, n = 0; row <= dl; row++, n++) propagate(g, d->index[clamp(d, j + n)], x_now, s->du[row]);
+    for (int row = first, n = 0; row <= dl; row++, n++)
+        lqg_propagate(g, d->index[clamp(d, j + n)], x_now, s->du[row]);
 
     const int i_k = d->index[clamp(d, k)]; /* 4 */
     const double *slew = k < d->n_steps ? d->feedforward + 2 * k : NULL; /* zero feedforward in the hold */
@@ -194,10 +184,10 @@ static void lqg_step(const LqgData *d, const LqgState *s, long long k, const dou
     double kx[2], kxi[2] = {0.0, 0.0}, free_tau[2];
     if (d->integral) {
         const double *ka = g->k_integral + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_AUG;
-        mat_vec(ka, 2, N_STATE, N_AUG, x_now, kx);
-        mat_vec(ka + N_STATE, 2, 2, N_AUG, s->xi, kxi);
+        lqg_mat_vec(ka, 2, N_STATE, N_AUG, x_now, kx);
+        lqg_mat_vec(ka + N_STATE, 2, 2, N_AUG, s->xi, kxi);
     } else {
-        mat_vec(g->k + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_STATE, 2, N_STATE, N_STATE, x_now, kx);
+        lqg_mat_vec(g->k + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_STATE, 2, N_STATE, N_STATE, x_now, kx);
     }
     int saturated = 0;
     for (int r = 0; r < 2; r++) {
@@ -206,22 +196,32 @@ static void lqg_step(const LqgData *d, const LqgState *s, long long k, const dou
         saturated |= tau[r] != free_tau[r];
     }
     double cq[2]; /* 5 */
-    mat_vec(d->c, 2, N_STATE, N_STATE, x_now, cq);
+    lqg_mat_vec(d->c, 2, N_STATE, N_STATE, x_now, cq);
     for (int r = 0; r < 2; r++) next->xi[r] = d->integral && !saturated ? s->xi[r] + d->dt * cq[r] : s->xi[r];
     for (int row = 0; row < dl; row++) next->du[row][0] = s->du[row + 1][0], next->du[row][1] = s->du[row + 1][1];
     next->du[dl][0] = tau[0] - ff[0], next->du[dl][1] = tau[1] - ff[1];
-    memcpy(next->x_post, x_post, sizeof x_post);
+    memcpy(next->x_post[0], x_post, sizeof x_post);
     next->k = k + 1;
     next->started = 1;
 }
 
 /* -- FMI side ------------------------------------------------------------------------------------------------- */
-/* The design, weights and schedule index of the current parameters (recomputed when they change). */
+void lqg_schedule_index(const double *times, int count, int n_steps, double dt, int *index)
+{
+    for (int k = 0; k <= n_steps; k++) { /* LqgDesign.index_at: the last operating time <= t + 1e-9 */
+        double t = k * dt + 1e-9;
+        int i = 0;
+        while (i + 1 < count && times[i + 1] <= t) i++;
+        index[k] = i;
+    }
+}
+
+/* The estimator, design, weights and schedule index of the current parameters (recomputed when they change). */
 static fmi2Status configure(Instance *inst)
 {
     LqgData *d = inst->data;
-    double key[4] = {VALUE(inst, IDX_gain_set), VALUE(inst, IDX_schedule_period), VALUE(inst, IDX_loop_delay_samples),
-                     VALUE(inst, IDX_integral_action)};
+    double key[5] = {VALUE(inst, IDX_gain_set), VALUE(inst, IDX_schedule_period), VALUE(inst, IDX_loop_delay_samples),
+                     VALUE(inst, IDX_integral_action), VALUE(inst, IDX_estimator)};
     int s = -1;
     for (int i = 0; i < N_SCHEDULES; i++)
         if (fabs(key[1] - SCHEDULE_PERIODS[i]) <= 1e-12) s = i;
@@ -230,26 +230,33 @@ static fmi2Status configure(Instance *inst)
                  "%.17g s is not one of 0.2, 0.02 or 0 (one gain set)", key[0], key[1], key[2], key[1]);
         return fmi2Error;
     }
-#ifdef HAS_VAR_estimator
-    if (VALUE(inst, IDX_estimator) != 1) { /* 2 payload_bank: not in this native build (refused, never ignored) */
-        glue_log(inst, fmi2Error, "estimator = %g: the native controller_lqg implements only 1 (kalman); "
-                 "2 (payload_bank) runs in the Python FMU", VALUE(inst, IDX_estimator));
+    if (key[4] != ESTIMATOR_KALMAN && key[4] != ESTIMATOR_PAYLOAD_BANK) {
+        glue_log(inst, fmi2Error, "estimator = %g: not one of 1 (kalman), 2 (payload_bank)", key[4]);
         return fmi2Error;
     }
-#endif
+    if (key[4] == ESTIMATOR_PAYLOAD_BANK && fabs(key[1] - d->bank.schedule_period) > 1e-12) {
+        glue_log(inst, fmi2Error, "estimator = 2 (payload_bank), schedule_period = %.17g s: the payload bank exists "
+                 "for schedule_period = %g s only (set schedule_period = %g, or estimator = 1 (kalman))", key[1],
+                 d->bank.schedule_period, d->bank.schedule_period);
+        return fmi2Error;
+    }
     if (memcmp(key, d->key, sizeof key) == 0) return fmi2OK;
     d->design = &d->designs[s];
     d->weight = (int)key[0] - 1;
     d->delay = (int)key[2];
     d->integral = key[3] != 0.0;
-    for (int k = 0; k <= d->n_steps; k++) { /* LqgDesign.index_at: the last operating time <= t + 1e-9 */
-        double t = k * d->dt + 1e-9;
-        int i = 0;
-        while (i + 1 < d->design->count && d->design->times[i + 1] <= t) i++;
-        d->index[k] = i;
-    }
+    d->use_bank = key[4] == ESTIMATOR_PAYLOAD_BANK;
+    lqg_schedule_index(d->design->times, d->design->count, d->n_steps, d->dt, d->index);
     memcpy(d->key, key, sizeof key);
     return fmi2OK;
+}
+
+/* One sample of the configured estimator's law. */
+static void law_step(const LqgData *d, const LqgState *s, long long k, const double m[N_MEAS], const double limit[2],
+                     double tau[2], LqgState *next)
+{
+    if (d->use_bank) bank_step(d, s, k, m, limit, tau, next);
+    else lqg_step(d, s, k, m, limit, tau, next);
 }
 
 static fmi2Status lqg_sample(Instance *inst)
@@ -272,7 +279,7 @@ static fmi2Status lqg_sample(Instance *inst)
     double m[N_MEAS], tau[2];
     const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
     for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
-    lqg_step(d, &st->committed, (long long)k, m, limit, tau, &st->pending);
+    law_step(d, &st->committed, (long long)k, m, limit, tau, &st->pending);
     st->has_pending = 1;
     VALUE(inst, IDX_tau1) = tau[0];
     VALUE(inst, IDX_tau2) = tau[1];
@@ -289,7 +296,10 @@ static fmi2Status lqg_initialize(Instance *inst)
 {
     if (!inst->outputs_stale) return fmi2OK; /* exit right after a read, nothing set since: keep that sample */
     FmuState *st = inst->state;
+    fmi2Status status = configure(inst);
+    if (status != fmi2OK) return status;
     memset(st, 0, sizeof *st); /* on the trajectory, nothing sent, integrators empty */
+    if (((LqgData *)inst->data)->use_bank) bank_initial_state(&((LqgData *)inst->data)->bank, &st->committed);
     return lqg_sample(inst);
 }
 
@@ -317,7 +327,7 @@ static fmi2Status lqg_do_step(Instance *inst, double t, double h)
         for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
         for (double i = 1; i < n; i++) {
             LqgState next;
-            lqg_step(d, &st->committed, st->committed.k, m, limit, tau, &next);
+            law_step(d, &st->committed, st->committed.k, m, limit, tau, &next);
             st->committed = next;
         }
     }

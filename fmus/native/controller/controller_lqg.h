@@ -1,0 +1,78 @@
+/*
+ * What controller_lqg.c (the FMU, the single Kalman filter) and lqg_bank.c (the payload bank) share: the
+ * sizes, a design's arrays, the controller's state and the compensated matrix-vector product.
+ */
+#ifndef FLEXARM_CONTROLLER_LQG_H
+#define FLEXARM_CONTROLLER_LQG_H
+
+#include "fmi2_glue.h"
+
+#define N_MEAS 10
+#define N_STATE 22
+#define N_ELEMENTS 11 /* element accelerations of the bank's drift */
+#define N_AUG (N_STATE + 2)
+#define N_WEIGHTS 4
+#define MAX_DELAY 10
+#define MAX_FILTERS 12 /* room for the bank's filters (the resource says how many: 9) */
+
+typedef struct {
+    int count;
+    double *times, *phi, *gamma, *m; /* count; count x 22 x 22; count x 22 x 2; count x 22 x 10 */
+    double *k, *k_integral;          /* count x 4 x 2 x 22; count x 4 x 2 x 24 */
+} Design;
+
+/* The payload bank (flexarm.lqg_bank.PayloadBank): the identification filters by mass, then the quiet filter. */
+typedef struct {
+    int n_models, n_filters, count;
+    double schedule_period; /* s: the schedule the bank was designed on */
+    double log_floor, reseed_below, initial_log_p[MAX_FILTERS];
+    double *times;                            /* count, s (the quiet filter's, = every filter's) */
+    double *c;                                /* n_filters x 10 x 22 */
+    double *phi, *gamma, *m, *k, *k_integral; /* stacked over the filters as Design's */
+    double *s_inv, *log_det_s;                /* n_filters x count x 10 x 10; n_filters x count */
+    double *psi, *delta_acceleration;         /* n_filters x count x 22 x 11; n_filters x (n_steps + 1) x 11 */
+    double *drift;                            /* n_filters x (n_steps + 1) x 22, psi delta_acceleration */
+    Design filters[MAX_FILTERS];              /* views into the stacked arrays */
+    int *index;                               /* n_steps + 1: the point in force at each sample */
+} Bank;
+
+typedef struct {
+    int n_steps;
+    double dt;
+    double *feedforward, *desired; /* (n_steps + 1) x 2 N.m; (n_steps + 1) x 10 desired measurements */
+    double c[N_MEAS * N_STATE];    /* the sensor map */
+    Design *designs;               /* one per schedule */
+    Bank bank;
+    /* the configuration in force (from the parameters) */
+    double key[5];
+    const Design *design;
+    int weight, delay, integral, use_bank;
+    int *index; /* n_steps + 1: the design point in force at each sample */
+} LqgData;
+
+typedef struct {  /* flexarm.lqg.LqgState and flexarm.lqg_bank.BankState */
+    long long k;  /* next sample */
+    int started;  /* the filter has taken a measurement */
+    double x_post[MAX_FILTERS][N_STATE]; /* each filter's posterior (the single Kalman filter: row 0) */
+    double log_p[MAX_FILTERS];           /* the bank's log posterior of the models */
+    double du[MAX_DELAY + 1][2];         /* torque deviations sent at k - 1 - d .. k - 1, oldest first */
+    double xi[2];                        /* integrated joint-angle errors, rad s */
+} LqgState;
+
+/* An array of n doubles labelled `name` in a resource text, malloc'ed (NULL after logging why not). */
+double *lqg_read_array(Instance *inst, const char *file, const char *text, const char *name, size_t n);
+/* y = A x, A rows x cols with row stride `stride`, compensated sums (controller_lqg.c). */
+void lqg_mat_vec(const double *a, int rows, int cols, int stride, const double *x, double *y);
+/* x <- Phi x + Gamma du at design point i. */
+void lqg_propagate(const Design *g, int i, double *x, const double du[2]);
+/* The point of `times` (count) in force at each sample k = 0 .. n_steps: the last time <= k dt + 1e-9. */
+void lqg_schedule_index(const double *times, int count, int n_steps, double dt, int *index);
+
+/* lqg_bank.c */
+int bank_load(Instance *inst, const char *file, const char *text, LqgData *d);
+void bank_free(Bank *b);
+void bank_initial_state(const Bank *b, LqgState *s);
+void bank_step(const LqgData *d, const LqgState *s, long long k, const double m[N_MEAS], const double limit[2],
+               double tau[2], LqgState *next);
+
+#endif
