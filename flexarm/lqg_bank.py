@@ -76,6 +76,11 @@ BANK_DESIGN_ARRAYS = ("times", "operating_points", "tau_bar", "Phi", "Gamma", "W
                       "K", "K_integral", "C", "V")
 
 
+def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """One matrix-vector product per filter: A (n_filters, r, c), x (n_filters, c) -> (n_filters, r)."""
+    return np.matmul(A, x[..., None])[..., 0]
+
+
 def drift_along_path(design: LqgDesign, psi: np.ndarray, delta_acceleration: np.ndarray, dt: float) -> np.ndarray:
     """The state drift d_j = Ψ_i(j) Δα_j over each sample (rad, rad/s), shape (n_steps + 1, 22).
 
@@ -365,9 +370,18 @@ class BankController:
         self.dt = sample_time(self.trajectory)
         self.n_steps = self.trajectory.n_samples
         w = self.design.weight_index(gain_set)
-        self._K = [b.design.K_integral[:, w, :, :N_STATE] if integral_action else b.design.K[:, w]
-                   for b in self._filters]
-        self._K_xi = [b.design.K_integral[:, w, :, N_STATE:] for b in self._filters]
+        for b in self._filters:
+            if not (np.array_equal(b.design.times, self.design.times) and np.array_equal(b.design.C, self.design.C)):
+                raise LqgError(f"bank: the filter of {b.mass} kg has another schedule or measurement matrix")
+        # Every filter's matrices stacked per schedule point, shape (n_points, n_filters, ...): one product
+        # per sample for the whole bank.
+        stack = lambda f: np.stack([f(b) for b in self._filters], axis=1)  # noqa: E731
+        self._Phi, self._Gamma, self._M = (stack(lambda b, a=a: getattr(b.design, a)) for a in ("Phi", "Gamma", "M"))
+        self._K = stack(lambda b: b.design.K_integral[:, w, :, :N_STATE] if integral_action else b.design.K[:, w])
+        self._K_xi = stack(lambda b: b.design.K_integral[:, w, :, N_STATE:])
+        self._S_inv = stack(lambda b: b.S_inv)[:, :len(bank.models)]
+        self._log_det_S = stack(lambda b: b.log_det_S)[:, :len(bank.models)]
+        self._drift = np.stack([b.drift for b in self._filters], axis=1)  # (n_steps + 1, n_filters, 22)
         self._index = np.array([self.design.index_at(k * self.dt) for k in range(self.n_steps + 1)])
         self._y_d = self.z @ self.design.C.T
         self._Cq = self.design.C[0:2]
@@ -421,20 +435,21 @@ class BankController:
         i_j = self._index[self._c(j)]
         dy = m - self._y_d[self._c(j)]
         sent = state.du[1:] if fresh else state.du[d + 1 - k:]  # torques of samples j .. k − 1
-        x_post, x_now = np.empty_like(state.x_post), np.empty_like(state.x_post)
+        x = state.x_post
+        if state.started and j > 0 and fresh:  # time update from j − 1, drift included
+            i_p = self._index[self._c(j - 1)]
+            x = _mv(self._Phi[i_p], x) + self._Gamma[i_p] @ state.du[0] + self._drift[self._c(j - 1)]
+        e = dy - x @ self.design.C.T  # innovations, (n_filters, 10)
         log_p = state.log_p.copy()
-        for n_f, b in enumerate(self._filters):
-            x = state.x_post[n_f]
-            if state.started and j > 0 and fresh:  # time update from j − 1, drift included
-                i_p = self._index[self._c(j - 1)]
-                x = b.design.Phi[i_p] @ x + b.design.Gamma[i_p] @ state.du[0] + b.drift[self._c(j - 1)]
-            e = dy - b.design.C @ x
-            if fresh and j > 0 and n_f < len(log_p):
-                log_p[n_f] -= 0.5 * (e @ b.S_inv[i_j] @ e + b.log_det_S[i_j])
-            x_post[n_f] = x_now[n_f] = x + b.design.M[i_j] @ e
-            for q, du in enumerate(sent):
-                i_s = self._index[self._c(j + q)]
-                x_now[n_f] = b.design.Phi[i_s] @ x_now[n_f] + b.design.Gamma[i_s] @ du + b.drift[self._c(j + q)]
+        if fresh and j > 0:
+            n_m = len(log_p)
+            log_p -= 0.5 * (np.einsum("fa,fa->f", e[:n_m], _mv(self._S_inv[i_j], e[:n_m])) + self._log_det_S[i_j])
+        x_post = x + _mv(self._M[i_j], e)
+        x_now = x_post
+        for q, du in enumerate(sent):  # predict across the delay with the torques sent
+            i_s = self._index[self._c(j + q)]
+            x_now = _mv(self._Phi[i_s], x_now) + self._Gamma[i_s] @ du + self._drift[self._c(j + q)]
+        x_post, x_now = x_post.copy(), x_now.copy()
         log_p -= np.logaddexp.reduce(log_p)
         log_p = np.maximum(log_p, self.log_floor)
         log_p -= np.logaddexp.reduce(log_p)
@@ -446,13 +461,11 @@ class BankController:
         weights = self.weights(log_p)
         i_k = self._index[self._c(k)]
         ff = self.feedforward(k)
-        fb, x_sel = np.zeros(2), np.zeros(N_STATE)
-        for n_f, wt in enumerate(weights):
-            if wt > 0.0:
-                fb -= wt * (self._K[n_f][i_k] @ x_now[n_f]
-                            + (self._K_xi[n_f][i_k] @ state.xi if self.integral_action else 0.0))
-                x_sel += wt * x_now[n_f]
-        tau_free = ff + fb
+        u = _mv(self._K[i_k], x_now)  # each model's feedback on its own estimate, (n_filters, 2)
+        if self.integral_action:
+            u = u + self._K_xi[i_k] @ state.xi
+        x_sel = weights @ x_now
+        tau_free = ff - weights @ u
         tau = np.minimum(np.maximum(tau_free, -self.saturation), self.saturation)
         xi = state.xi
         if self.integral_action and np.array_equal(tau, tau_free):

@@ -19,7 +19,7 @@ import numpy as np
 
 from .gain_schedule import default_trajectory_path
 from .lqg import LqgController, simulate_lqg
-from .lqg_bank import DEFAULT_MASSES, BankController, design_bank
+from .lqg_bank import DEFAULT_MASSES, BankController, design_bank, load_bank
 from .lqg_design import ELEMENT_FORCE_SIGMA, MOTOR_TORQUE_SIGMA, PAYLOAD_MASS_KG, design_lqg
 from .model import ArmModel, N
 from .parameters import load_parameters
@@ -89,10 +89,11 @@ def tradeoff_row(label: str, payload_mass: float, model_scale: float) -> Tradeof
 
 
 def bank_tradeoff_row(masses=DEFAULT_MASSES) -> TradeoffRow:
-    """The same five loops with the multiple-model bank (:mod:`flexarm.lqg_bank`; no payload in any W)."""
+    """The same five loops with the multiple-model bank (:mod:`flexarm.lqg_bank`; no payload in any W):
+    the committed bank (what ``controller_lqg``'s ``estimator = payload_bank`` runs) for the default masses."""
     params = load_parameters()
     traj = default_trajectory_path()
-    bank = design_bank(params, masses, traj)
+    bank = load_bank() if tuple(masses) == DEFAULT_MASSES else design_bank(params, masses, traj)
     label = BANK_LABEL if tuple(masses) == DEFAULT_MASSES else f"bank of payload models {tuple(masses)} kg"
     return _measured_row(label, 0.0, 1.0, lambda gain_set, integral: BankController(
         traj, bank, gain_set, LOOP_DELAY, integral, params.peak_torque))

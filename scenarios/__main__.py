@@ -9,6 +9,7 @@ disk full); 130 interrupted (Ctrl-C; nothing recorded as a result); 143 terminat
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import tomllib
@@ -20,6 +21,7 @@ from .outdir import OutputError, describe_os_error
 from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, check_kind, format_table, run_scenario
 
 EXIT_OK, EXIT_ERROR, EXIT_REFUSED, EXIT_OUTPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader left
 #: Default results folder: relative to the current directory, so it works with any install.
 DEFAULT_OUT = Path("results")
 
@@ -80,6 +82,10 @@ def main(argv=None) -> int:
     except OutputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_OUTPUT
+    except BrokenPipeError:  # the reader of our standard output went away (`... | head`): not a results error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit's flush
+        print("stopped: standard output was closed (broken pipe)", file=sys.stderr)
+        return EXIT_BROKEN_PIPE
     except OSError as exc:
         print(f"error: cannot write results: {describe_os_error(exc)}", file=sys.stderr)
         return EXIT_OUTPUT

@@ -19,6 +19,8 @@ import tempfile
 import tomllib
 from pathlib import Path
 
+from flexarm.parameters import load_parameters
+
 from .config import SCENARIO_DIR, load_scenario
 from .runner import DEFAULT_FMU_DIR, run_scenario
 
@@ -48,35 +50,45 @@ def _run(scenario, out: Path, fmu_dir: Path) -> dict:
     return {r.key: r.metrics for r in results}
 
 
+def _verdict(ok: bool) -> str:
+    return "met" if ok else "NOT met"
+
+
 def _fmt(v) -> str:
     return "unbounded" if v is None else f"{v:.4g}"
 
 
-#: The LQG scenarios' case-key suffixes of each estimator (``controller_lqg``'s ``estimator``).
-ESTIMATORS = {"kalman": "", "payload_bank": "_bank"}
+#: The LQG scenarios' case-key suffixes of each estimator (``controller_lqg``'s ``estimator``) and its short label.
+ESTIMATORS = {"kalman": ("", "LQG"), "payload_bank": ("_bank", "bank")}
 #: Columns after the paper's: (label, run, case-key suffix); runs 0 our LQR, 1 LQG Gauss-Seidel, 2 LQG Jacobi.
-_LQG_COLUMNS = (("our LQR (GS)", 0, ""), ("LQG (GS)", 1, ""), ("LQG+I (GS)", 1, "_integral"),
-                ("LQG (Jacobi)", 2, ""), ("LQG+I (Jacobi)", 2, "_integral"), ("bank (GS)", 1, "_bank"),
-                ("bank+I (GS)", 1, "_bank_integral"), ("bank (Jacobi)", 2, "_bank"),
-                ("bank+I (Jacobi)", 2, "_bank_integral"))
-COLUMNS = ("paper LQR", *(label for label, _, _ in _LQG_COLUMNS))
+_LQG_COLUMNS = (("our LQR (GS)", 0, ""), ("{e} (GS)", 1, ""), ("{e}+I (GS)", 1, "_integral"),
+                ("{e} (Jacobi)", 2, ""), ("{e}+I (Jacobi)", 2, "_integral"))
 
 
-def comparison_cells(paper: dict, lqr: dict, lqg_gs: dict, lqg_jacobi: dict, case: str, key: str) -> list[str]:
-    """One row's cells (:data:`COLUMNS`) for a Table 2 case and a metric; runs are case key -> metrics."""
+def columns(estimator: str = "kalman") -> tuple[str, ...]:
+    """The comparison's column labels for one estimator."""
+    label = ESTIMATORS[estimator][1]
+    return ("paper LQR", *(c.format(e=label) for c, _, _ in _LQG_COLUMNS))
+
+
+def comparison_cells(paper: dict, lqr: dict, lqg_gs: dict, lqg_jacobi: dict, case: str, key: str,
+                     estimator: str = "kalman") -> list[str]:
+    """One row's cells (:func:`columns`) for a Table 2 case, a metric and an estimator; runs are case key ->
+    metrics."""
     p = paper["table2"].get(case)
     pv = None if p is None or isinstance(p, dict) else p[paper["metrics"].index(key)]
-    runs = (lqr, lqg_gs, lqg_jacobi)
-    vals = [runs[r][f"{case}{suffix}"] for _, r, suffix in _LQG_COLUMNS]
+    runs, sfx = (lqr, lqg_gs, lqg_jacobi), ESTIMATORS[estimator][0]
+    vals = [runs[r][case + (sfx if r else "") + i] for _, r, i in _LQG_COLUMNS]
     return [_fmt(pv)] + [_fmt(None if v is None else v[key]) for v in vals]
 
 
-def comparison_markdown(paper: dict, lqr: dict, lqg_gs: dict, lqg_jacobi: dict) -> str:
-    """The four Table 2 cases, every metric, as a Markdown table with the columns of :data:`COLUMNS`."""
-    lines = ["| case | metric | " + " | ".join(COLUMNS) + " |", "|---|---|" + "---|" * len(COLUMNS)]
+def comparison_markdown(paper: dict, lqr: dict, lqg_gs: dict, lqg_jacobi: dict, estimator: str = "kalman") -> str:
+    """The four Table 2 cases, every metric, as a Markdown table with the columns of :func:`columns`."""
+    cols = columns(estimator)
+    lines = ["| case | metric | " + " | ".join(cols) + " |", "|---|---|" + "---|" * len(cols)]
     for case in CASES:
         for n, (key, label) in enumerate(ROWS):
-            cells = comparison_cells(paper, lqr, lqg_gs, lqg_jacobi, case, key)
+            cells = comparison_cells(paper, lqr, lqg_gs, lqg_jacobi, case, key, estimator)
             lines.append(f"| {case if n == 0 else ''} | {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -112,37 +124,44 @@ def _report(args) -> int:
         runs["our LQR gamma1 (GS)"] = _run(lqr1, out, args.fmu_dir)
     gs_runs = (runs["our LQR (GS)"], runs["LQG (GS)"], runs["LQG (Jacobi, d=2)"])
     for case in CASES:
-        print(f"\n== Table 2 case '{case}' (gamma = 0.1 weights)")
-        print(f"{'':28s}" + "".join(f"{c:>16s}" for c in COLUMNS))
-        for key, label in ROWS:
-            cells = comparison_cells(paper, *gs_runs, case, key)
-            print(f"{label:28s}" + "".join(f"{c:>16s}" for c in cells))
+        for estimator in ESTIMATORS:
+            print(f"\n== Table 2 case '{case}' (gamma = 0.1 weights), estimator = {estimator}")
+            print(f"{'':28s}" + "".join(f"{c:>16s}" for c in columns(estimator)))
+            for key, label in ROWS:
+                cells = comparison_cells(paper, *gs_runs, case, key, estimator)
+                print(f"{label:28s}" + "".join(f"{c:>16s}" for c in cells))
     lqr, jacobi = runs["our LQR (GS)"], runs["LQG (Jacobi, d=2)"]
     g1, l1 = runs["LQG gamma1 (Jacobi)"], runs["our LQR gamma1 (GS)"]
-    for estimator, sfx in ESTIMATORS.items():
+    for estimator, (sfx, label) in ESTIMATORS.items():
         print(f"\n== Acceptance (issue 14), estimator = {estimator}")
         for case in CASES:
             bound = max(1.5 * lqr[case]["rms_position_error"], 0.05) if lqr[case] else None
             ours = jacobi[case + sfx]["rms_position_error"] if jacobi[case + sfx] else None
             ok = ours is not None and bound is not None and ours <= bound
             print(f"Jacobi d=2, {case:10s}: rms position {_fmt(ours)} deg, bound max(1.5 x LQR, 0.05) = "
-                  f"{_fmt(bound)} deg: {'met' if ok else 'NOT met'}")
-        for name, r, s, integrals in (("LQG gamma1, Jacobi d=2", g1, sfx, (False, True)),
+                  f"{_fmt(bound)} deg: {_verdict(ok)}")
+        for name, r, s, integrals in ((f"{label} gamma1, Jacobi d=2", g1, sfx, (False, True)),
                                       ("our LQR gamma1, GS", l1, "", (False,))):
             for base, noisy in (("none", "noise"), ("tip", "tip_noise")):
                 for integral in integrals:
                     i = "_integral" if integral else ""
                     a, b = r[base + s + i], r[noisy + s + i]
                     ratio = b["rms_position_error"] / a["rms_position_error"] if a and b else None
+                    goal = f": ratio <= 2 {_verdict(ratio is not None and ratio <= 2.0)}" if r is g1 else ""
                     print(f"noise robustness, {name}, {base + i:13s}: rms position "
                           f"{_fmt(a and a['rms_position_error'])} -> {_fmt(b and b['rms_position_error'])} deg "
-                          f"with noise, ratio {_fmt(ratio)}")
+                          f"with noise, ratio {_fmt(ratio)}{goal}")
+        half = 0.5 * lqr["tip"]["rms_position_error"] if lqr["tip"] else None
+        tau_max = load_parameters().peak_torque
         for name, key in (("without", "tip"), ("with", "tip_integral")):
             m = jacobi[key.replace("tip", "tip" + sfx)]  # tip_bank, tip_bank_integral
-            print(f"payload 0.275 kg, LQG Jacobi {name} integral action: rms position "
+            ok = (m is not None and half is not None and m["rms_position_error"] <= half
+                  and m["peak_tau1"] < tau_max[0] and m["peak_tau2"] < tau_max[1])
+            print(f"payload 0.275 kg, {label} Jacobi {name} integral action: rms position "
                   f"{_fmt(m and m['rms_position_error'])} deg, rms velocity {_fmt(m and m['rms_velocity_error'])} "
                   f"deg/s, peak torques {_fmt(m and m['peak_tau1'])} / {_fmt(m and m['peak_tau2'])} N.m (our LQR: "
-                  f"{_fmt(lqr['tip']['rms_position_error'])} deg, {_fmt(lqr['tip']['rms_velocity_error'])} deg/s)")
+                  f"{_fmt(lqr['tip']['rms_position_error'])} deg, {_fmt(lqr['tip']['rms_velocity_error'])} deg/s): "
+                  f"at most half our LQR's within the torque limits {_verdict(ok)}")
     return 0
 
 

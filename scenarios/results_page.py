@@ -51,13 +51,22 @@ def _cell(result: CaseResult, metric: str, paper_row) -> str:
     return f"{ours} / {pv:g} ({result.metrics[metric] / pv:.2f}×)"
 
 
+#: More cases than this and the scenario's table has one row per case (a page-wide table stays readable).
+MAX_CASE_COLUMNS = 8
+
+
 def scenario_table(results: list[CaseResult], paper: dict | None) -> str:
-    """A Markdown table: one row per metric, one column per case; 'ours / paper (ratio)' where the paper has it."""
-    head = "| metric | " + " | ".join(r.key for r in results) + " |"
-    lines = [head, "|---" * (len(results) + 1) + "|"]
-    for m in METRICS:
-        cells = [_cell(r, m, (paper or {}).get(r.key)) for r in results]
-        lines.append(f"| {ROW_LABELS[m]}, {UNITS[m]} | " + " | ".join(cells) + " |")
+    """A Markdown table: one row per metric, one column per case (one row per case and one column per metric
+    beyond :data:`MAX_CASE_COLUMNS` cases); 'ours / paper (ratio)' where the paper has it."""
+    cells = {r.key: [_cell(r, m, (paper or {}).get(r.key)) for m in METRICS] for r in results}
+    labels = [f"{ROW_LABELS[m]}, {UNITS[m]}" for m in METRICS]
+    if len(results) > MAX_CASE_COLUMNS:
+        lines = ["| case | " + " | ".join(labels) + " |", "|---" * (len(labels) + 1) + "|"]
+        lines += [f"| {key} | " + " | ".join(row) + " |" for key, row in cells.items()]
+        return "\n".join(lines)
+    lines = ["| metric | " + " | ".join(cells) + " |", "|---" * (len(results) + 1) + "|"]
+    for i, label in enumerate(labels):
+        lines.append(f"| {label} | " + " | ".join(row[i] for row in cells.values()) + " |")
     return "\n".join(lines)
 
 
@@ -106,7 +115,10 @@ def lqg_comparison_section(runs: dict[str, tuple]) -> str:
         "Table 2's cases (γ = 0.1 weights) from the `table2`, `lqg` and `lqg_jacobi` runs above; +I: integral "
         "action; GS: Gauss-Seidel stepping; Jacobi: loop delay 2. `python -m scenarios.lqg_report` prints the "
         "same with issue 14's acceptance figures.", "",
-        comparison_markdown(paper, lqr, gs, jac), ""])
+        "One Kalman filter (`estimator = kalman`):", "",
+        comparison_markdown(paper, lqr, gs, jac, "kalman"), "",
+        "The payload bank (`estimator = payload_bank`: one filter per payload mass, cases `*_bank`):", "",
+        comparison_markdown(paper, lqr, gs, jac, "payload_bank"), ""])
 
 
 def lqg_tradeoff_section(progress: bool = False) -> str:

@@ -532,3 +532,17 @@ def test_stale_tmp_files_in_the_sweep_fmu_cache_are_removed(tmp_path, monkeypatc
     store_fmus({"plant": "plant"}, {"plant": data})
     assert (folder / "plant.fmu").read_bytes() == data
     assert not old.exists() and fresh.exists()  # a concurrent writer's file is left alone
+
+
+def test_a_closed_standard_output_is_reported_as_such_not_as_a_results_error():
+    """`python -m scenarios list | head` : the reader leaving is a broken pipe (exit 141), not a results error."""
+    r, w = os.pipe()
+    os.close(r)  # the reader is gone before anything is written
+    try:
+        proc = subprocess.run([sys.executable, "-m", "scenarios", "list"], stdout=w, stderr=subprocess.PIPE,
+                              text=True, timeout=TIMEOUT)
+    finally:
+        os.close(w)
+    assert proc.returncode == 141, proc.stderr
+    assert "broken pipe" in proc.stderr and "cannot write results" not in proc.stderr
+    assert "Traceback" not in proc.stderr and "Exception ignored" not in proc.stderr

@@ -24,6 +24,20 @@ def test_cells_show_ours_the_papers_and_their_ratio():
     assert "| rms velocity error, deg/s | 0.90 / 1.8 (0.50×) | 0.90 / unbounded | 0.90 |" in rows
 
 
+def test_a_scenario_with_many_cases_has_one_row_per_case():
+    """Beyond 8 cases the table turns: cases as rows, the six metrics as columns, the same cells."""
+    from scenarios.results_page import MAX_CASE_COLUMNS
+
+    keys = [f"c{i}" for i in range(MAX_CASE_COLUMNS + 1)]
+    rows = scenario_table([_result(k, status="ok") for k in keys[:-1]] + [_result(keys[-1], None, "unbounded")],
+                          {"c0": [6.0, 1.0, 0.1, 10.0, 0.04, 1.8]}).splitlines()
+    assert rows[0] == ("| case | peak τ1, N·m | peak τ2, N·m | peak position error, deg | peak velocity error, deg/s "
+                       "| rms position error, deg | rms velocity error, deg/s |")
+    assert len(rows) == 2 + len(keys)
+    assert rows[2].startswith("| c0 | 5.600 / 6 (0.93×) | ") and rows[2].endswith("| 0.90 / 1.8 (0.50×) |")
+    assert rows[-1] == "| c8 |" + " unbounded |" * 6
+
+
 def test_an_unbounded_run_is_shown_as_such_never_as_a_number():
     table = scenario_table([_result("none", metrics=None, status="unbounded")], None)
     assert all(line.endswith("| unbounded |") for line in table.splitlines()[2:])
