@@ -361,13 +361,27 @@ def recorded_inputs(received: np.ndarray):
 
 
 #: Recorded loops replayed (payload kg, gain_set, loop delay, integral action, tau1_max N.m): a payload and none,
-#: delay 0 and 2, both gain sets, integral action, and a shoulder limit of 5.55 N.m (below the feedforward's 5.6 N.m
-#: peak: the arm falls behind and the torque sits at the limit in most of the slew, the anti-windup active). A
-#: payload with integral action is compared in closed loop only (see the module docstring). Saturated, the law is
-#: sensitive at the 1e-9 level (the arm far off the path, the innovations large): with a 5.4 N.m limit one
-#: measurement changed by 1e-15 of itself moves the Python law's torques by up to 1e-9 of their peak.
+#: delay 0 and 2, both gain sets, integral action, and shoulder limits of 5.5 and 5.55 N.m (below the feedforward's
+#: 5.6 N.m peak: the arm falls behind and the torque sits at the limit in most of the slew, the anti-windup
+#: active). A payload with integral action is compared in closed loop only (see the module docstring).
 BANK_CASES = [(0.275, 2, 0, False, 7.0), (0.275, 1, 2, False, 7.0), (0.0, 1, 0, True, 7.0), (0.0, 2, 2, True, 7.0),
-              (0.275, 2, 0, False, 5.55), (0.0, 1, 2, True, 5.55)]
+              (0.275, 2, 0, False, 5.5), (0.0, 1, 2, True, 5.55)]
+
+
+def rounding_spread(case, received: np.ndarray) -> float:
+    """The law's own conditioning on a record: how far (relative to the peak) the Python law's torques move when
+    every measurement is multiplied by 1 + a random number in +-1e-15 (rounding-level noise; two seeds)."""
+    _, torques, law = recorded_loop(*case)
+    spread = 0.0
+    for seed in (1, 2):
+        rng = np.random.default_rng(seed)
+        replay = bank_controller(GAIN_SET_NAMES[case[1]], "200ms", case[2], case[3], law.saturation)
+        state, taus = replay.initial_state(), []
+        for k in range(N_STEPS):
+            tau, state = replay.step(state, k, received[k] * (1 + rng.uniform(-1e-15, 1e-15, 10)))
+            taus.append(tau)
+        spread = max(spread, _agreement(np.array(taus), torques))
+    return spread
 
 
 def _bank_params(gain_set, delay, integral, tau1_max) -> dict:
@@ -379,14 +393,17 @@ def _bank_params(gain_set, delay, integral, tau1_max) -> dict:
                          .format(*c))
 def test_native_bank_matches_python_on_recorded_measurements(case):
     """estimator = payload_bank: the native FMU's torques within 1e-9 of the Python FMU's peak on the recorded
-    measurements of a closed loop (measured: at most 3e-10, with saturation; 2e-11 without)."""
+    measurements of a closed loop, or within 10 times the Python law's own spread under rounding-level noise where
+    that is larger (the payload saturated: the law moves by up to 3e-9 under such noise, native - Python 2e-9;
+    the other cases 1e-14 to 9e-11)."""
     payload, gain_set, delay, integral, tau1_max = case
     received, torques, _ = recorded_loop(*case)
     params = _bank_params(gain_set, delay, integral, tau1_max)
     _, ref = run_fmpy(built_fmus()["controller_lqg"], N_STEPS, recorded_inputs(received), params)
     _, got = run_fmpy(native_fmus()["controller_lqg"], N_STEPS, recorded_inputs(received), params)
     np.testing.assert_array_equal(ref[:N_STEPS], torques)  # the Python FMU is the library law
-    assert _agreement(got, ref) <= 1e-9, (case, _agreement(got, ref))
+    bound = max(1e-9, 10 * rounding_spread(case, received))
+    assert _agreement(got, ref) <= bound, (case, _agreement(got, ref), bound)
     saturated = (np.abs(ref[:, 0]) == tau1_max).sum()
     assert (saturated > 1000) == (tau1_max < 5.6), saturated  # the limit acts where it is below the peak
 
@@ -418,6 +435,39 @@ def test_native_bank_takes_the_posterior_decisions_of_python():
 SATURATED_GAMMA1 = {"gain_set": "gamma1", "tau1_max": 5.55}
 
 
+class _RoundingNoise:
+    """A law whose measurements are multiplied by 1 + a random number in +-1e-15 (for simulate_lqg)."""
+
+    def __init__(self, law, seed: int):
+        self.law, self.rng = law, np.random.default_rng(seed)
+
+    def __getattr__(self, name):
+        return getattr(self.law, name)
+
+    def step(self, state, k, measurements):
+        return self.law.step(state, k, np.asarray(measurements) * (1 + self.rng.uniform(-1e-15, 1e-15, 10)))
+
+
+@functools.cache
+def closed_loop_spread(payload_mass: float, noise: bool, gain_set: str, delay: int, integral: bool,
+                       tau1_max: float) -> float:
+    """The closed loop's own conditioning: how far (relative to the peak) the library loop's torques move when
+    every measurement is multiplied by 1 + a random number in +-1e-15 (two seeds)."""
+    from flexarm.model import ArmModel
+    from flexarm.parameters import load_parameters
+    from flexarm.sensors import SensorBank, SensorSettings
+
+    params = load_parameters()
+    model = ArmModel(params.with_payload(payload_mass))
+    runs = []
+    for seed in (None, 1, 2):
+        law = bank_controller(gain_set, "200ms", delay, integral, (tau1_max, params.peak_torque[1]))
+        law.history = None
+        sensors = SensorBank(SensorSettings(noise_enabled=True, noise_seed=NOISE_SEED)) if noise else None
+        runs.append(simulate_lqg(model, law if seed is None else _RoundingNoise(law, seed), sensors=sensors)[1])
+    return max(_agreement(r, runs[0]) for r in runs[1:])
+
+
 @pytest.mark.parametrize("scenario, keys, controller", [
     ("lqg", ("noise_bank", "tip_noise_bank", "noise_bank_integral", "tip_noise_bank_integral"), {}),
     ("lqg_jacobi", ("noise_bank", "tip_bank", "tip_noise_bank", "tip_noise_bank_integral"), {}),
@@ -427,16 +477,25 @@ SATURATED_GAMMA1 = {"gain_set": "gamma1", "tau1_max": 5.55}
 def test_closed_loop_native_bank_equals_python(tmp_path, scenario, keys, controller):
     """Plant + sensors + controller_lqg with estimator = payload_bank, native set against Python set, with and
     without the 0.275 kg payload, noise, integral action, gamma0.1 and gamma1 with tau1 <= 5.55 N.m (saturated in
-    most of the slew): every signal within 1e-9 of its peak (measured: at most 5.8e-10, the torques of the payload
-    with integral action; about 2e-11 without a payload and saturation)."""
+    most of the slew): every signal within 1e-9 of its peak, or within 10 times the loop's own spread under
+    rounding-level noise where that is larger (measured: the torques of the payload with integral action up to
+    1.7e-9, the loop's spread there 1e-9 and more; about 2e-11 without a payload)."""
+    from scenarios.config import load_scenario
+
     python, native = built_fmus(), native_fmus()
     ref = _run_scenario(scenario, python, tmp_path / "python", keys, controller)
     got = _run_scenario(scenario, native, tmp_path / "native", keys, controller)
     assert set(ref) == set(got) == set(keys)
+    cases = {c.key: c.parameters for c in load_scenario(scenario).cases}
     for key in keys:
+        c = {**cases[key]["controller"], **controller}
+        spread = closed_loop_spread(cases[key].get("plant", {}).get("payload_mass", 0.0),
+                                    cases[key]["sensors"]["noise_enabled"], c["gain_set"], c["loop_delay_samples"],
+                                    c["integral_action"], c.get("tau1_max", 7.0))
+        bound = max(1e-9, 10 * spread)
         for name, r in ref[key].items():
             r, g = np.asarray(r), np.asarray(got[key][name])
-            assert np.abs(g - r).max() <= max(1e-9 * np.abs(r).max(), 1e-12), (scenario, key, name)
+            assert np.abs(g - r).max() <= max(bound * np.abs(r).max(), 1e-12), (scenario, key, name, bound)
         saturated = (np.abs(np.asarray(got[key]["controller.tau1"])) == controller.get("tau1_max", 7.0)).sum()
         assert (saturated > 1000) == ("tau1_max" in controller), (key, saturated)
 

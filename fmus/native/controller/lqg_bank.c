@@ -8,7 +8,7 @@
  *   2. the log posterior: minus its log-sum-exp, floored at log_floor, minus its log-sum-exp again (a left fold of
  *      NumPy's logaddexp, as np.logaddexp.reduce); p = exp(log_p)
  *   3. p_0 < reseed_below: the quiet filter takes the unloaded identification filter's estimates
- *   4. torque: tau = sat(tau_ff + sum_f w_f (-K_f x_now_f - K_xi,f xi)), w = (0, p_1 .. p_(n-1), p_0): the quiet
+ *   4. torque: tau = sat(tau_ff - sum_f w_f (K_f x_now_f + K_xi,f xi)), w = (0, p_1 .. p_(n-1), p_0): the quiet
  *      filter stands in for the unloaded model
  *   5. integral action: xi += dt C_q sum_f w_f x_now_f, only in a sample whose torque does not saturate
  * The drift d_j = psi(point of j) delta_acceleration_j is formed here at instantiation, as
@@ -110,16 +110,12 @@ static double log_sum_exp(const double *v, int n)
     return acc;
 }
 
-/* e' S e for S (10 x 10, row-major) as NumPy's e @ S @ e: (e' S) first, compensated sums. */
+/* e' S e for S (10 x 10, row-major) as the law's einsum of e and S e: S e first, compensated sums. */
 static double quadratic_form(const double *s, const double e[N_MEAS])
 {
-    double es[N_MEAS], out;
-    for (int c = 0; c < N_MEAS; c++) {
-        double col[N_MEAS];
-        for (int r = 0; r < N_MEAS; r++) col[r] = s[r * N_MEAS + c];
-        lqg_mat_vec(col, 1, N_MEAS, N_MEAS, e, &es[c]);
-    }
-    lqg_mat_vec(es, 1, N_MEAS, N_MEAS, e, &out);
+    double se[N_MEAS], out;
+    lqg_mat_vec(s, N_MEAS, N_MEAS, N_MEAS, e, se);
+    lqg_mat_vec(se, 1, N_MEAS, N_MEAS, e, &out);
     return out;
 }
 
@@ -180,24 +176,26 @@ void bank_step(const LqgData *d, const LqgState *s, long long k, const double m[
     const int i_k = b->index[clamp(d, k)];
     const double *slew = k < d->n_steps ? d->feedforward + 2 * k : NULL; /* zero feedforward in the hold */
     const double ff[2] = {slew ? slew[0] : 0.0, slew ? slew[1] : 0.0};
-    double fb[2] = {0.0, 0.0}, x_sel[N_STATE] = {0.0}, free_tau[2];
-    for (int f = 0; f < nf; f++) {
-        if (!(w[f] > 0.0)) continue;
+    double u[2][MAX_FILTERS], x_t[N_STATE][MAX_FILTERS], fb[2], x_sel[N_STATE], free_tau[2];
+    for (int f = 0; f < nf; f++) { /* each model's feedback on its own estimate */
         const Design *g = &b->filters[f];
-        double kx[2], kxi[2] = {0.0, 0.0};
+        double kx[2], kxi[2];
         if (d->integral) {
             const double *ka = g->k_integral + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_AUG;
             lqg_mat_vec(ka, 2, N_STATE, N_AUG, x_now[f], kx);
             lqg_mat_vec(ka + N_STATE, 2, 2, N_AUG, s->xi, kxi);
+            for (int r = 0; r < 2; r++) u[r][f] = kx[r] + kxi[r];
         } else {
             lqg_mat_vec(g->k + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_STATE, 2, N_STATE, N_STATE, x_now[f], kx);
+            for (int r = 0; r < 2; r++) u[r][f] = kx[r];
         }
-        for (int r = 0; r < 2; r++) fb[r] -= w[f] * (kx[r] + kxi[r]);
-        for (int r = 0; r < N_STATE; r++) x_sel[r] += w[f] * x_now[f][r];
+        for (int r = 0; r < N_STATE; r++) x_t[r][f] = x_now[f][r];
     }
+    lqg_mat_vec(u[0], 2, nf, MAX_FILTERS, w, fb);                 /* weights @ u */
+    lqg_mat_vec(x_t[0], N_STATE, nf, MAX_FILTERS, w, x_sel);       /* weights @ x_now */
     int saturated = 0;
     for (int r = 0; r < 2; r++) {
-        free_tau[r] = ff[r] + fb[r];
+        free_tau[r] = ff[r] - fb[r];
         tau[r] = fmin(fmax(free_tau[r], -limit[r]), limit[r]);
         saturated |= tau[r] != free_tau[r];
     }
