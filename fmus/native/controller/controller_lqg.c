@@ -133,14 +133,35 @@ fail:
 /* y = A x for A (rows x cols, row stride `stride`). Compensated (Neumaier) sums: the filter's lightly damped
    modes accumulate rounding over thousands of samples, and nearly exact dot products keep the native law as
    close to the exact one as NumPy's (BLAS) is. */
+/* sum += term, carry += the exact rounding error of that addition (Knuth's TwoSum: no branch; the error is the
+   one Neumaier's test-and-subtract gives, bit for bit, both being exact). */
+#define NEUMAIER(sum, carry, term)                                         \
+    do {                                                                   \
+        const double t_ = (sum) + (term), b_ = t_ - (sum);                 \
+        (carry) += ((sum) - (t_ - b_)) + ((term) - b_);                    \
+        (sum) = t_;                                                        \
+    } while (0)
+
 void lqg_mat_vec(const double *a, int rows, int cols, int stride, const double *x, double *y)
 {
-    for (int r = 0; r < rows; r++) {
+    int r = 0;
+    for (; r + 4 <= rows; r += 4) { /* four rows at a time: four independent chains (the same sums, faster) */
+        const double *a0 = a + r * stride, *a1 = a0 + stride, *a2 = a1 + stride, *a3 = a2 + stride;
+        double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0, c0 = 0.0, c1 = 0.0, c2 = 0.0, c3 = 0.0;
+        for (int c = 0; c < cols; c++) {
+            const double t0 = a0[c] * x[c], t1 = a1[c] * x[c], t2 = a2[c] * x[c], t3 = a3[c] * x[c];
+            NEUMAIER(s0, c0, t0);
+            NEUMAIER(s1, c1, t1);
+            NEUMAIER(s2, c2, t2);
+            NEUMAIER(s3, c3, t3);
+        }
+        y[r] = s0 + c0, y[r + 1] = s1 + c1, y[r + 2] = s2 + c2, y[r + 3] = s3 + c3;
+    }
+    for (; r < rows; r++) {
         double sum = 0.0, carry = 0.0;
         for (int c = 0; c < cols; c++) {
-            double term = a[r * stride + c] * x[c], t = sum + term;
-            carry += fabs(sum) >= fabs(term) ? (sum - t) + term : (term - t) + sum;
-            sum = t;
+            const double term = a[r * stride + c] * x[c];
+            NEUMAIER(sum, carry, term);
         }
         y[r] = sum + carry;
     }
