@@ -106,40 +106,30 @@ def main(argv=None) -> int:
         return 1
 
 
-def _report(args) -> int:
-    paper = tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
-    with tempfile.TemporaryDirectory() as tmp:
-        out = args.out or Path(tmp)
-        lqg, jac = load_scenario("lqg"), load_scenario("lqg_jacobi")
-        runs = {
-            "our LQR (GS)": _run(load_scenario("table2"), out, args.fmu_dir),
-            "LQG (GS)": _run(lqg, out, args.fmu_dir),
-            "LQG (Jacobi, d=2)": _run(jac, out, args.fmu_dir),
-        }
-        t1 = _with_gain_set(jac, "gamma1")
-        t1.name = "lqg_jacobi_gamma1"
-        runs["LQG gamma1 (Jacobi)"] = _run(t1, out, args.fmu_dir)
-        lqr1 = _with_gain_set(load_scenario("table2"), "gamma1")
-        lqr1.name = "table1_lqr"
-        runs["our LQR gamma1 (GS)"] = _run(lqr1, out, args.fmu_dir)
-    gs_runs = (runs["our LQR (GS)"], runs["LQG (GS)"], runs["LQG (Jacobi, d=2)"])
-    for case in CASES:
-        for estimator in ESTIMATORS:
-            print(f"\n== Table 2 case '{case}' (gamma = 0.1 weights), estimator = {estimator}")
-            print(f"{'':28s}" + "".join(f"{c:>16s}" for c in columns(estimator)))
-            for key, label in ROWS:
-                cells = comparison_cells(paper, *gs_runs, case, key, estimator)
-                print(f"{label:28s}" + "".join(f"{c:>16s}" for c in cells))
-    lqr, jacobi = runs["our LQR (GS)"], runs["LQG (Jacobi, d=2)"]
-    g1, l1 = runs["LQG gamma1 (Jacobi)"], runs["our LQR gamma1 (GS)"]
+def gamma1_runs(out: Path, fmu_dir: Path) -> tuple[dict, dict]:
+    """The noise-robustness runs with Table 1's weights: ``lqg_jacobi`` (both estimators) and our LQR
+    (``table2``), each case key -> metrics."""
+    t1 = _with_gain_set(load_scenario("lqg_jacobi"), "gamma1")
+    t1.name = "lqg_jacobi_gamma1"
+    lqr1 = _with_gain_set(load_scenario("table2"), "gamma1")
+    lqr1.name = "table1_lqr"
+    return _run(t1, out, fmu_dir), _run(lqr1, out, fmu_dir)
+
+
+def acceptance_lines(lqr: dict, jacobi: dict, g1: dict, l1: dict) -> list[str]:
+    """Issue 14's acceptance figures per estimator, with verdicts. Runs (case key -> metrics): our γ = 0.1
+    LQR (``table2``), ``lqg_jacobi``, and the γ = 1 runs of :func:`gamma1_runs`."""
+    lines = []
+    tau_max = load_parameters().peak_torque
+    half = 0.5 * lqr["tip"]["rms_position_error"] if lqr["tip"] else None
     for estimator, (sfx, label) in ESTIMATORS.items():
-        print(f"\n== Acceptance (issue 14), estimator = {estimator}")
+        lines.append(f"estimator = {estimator}:")
         for case in CASES:
             bound = max(1.5 * lqr[case]["rms_position_error"], 0.05) if lqr[case] else None
             ours = jacobi[case + sfx]["rms_position_error"] if jacobi[case + sfx] else None
             ok = ours is not None and bound is not None and ours <= bound
-            print(f"Jacobi d=2, {case:10s}: rms position {_fmt(ours)} deg, bound max(1.5 x LQR, 0.05) = "
-                  f"{_fmt(bound)} deg: {_verdict(ok)}")
+            lines.append(f"  Jacobi d=2, {case:10s}: rms position {_fmt(ours)} deg, bound max(1.5 x LQR, 0.05) = "
+                         f"{_fmt(bound)} deg: {_verdict(ok)}")
         for name, r, s, integrals in ((f"{label} gamma1, Jacobi d=2", g1, sfx, (False, True)),
                                       ("our LQR gamma1, GS", l1, "", (False,))):
             for base, noisy in (("none", "noise"), ("tip", "tip_noise")):
@@ -148,22 +138,38 @@ def _report(args) -> int:
                     a, b = r[base + s + i], r[noisy + s + i]
                     ratio = b["rms_position_error"] / a["rms_position_error"] if a and b else None
                     goal = f": ratio <= 2 {_verdict(ratio is not None and ratio <= 2.0)}" if r is g1 else ""
-                    print(f"noise robustness, {name}, {base + i:13s}: rms position "
-                          f"{_fmt(a and a['rms_position_error'])} -> {_fmt(b and b['rms_position_error'])} deg "
-                          f"with noise, ratio {_fmt(ratio)}{goal}")
-        half = 0.5 * lqr["tip"]["rms_position_error"] if lqr["tip"] else None
-        tau_max = load_parameters().peak_torque
+                    lines.append(f"  noise robustness, {name}, {base + i:13s}: rms position "
+                                 f"{_fmt(a and a['rms_position_error'])} -> {_fmt(b and b['rms_position_error'])} "
+                                 f"deg with noise, ratio {_fmt(ratio)}{goal}")
         for name, key in (("without", "tip"), ("with", "tip_integral")):
             m = jacobi[key.replace("tip", "tip" + sfx)]  # tip_bank, tip_bank_integral
             ok = (m is not None and half is not None and m["rms_position_error"] <= half
                   and m["peak_tau1"] < tau_max[0] and m["peak_tau2"] < tau_max[1])
-            print(f"payload 0.275 kg, {label} Jacobi {name} integral action: rms position "
-                  f"{_fmt(m and m['rms_position_error'])} deg, rms velocity {_fmt(m and m['rms_velocity_error'])} "
-                  f"deg/s, peak torques {_fmt(m and m['peak_tau1'])} / {_fmt(m and m['peak_tau2'])} N.m (our LQR: "
-                  f"{_fmt(lqr['tip']['rms_position_error'])} deg, {_fmt(lqr['tip']['rms_velocity_error'])} deg/s): "
-                  f"at most half our LQR's within the torque limits {_verdict(ok)}")
-    return 0
+            lines.append(
+                f"  payload 0.275 kg, {label} Jacobi {name} integral action: rms position "
+                f"{_fmt(m and m['rms_position_error'])} deg, rms velocity {_fmt(m and m['rms_velocity_error'])} "
+                f"deg/s, peak torques {_fmt(m and m['peak_tau1'])} / {_fmt(m and m['peak_tau2'])} N.m (our LQR: "
+                f"{_fmt(lqr['tip']['rms_position_error'])} deg, {_fmt(lqr['tip']['rms_velocity_error'])} deg/s): "
+                f"at most half our LQR's within the torque limits {_verdict(ok)}")
+    return lines
 
+
+def _report(args) -> int:
+    paper = tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
+    with tempfile.TemporaryDirectory() as tmp:
+        out = args.out or Path(tmp)
+        lqr, gs, jac = (_run(load_scenario(n), out, args.fmu_dir) for n in ("table2", "lqg", "lqg_jacobi"))
+        g1, l1 = gamma1_runs(out, args.fmu_dir)
+    for case in CASES:
+        for estimator in ESTIMATORS:
+            print(f"\n== Table 2 case '{case}' (gamma = 0.1 weights), estimator = {estimator}")
+            print(f"{'':28s}" + "".join(f"{c:>16s}" for c in columns(estimator)))
+            for key, label in ROWS:
+                cells = comparison_cells(paper, lqr, gs, jac, case, key, estimator)
+                print(f"{label:28s}" + "".join(f"{c:>16s}" for c in cells))
+    print("\n== Acceptance (issue 14)")
+    print("\n".join(acceptance_lines(lqr, jac, g1, l1)))
+    return 0
 
 if __name__ == "__main__":
     raise SystemExit(main())

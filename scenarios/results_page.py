@@ -121,6 +121,26 @@ def lqg_comparison_section(runs: dict[str, tuple]) -> str:
         comparison_markdown(paper, lqr, gs, jac, "payload_bank"), ""])
 
 
+def lqg_acceptance_section(runs: dict[str, tuple], fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> str:
+    """Issue 14's acceptance figures per estimator (:func:`scenarios.lqg_report.acceptance_lines`), from the
+    page's runs and the γ = 1 runs of the noise-robustness goal ('' without the page's runs)."""
+    from .lqg_report import acceptance_lines, gamma1_runs
+
+    if not {"table2", "lqg_jacobi"} <= set(runs):
+        return ""
+    if progress:
+        print("results page: running lqg_jacobi and table2 with gamma1 (noise robustness)", flush=True)
+    lqr, jac = ({r.key: r.metrics for r in runs[name][1]} for name in ("table2", "lqg_jacobi"))
+    with tempfile.TemporaryDirectory() as tmp:
+        g1, l1 = gamma1_runs(Path(tmp), fmu_dir)
+    return "\n".join([
+        "## LQG: issue 14's acceptance figures", "",
+        "Jacobi stepping with delay 2 (`lqg_jacobi` above) against our Gauss-Seidel γ = 0.1 LQR (`table2`); noise "
+        "robustness with Table 1's weights (γ = 1: `lqg_jacobi` and `table2` run again with `gain_set = gamma1`); "
+        "the 0.275 kg payload against our LQR. `python -m scenarios.lqg_report` prints the same.", "",
+        "```", *acceptance_lines(lqr, jac, g1, l1), "```", ""])
+
+
 def lqg_tradeoff_section(progress: bool = False) -> str:
     """The LQG process-noise trade-off (:mod:`flexarm.lqg_tradeoff`) as a page section."""
     from flexarm.lqg_tradeoff import LOOP_DELAY, tradeoff_markdown, tradeoff_rows
@@ -178,7 +198,8 @@ def expected_files(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> d
     """Path -> the text it must hold after a fresh run."""
     chain = verify_data_chain()
     runs = run_page_scenarios(fmu_dir, progress)
-    page, block = render(runs, chain, (lqg_comparison_section(runs), lqg_tradeoff_section(progress)))
+    page, block = render(runs, chain, (lqg_comparison_section(runs), lqg_acceptance_section(runs, fmu_dir, progress),
+                                       lqg_tradeoff_section(progress)))
     return {RESULTS_PAGE: page, README: splice_readme(README.read_text(), block)}
 
 

@@ -138,3 +138,28 @@ def test_lqg_report_refuses_to_print_a_run_that_ended_with_an_fmu_error(monkeypa
     captured = capsys.readouterr()
     assert "error: scenario table2 had FMU errors: none: plant: fmi2DoStep returned fmi2Error" in captured.err
     assert "unbounded" not in captured.out and "==" not in captured.out
+
+
+def test_acceptance_lines_give_verdicts_and_never_a_number_for_an_unbounded_run():
+    """The report's verdicts follow the issue's rules: bound max(1.5 x LQR, 0.05 deg), noise ratio <= 2,
+    payload at most half our LQR's within the torque limits; an unbounded run is shown as such, not met."""
+    from scenarios.lqg_report import acceptance_lines
+
+    def m(rms, tau1=5.0, tau2=1.0):
+        return {"rms_position_error": rms, "rms_velocity_error": 10.0, "peak_tau1": tau1, "peak_tau2": tau2}
+
+    lqr = {"none": m(0.002), "noise": m(0.012), "tip": m(3.0), "tip_noise": m(3.0)}
+    jac = {"none": m(0.001), "noise": m(0.06), "tip": m(4.4), "tip_noise": None, "tip_integral": m(1.4),
+           "none_bank": m(0.003), "noise_bank": m(0.004), "tip_bank": m(2.2), "tip_noise_bank": m(2.2),
+           "tip_bank_integral": m(1.2, tau1=7.0)}
+    quiet = {"none": m(0.001), "noise": m(0.0025), "tip": m(3.0), "tip_noise": m(3.0)}  # ratios 2.5 and 1
+    g1 = {f"{case}{sfx}{i}": v for case, v in quiet.items() for sfx in ("", "_bank") for i in ("", "_integral")}
+    lines = "\n".join(acceptance_lines(lqr, jac, g1, lqr))
+    kalman, bank = lines.split("estimator = payload_bank:")
+    assert "noise     : rms position 0.06 deg, bound max(1.5 x LQR, 0.05) = 0.05 deg: NOT met" in kalman
+    assert "tip_noise : rms position unbounded deg, bound max(1.5 x LQR, 0.05) = 4.5 deg: NOT met" in kalman
+    assert "none         : rms position 0.001 -> 0.0025 deg with noise, ratio 2.5: ratio <= 2 NOT met" in kalman
+    assert "tip          : rms position 3 -> 3 deg with noise, ratio 1: ratio <= 2 met" in kalman
+    assert "with integral action: rms position 1.4 deg" in kalman and kalman.rstrip().endswith("limits met")
+    assert "ratio 2.5" in bank  # the same gamma1 figures here: the verdict is the ratio's, not the estimator's
+    assert bank.rstrip().endswith("within the torque limits NOT met")  # 1.2 deg but tau1 at its 7 N.m limit
