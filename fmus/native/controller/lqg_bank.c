@@ -163,7 +163,8 @@ void bank_step(const LqgData *d, const LqgState *s, long long k, const double m[
     double *log_p = next->log_p, p[MAX_FILTERS], w[MAX_FILTERS]; /* 2 */
     double lse = log_sum_exp(log_p, nm);
     for (int i = 0; i < nm; i++) log_p[i] -= lse;
-    for (int i = 0; i < nm; i++) log_p[i] = log_p[i] > b->log_floor ? log_p[i] : b->log_floor;
+    for (int i = 0; i < nm; i++) /* np.maximum: a NaN stays NaN */
+        log_p[i] = isnan(log_p[i]) || log_p[i] > b->log_floor ? log_p[i] : b->log_floor;
     lse = log_sum_exp(log_p, nm);
     for (int i = 0; i < nm; i++) log_p[i] -= lse, p[i] = flexarm_exp(log_p[i]);
     if (p[0] < b->reseed_below) { /* 3: the unloaded arm is ruled out */
