@@ -4,8 +4,8 @@ Prints, in one run:
 
 1. the cost per 1 ms sample (fmi2SetReal of the ten measurements, fmi2GetReal of the torques, which
    evaluates the sample, and fmi2DoStep, called through ctypes) of the native FMU with ``estimator`` 1
-   (kalman) and 2 (payload_bank), and of the Python FMU with each, on the desired measurements of the
-   committed trajectory (no noise: the cost does not depend on the values);
+   (kalman) and 2 (payload_bank), of the Python FMU with each, and of the library law alone (warm), on the
+   desired measurements of the committed trajectory (no noise: the cost does not depend on the values);
 2. the time of fmi2Instantiate (reading and checking the resources; the bank's drift is formed there);
 3. the FMU sizes (linux64 only here, and the bank's resource alone).
 
@@ -28,6 +28,7 @@ from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 from flexarm.lqg import lqg_controller
+from flexarm.lqg_bank import bank_controller
 from fmus.native.build_native import build_native_fmus
 from fmus.native.lqg_resources import bank_resource
 
@@ -74,6 +75,19 @@ def sample_cost(fmu: Path, folder: Path, measurements: np.ndarray, estimator: in
     return best, t_inst
 
 
+def library_cost(estimator: int, measurements: np.ndarray, repeats: int) -> float:
+    """Best wall time per sample (s) of the library law (:mod:`flexarm.lqg`, :mod:`flexarm.lqg_bank`), warm."""
+    law = (lqg_controller if estimator == 1 else bank_controller)()
+    best = float("inf")
+    for _ in range(repeats):
+        state = law.initial_state()
+        t0 = time.perf_counter()
+        for k, m in enumerate(measurements):
+            _, state = law.step(state, k, m)
+        best = min(best, (time.perf_counter() - t0) / len(measurements))
+    return best
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=2000, help="samples per timing")
@@ -96,8 +110,9 @@ def main() -> None:
         for estimator, name in ((1, "kalman"), (2, "payload_bank")):
             t_nat, t_inst = sample_cost(native, tmp / "native_u", measurements, estimator, args.repeats)
             t_py, _ = sample_cost(python["controller_lqg"], tmp / "python_u", measurements[:500], estimator, 2)
+            t_lib = library_cost(estimator, measurements[:500], 2)
             print(f"  estimator = {estimator} ({name}):  native {t_nat * 1e6:8.1f} us   Python FMU {t_py * 1e6:8.1f} us"
-                  f"   ({t_py / t_nat:.0f}x)")
+                  f"   ({t_py / t_nat:.0f}x)   library law {t_lib * 1e6:8.1f} us")
         print(f"native fmi2Instantiate (resources read and checked, the bank's drift formed): {t_inst * 1e3:.0f} ms")
 
 
