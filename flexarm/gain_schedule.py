@@ -218,14 +218,8 @@ class GainSchedule:
                       R=self.R, residuals=self.residuals, rho_full=self.rho_full, rho_reduced=self.rho_reduced,
                       rho_implemented=self.rho_implemented, max_real_full=self.max_real_full,
                       max_real_reduced=self.max_real_reduced)
-        npz_path = Path(f"{stem}.npz")
-        write_atomic(npz_path, lambda f: np.savez(f, **arrays))
-        meta = dict(self.metadata)
-        meta.update(format=FILE_FORMAT, name=self.name, schedule=self.schedule,
-                    npz_file=npz_path.name, npz_sha256=sha256_file(npz_path))
-        text = json.dumps(meta, indent=2, sort_keys=False) + "\n"
-        write_atomic(Path(f"{stem}.json"), text)
-        return npz_path
+        return write_design_files(stem, arrays, dict(self.metadata, format=FILE_FORMAT, name=self.name,
+                                                     schedule=self.schedule), compressed=False)
 
     @classmethod
     def load(cls, name: str, schedule: str = "200ms", directory=None) -> GainSchedule:
@@ -340,6 +334,28 @@ def relative_path(path) -> str:
 def _resolve(recorded: str) -> Path:
     p = Path(recorded)
     return p if p.is_absolute() else SOURCE_ROOT / p
+
+
+def write_design_files(stem, arrays: dict, metadata: dict, compressed: bool = True) -> Path:
+    """Write a design file pair atomically: ``<stem>.npz`` (the arrays), then ``<stem>.json`` (the metadata
+    plus the npz's name and SHA-256, which :func:`read_design_metadata` checks); returns the npz path.
+
+    Parameters
+    ----------
+    stem : path-like
+        The files' path without suffix (names may contain dots).
+    arrays : dict of str to ndarray
+    metadata : dict
+        JSON-serialisable.
+    compressed : bool
+        ``np.savez_compressed`` or ``np.savez``.
+    """
+    npz_path = Path(f"{stem}.npz")
+    save = np.savez_compressed if compressed else np.savez
+    write_atomic(npz_path, lambda f: save(f, **arrays))
+    meta = dict(metadata, npz_file=npz_path.name, npz_sha256=sha256_file(npz_path))
+    write_atomic(Path(f"{stem}.json"), json.dumps(meta, indent=2) + "\n")
+    return npz_path
 
 
 def read_design_metadata(json_path, data_path) -> dict:

@@ -37,7 +37,6 @@ the integrators ξ integrate the weighted joint-angle estimate (conditional inte
 from __future__ import annotations
 
 import functools
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -51,13 +50,13 @@ from .gain_schedule import (
     desired_states,
     read_design_metadata,
     sample_time,
+    write_design_files,
 )
 from .lqg import LqgController, LqgError, check_loop_delay, check_sample_input, check_saturation
 from .lqg_design import DEFAULT_LQG_DIR, ELEMENT_FORCE_SIGMA, MOTOR_TORQUE_SIGMA, LqgDesign, design_lqg
 from .lqr_design import scaling_transform, zoh
 from .model import N_STATE, ArmModel, N
 from .parameters import ArmParameters
-from .provenance import sha256_file, write_atomic
 
 #: Payload masses of the identification filters, kg.
 DEFAULT_MASSES = (0.0, 0.025, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4)
@@ -160,16 +159,11 @@ class PayloadBank:
         Each array is stacked over the filters (identification filters by mass, the quiet filter last).
         """
         directory = Path(directory) if directory is not None else DEFAULT_LQG_DIR
-        npz_path = directory / f"bank_{self.schedule}.npz"
         arrays = {name: np.array([getattr(b.design, name) for b in self.filters]) for name in BANK_DESIGN_ARRAYS}
         arrays.update(masses=self.masses, **{name: np.array([getattr(b, name) for b in self.filters])
                                              for name in ("psi", "delta_acceleration", "S_inv", "log_det_S")})
-        write_atomic(npz_path, lambda f: np.savez_compressed(f, **arrays))
-        meta = dict(self.metadata)
-        meta.update(format=BANK_FILE_FORMAT, schedule=self.schedule, npz_file=npz_path.name,
-                    npz_sha256=sha256_file(npz_path))
-        write_atomic(directory / f"bank_{self.schedule}.json", json.dumps(meta, indent=2) + "\n")
-        return npz_path
+        return write_design_files(directory / f"bank_{self.schedule}", arrays,
+                                  dict(self.metadata, format=BANK_FILE_FORMAT, schedule=self.schedule))
 
     @classmethod
     def load(cls, schedule: str = "200ms", directory=None) -> PayloadBank:

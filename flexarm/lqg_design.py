@@ -45,7 +45,6 @@ and data-chain check as for the gain schedules), written by
 from __future__ import annotations
 
 import datetime as _dt
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -62,12 +61,13 @@ from .gain_schedule import (
     read_design_metadata,
     relative_path,
     schedule_index,
+    write_design_files,
 )
 from .gain_sets import WEIGHT_NAMES, GainError, state_weight
 from .lqr_design import R_PAPER, scaling_transform, zoh
 from .model import N_STATE, ArmModel, N, joint_angles, joint_velocities, strain_gauge_angles
 from .parameters import DATA_DIR
-from .provenance import git_commit, sha256_file, write_atomic
+from .provenance import git_commit
 from .sensors import SensorSettings
 
 #: Folder of the committed LQG design files.
@@ -325,14 +325,9 @@ class LqgDesign:
     def save(self, directory=None) -> Path:
         """Write ``lqg_<schedule>.npz`` and ``.json`` atomically; returns the npz path."""
         directory = Path(directory) if directory is not None else DEFAULT_LQG_DIR
-        npz_path = directory / f"lqg_{self.schedule}.npz"
         arrays = {name: getattr(self, name) for name in self.ARRAYS}
-        write_atomic(npz_path, lambda f: np.savez_compressed(f, **arrays))
-        meta = dict(self.metadata)
-        meta.update(format=FILE_FORMAT, schedule=self.schedule, npz_file=npz_path.name,
-                    npz_sha256=sha256_file(npz_path))
-        write_atomic(directory / f"lqg_{self.schedule}.json", json.dumps(meta, indent=2) + "\n")
-        return npz_path
+        return write_design_files(directory / f"lqg_{self.schedule}", arrays,
+                                  dict(self.metadata, format=FILE_FORMAT, schedule=self.schedule))
 
     @classmethod
     def load(cls, schedule: str = "200ms", directory=None) -> LqgDesign:
