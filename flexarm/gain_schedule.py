@@ -239,13 +239,7 @@ class GainSchedule:
         if schedule not in SCHEDULES:
             raise GainError(f"schedule: {schedule!r} is not one of {tuple(SCHEDULES)}")
         directory = Path(directory) if directory is not None else DEFAULT_GAIN_DIR
-        stem = directory / f"{name}_{schedule}"
-        npz_path, json_path = Path(f"{stem}.npz"), Path(f"{stem}.json")
-        if not npz_path.exists():
-            raise GainError(f"gain file {npz_path} does not exist; run `{REGENERATE_COMMAND}`")
-        meta = read_design_metadata(json_path, npz_path)
-        with np.load(npz_path) as d:
-            arrays = {k: d[k] for k in d.files}
+        meta, arrays = read_design_files(directory / f"{name}_{schedule}", "gain file")
         return cls(name=name, schedule=schedule, metadata=meta, **arrays)
 
 
@@ -356,6 +350,31 @@ def write_design_files(stem, arrays: dict, metadata: dict, compressed: bool = Tr
     meta = dict(metadata, npz_file=npz_path.name, npz_sha256=sha256_file(npz_path))
     write_atomic(Path(f"{stem}.json"), json.dumps(meta, indent=2) + "\n")
     return npz_path
+
+
+def read_design_files(stem, what: str) -> tuple[dict, dict]:
+    """Read a design file pair written by :func:`write_design_files`: (metadata, arrays by name).
+
+    Parameters
+    ----------
+    stem : path-like
+        The files' path without suffix.
+    what : str
+        What the file is, for the message (``gain file``, ``LQG design file``, ...).
+
+    Raises
+    ------
+    GainError
+        If ``<stem>.npz`` does not exist (naming :data:`REGENERATE_COMMAND`).
+    StaleDataError
+        As :func:`read_design_metadata`.
+    """
+    npz_path = Path(f"{stem}.npz")
+    if not npz_path.exists():
+        raise GainError(f"{what} {npz_path} does not exist; run `{REGENERATE_COMMAND}`")
+    meta = read_design_metadata(Path(f"{stem}.json"), npz_path)
+    with np.load(npz_path) as d:
+        return meta, {k: d[k] for k in d.files}
 
 
 def read_design_metadata(json_path, data_path) -> dict:

@@ -43,12 +43,11 @@ from pathlib import Path
 import numpy as np
 
 from .gain_schedule import (
-    REGENERATE_COMMAND,
     GainError,
     as_trajectory,
     default_trajectory_path,
     desired_states,
-    read_design_metadata,
+    read_design_files,
     sample_time,
     write_design_files,
 )
@@ -177,14 +176,10 @@ class PayloadBank:
         if schedule not in BANK_SCHEDULES:
             raise GainError(f"schedule: the payload bank exists for {BANK_SCHEDULES}, not {schedule!r}")
         directory = Path(directory) if directory is not None else DEFAULT_LQG_DIR
-        npz_path = directory / f"bank_{schedule}.npz"
-        if not npz_path.exists():
-            raise GainError(f"LQG bank file {npz_path} does not exist; run `{REGENERATE_COMMAND}`")
-        meta = read_design_metadata(directory / f"bank_{schedule}.json", npz_path)
+        meta, a = read_design_files(directory / f"bank_{schedule}", "LQG bank file")
         if meta.get("format") != BANK_FILE_FORMAT:
-            raise GainError(f"{npz_path}: format {meta.get('format')!r}, expected {BANK_FILE_FORMAT!r}")
-        with np.load(npz_path) as d:
-            a = {k: d[k] for k in d.files}
+            raise GainError(f"{directory / f'bank_{schedule}.npz'}: format {meta.get('format')!r}, expected "
+                            f"{BANK_FILE_FORMAT!r}")
         filters = []
         for f, mass in enumerate(list(a["masses"]) + [0.0]):
             design = LqgDesign(schedule=schedule, metadata=meta["designs"][f],

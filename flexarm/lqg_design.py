@@ -53,12 +53,11 @@ import scipy
 import scipy.linalg
 
 from .gain_schedule import (
-    REGENERATE_COMMAND,
     SCHEDULES,
     desired_states,
     load_desired,
     operating_times,
-    read_design_metadata,
+    read_design_files,
     relative_path,
     schedule_index,
     write_design_files,
@@ -335,13 +334,8 @@ class LqgDesign:
         if schedule not in SCHEDULES:
             raise GainError(f"schedule: {schedule!r} is not one of {tuple(SCHEDULES)}")
         directory = Path(directory) if directory is not None else DEFAULT_LQG_DIR
-        npz_path = directory / f"lqg_{schedule}.npz"
-        if not npz_path.exists():
-            raise GainError(f"LQG design file {npz_path} does not exist; run `{REGENERATE_COMMAND}`")
-        meta = read_design_metadata(directory / f"lqg_{schedule}.json", npz_path)
-        with np.load(npz_path) as d:
-            arrays = {k: d[k] for k in cls.ARRAYS}
-        return cls(schedule=schedule, metadata=meta, **arrays)
+        meta, arrays = read_design_files(directory / f"lqg_{schedule}", "LQG design file")
+        return cls(schedule=schedule, metadata=meta, **{k: arrays[k] for k in cls.ARRAYS})
 
 
 def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: SensorSettings | None = None,
