@@ -504,21 +504,30 @@ def _bar(label: str):
     return update
 
 
+#: Cases per block of the printed table (4 fit a 150-column terminal; more cases continue below).
+CASES_PER_BLOCK = 4
+
+
 def format_table(results: list[CaseResult], paper: dict | None) -> str:
-    """Our metrics beside the paper's, with their ratio (ours / paper)."""
+    """Our metrics beside the paper's, with their ratio (ours / paper); blocks of :data:`CASES_PER_BLOCK`
+    cases, separated by a blank line."""
     from .metrics import LABELS
 
-    head = f"{'':32s}" + "".join(f"{r.key:>28s}" for r in results)
-    sub = f"{'':32s}" + "".join(f"{'ours':>10s}{'paper':>9s}{'ratio':>9s}" for _ in results)
-    lines = [head, sub]
-    for i, m in enumerate(METRICS):
-        row = f"{LABELS[m]:32s}"
-        for r in results:
-            p = (paper or {}).get(r.key)
-            pv = None if p is None or isinstance(p, dict) else p[i]
-            ours = r.status if r.metrics is None else f"{r.metrics[m]:.3f}"
-            paper_s = "---" if isinstance(p, dict) else ("" if pv is None else f"{pv:.3f}")
-            ratio = f"{r.metrics[m] / pv:.2f}" if r.metrics is not None and pv else ""
-            row += f"{ours:>10s}{paper_s:>9s}{ratio:>9s}"
-        lines.append(row)
-    return "\n".join(lines)
+    blocks = []
+    for start in range(0, len(results), CASES_PER_BLOCK):
+        chunk = results[start:start + CASES_PER_BLOCK]
+        head = f"{'':32s}" + "".join(f"{r.key:>28s}" for r in chunk)
+        sub = f"{'':32s}" + "".join(f"{'ours':>10s}{'paper':>9s}{'ratio':>9s}" for _ in chunk)
+        lines = [head, sub]
+        for i, m in enumerate(METRICS):
+            row = f"{LABELS[m]:32s}"
+            for r in chunk:
+                p = (paper or {}).get(r.key)
+                pv = None if p is None or isinstance(p, dict) else p[i]
+                ours = r.status if r.metrics is None else f"{r.metrics[m]:.3f}"
+                paper_s = "---" if isinstance(p, dict) else ("" if pv is None else f"{pv:.3f}")
+                ratio = f"{r.metrics[m] / pv:.2f}" if r.metrics is not None and pv else ""
+                row += f"{ours:>10s}{paper_s:>9s}{ratio:>9s}"
+            lines.append(row)
+        blocks.append("\n".join(lines))
+    return "\n\n".join(blocks)

@@ -52,3 +52,16 @@ def test_readme_splice_replaces_only_the_marked_block():
     assert splice_readme(out, "new table") == out
     with pytest.raises(ValueError, match="markers"):
         splice_readme("no markers here", "new table")
+
+
+def test_the_printed_table_comes_in_blocks_of_four_cases():
+    """`scenarios run` prints at most 4 cases side by side (16-case LQG scenarios stay readable); every case
+    keeps its ours / paper / ratio cells."""
+    from scenarios.runner import CASES_PER_BLOCK, format_table
+
+    results = [_result(f"c{i}") for i in range(CASES_PER_BLOCK + 2)]
+    blocks = format_table(results, {"c0": [6.0, 1.0, 0.1, 10.0, 0.04, 1.8]}).split("\n\n")
+    assert [len(b.splitlines()) for b in blocks] == [8, 8]
+    assert blocks[0].splitlines()[0].split() == [f"c{i}" for i in range(CASES_PER_BLOCK)]
+    assert blocks[1].splitlines()[0].split() == ["c4", "c5"]
+    assert "5.600    6.000     0.93" in blocks[0].splitlines()[2]
