@@ -126,7 +126,7 @@ class BankModel:
     drift: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self):
-        dt = float(self.design.metadata.get("sample_time_s", 1e-3))
+        dt = float(self.design.metadata["sample_time_s"])  # every design records its sample
         self.drift = drift_along_path(self.design, self.psi, self.delta_acceleration, dt)
 
 
@@ -438,7 +438,6 @@ class BankController:
         for q, du in enumerate(sent):  # predict across the delay with the torques sent
             i_s = self._index[self._c(j + q)]
             x_now = _mv(self._Phi[i_s], x_now) + self._Gamma[i_s] @ du + self._drift[self._c(j + q)]
-        x_post, x_now = x_post.copy(), x_now.copy()
         log_p -= np.logaddexp.reduce(log_p)
         log_p = np.maximum(log_p, self.log_floor)
         log_p -= np.logaddexp.reduce(log_p)

@@ -124,15 +124,18 @@ def lqg_comparison_section(runs: dict[str, tuple]) -> str:
 def lqg_acceptance_section(runs: dict[str, tuple], fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> str:
     """Issue 14's acceptance figures per estimator (:func:`scenarios.lqg_report.acceptance_lines`), from the
     page's runs and the γ = 1 runs of the noise-robustness goal ('' without the page's runs)."""
-    from .lqg_report import acceptance_lines, gamma1_runs
+    from .lqg_report import LqgReportError, acceptance_lines, gamma1_runs
 
     if not {"table2", "lqg_jacobi"} <= set(runs):
         return ""
     if progress:
         print("results page: running lqg_jacobi and table2 with gamma1 (noise robustness)", flush=True)
     lqr, jac = ({r.key: r.metrics for r in runs[name][1]} for name in ("table2", "lqg_jacobi"))
-    with tempfile.TemporaryDirectory() as tmp:
-        g1, l1 = gamma1_runs(Path(tmp), fmu_dir)
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            g1, l1 = gamma1_runs(Path(tmp), fmu_dir)
+    except LqgReportError as exc:  # an FMU error is no result: never publish it as a figure
+        raise ResultsPageError(f"results page: {exc}") from None
     return "\n".join([
         "## LQG: issue 14's acceptance figures", "",
         "Jacobi stepping with delay 2 (`lqg_jacobi` above) against our Gauss-Seidel γ = 0.1 LQR (`table2`); noise "

@@ -140,6 +140,23 @@ def test_lqg_report_refuses_to_print_a_run_that_ended_with_an_fmu_error(monkeypa
     assert "unbounded" not in captured.out and "==" not in captured.out
 
 
+def test_results_page_refuses_an_acceptance_run_that_ended_with_an_fmu_error(monkeypatch):
+    """The page's gamma1 runs: an FMU error stops the page (ResultsPageError, exit 1), never a 'NOT met' line."""
+    from types import SimpleNamespace
+
+    from scenarios import lqg_report
+    from scenarios.results_page import ResultsPageError, lqg_acceptance_section
+
+    def failing(scenario, out, fmu_dir, progress=False):
+        return [SimpleNamespace(key=c.key, status="error", message="sensors: fmi2DoStep returned fmi2Error",
+                                metrics=None) for c in scenario.cases]
+
+    monkeypatch.setattr(lqg_report, "run_scenario", failing)
+    page_runs = {"table2": (None, []), "lqg_jacobi": (None, [])}
+    with pytest.raises(ResultsPageError, match="lqg_jacobi_gamma1 had FMU errors: none: sensors"):
+        lqg_acceptance_section(page_runs)
+
+
 def test_acceptance_lines_give_verdicts_and_never_a_number_for_an_unbounded_run():
     """The report's verdicts follow the issue's rules: bound max(1.5 x LQR, 0.05 deg), noise ratio <= 2,
     payload at most half our LQR's within the torque limits; an unbounded run is shown as such, not met."""
