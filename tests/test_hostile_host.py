@@ -190,3 +190,69 @@ def test_an_extra_read_of_the_torques_changes_nothing(kind):
             np.testing.assert_array_equal(other["signals"][key], values, err_msg=key)
     tau = runs[0]["signals"][f"{setup.driver}.tau1"]
     assert np.ptp(tau) > 1.0  # the loop runs: the torques follow the slew
+
+
+def _stepped(path, params: dict, steps: list[float]) -> tuple[np.ndarray, list[str]]:
+    """Outputs after each step of a lone FMU (inputs at their start values), and the errors it logged."""
+    from fmpy.fmi1 import FMICallException
+
+    from scenarios.master import logging_callbacks
+
+    md = read_model_description(str(path))
+    outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    var = {v.name: v for v in md.modelVariables}
+    errors: list[str] = []
+    callbacks = logging_callbacks(lambda c, i, status, cat, msg: errors.append(msg.decode()) if status >= 3 else None)
+    tmp = tempfile.mkdtemp(prefix="rounding_")
+    s = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path), unzipdir=tmp),
+                  modelIdentifier=md.coSimulation.modelIdentifier, instanceName="r")
+    s.instantiate(callbacks=callbacks)
+    try:
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        for name, value in params.items():
+            (s.setInteger if var[name].type == "Integer" else s.setReal)([var[name].valueReference], [value])
+        s.exitInitializationMode()
+        t, rows = 0.0, [s.getReal(outputs)]
+        for h in steps:
+            try:
+                s.doStep(t, h)
+            except FMICallException:
+                rows.append(None)
+                continue
+            t += h
+            rows.append(s.getReal(outputs))
+    finally:
+        s.terminate()
+        s.freeInstance()
+        shutil.rmtree(tmp, ignore_errors=True)
+    return rows, errors
+
+
+@pytest.mark.parametrize("kind", ["native", "python"])
+def test_steps_rounded_by_a_masters_clock_count_as_whole_samples(kind):
+    """Issue 21: every FMU takes a step within 1e-9 s of whole milliseconds as that many samples, and a step
+    below that (OMSimulator's last step of 1.15e-13 s) as none; 1.5 ms is refused naming step_size."""
+    _, table2 = _setups("table2", kind, ("none",))
+    _, lqg = _setups("lqg_jacobi", kind, ("none",))
+    fmus = {"plant": (table2.paths["plant"], {}), "sensors": (table2.paths["sensors"], {}),
+            "controller": (table2.paths["controller"], {}),
+            "lqg_d0": (lqg.paths["controller"], {"loop_delay_samples": 0}),
+            "lqg_d2": (lqg.paths["controller"], {"loop_delay_samples": 2})}
+    exact = [1e-3] * 3
+    rounded = [1e-3 + 4e-10, 1.15e-13, 1e-3 - 4e-10 - 1.15e-13, 1e-3]
+    for name, (path, params) in fmus.items():
+        ref, errors = _stepped(path, params, exact)
+        assert not errors, (name, errors)
+        got, errors = _stepped(path, params, rounded)
+        assert not errors, (name, errors)
+        after = [got[0], got[1], got[3], got[4]]  # the 1.15e-13 s step (row 2) is no sample
+        if name == "plant":  # continuous: integrates the intervals it is given (4e-10 s of 1 ms)
+            np.testing.assert_allclose(after, ref, rtol=1e-5, atol=1e-9, err_msg=name)
+            np.testing.assert_allclose(got[2], got[1], rtol=1e-9, atol=1e-12, err_msg=name)
+        else:  # sampled: the same samples bit for bit, and nothing in the tiny step
+            np.testing.assert_array_equal(after, ref, err_msg=name)
+            np.testing.assert_array_equal(got[2], got[1], err_msg=name)
+        if name != "plant":
+            bad, errors = _stepped(path, params, [1.5e-3])
+            assert bad[1] is None and any("step_size" in e for e in errors), (name, errors)
