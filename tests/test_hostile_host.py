@@ -266,3 +266,30 @@ def test_steps_rounded_by_a_masters_clock_count_as_whole_samples(kind):
         if name != "plant":
             bad, errors = _stepped(path, params, [1.5e-3])
             assert bad[1] is None and any("step_size" in e for e in errors), (name, errors)
+
+
+@pytest.mark.parametrize("kind", ["native", "python"])
+def test_model_structure_declares_what_the_outputs_depend_on(kind):
+    """<Outputs>: the plant none (its outputs change only in fmi2DoStep), each sensor output its true signal,
+    the torques the ten measurements the law uses; <InitialUnknowns>: those inputs and every parameter (the
+    plant's: every known, as its start outputs use the torque present then)."""
+    _, table2 = _setups("table2", kind, ("none",))
+    _, lqg = _setups("lqg_jacobi", kind, ("none",))
+    for name, path in (*table2.paths.items(), ("controller_lqg", lqg.paths["controller"])):
+        md = read_model_description(str(path))
+        params = {v.name for v in md.modelVariables if v.causality == "parameter"}
+        inputs = {v.name for v in md.modelVariables if v.causality == "input"}
+        for out in md.outputs:
+            deps = {d.name for d in out.dependencies}
+            if name == "plant":
+                assert deps == set(), (name, out.variable.name)
+            elif name == "sensors":
+                assert len(deps) == 1 and deps <= inputs, (name, out.variable.name, deps)  # its true signal
+            else:
+                assert len(deps) == 10 and deps <= inputs, (name, deps)
+        for unknown in md.initialUnknowns:
+            if name == "plant":
+                assert unknown.dependencies is None
+            else:
+                out = next(o for o in md.outputs if o.variable is unknown.variable)
+                assert {d.name for d in unknown.dependencies} == {d.name for d in out.dependencies} | params
