@@ -238,39 +238,30 @@ def desired_trajectory():
 
 
 def verify_data_chain() -> dict[str, str]:
-    """Check parameters -> trajectory -> gains through flexarm's verifying loaders; refuse a mismatch.
+    """Check every data file through flexarm's verifying loaders (:func:`flexarm.data_chain.verify_data_files`:
+    parameters, sensor settings, trajectory, gains, LQG designs and bank, every JSON's seal); refuse a mismatch.
 
-    The one function the runner and the sweep call before anything runs. The checks themselves live in
-    the loaders (``flexarm.trajectory.load_trajectory``: the trajectory against the parameter file it
-    records; ``flexarm.lqr.GainSchedule.load``: each gain file against its trajectory and parameters), so
-    there is one place for each fact.
+    The one function the runner and the sweep call before anything runs; the checks themselves live in
+    the loaders, so there is one place for each fact.
 
     Returns
     -------
     dict
-        File (relative to the repository) -> SHA-256, for the results' provenance.
+        Every .npz, .json and .toml of flexarm/data (relative to the repository) -> SHA-256, for the results'
+        provenance (``data_sha256``).
 
     Raises
     ------
     DataChainError
         The loader's message: both files and the command that regenerates them.
     """
-    from flexarm.lqr import DEFAULT_GAIN_DIR, GainError, GainSchedule
-    from flexarm.trajectory import TrajectoryError
+    from flexarm.data_chain import DataChainError as FlexarmDataChainError
+    from flexarm.data_chain import verify_data_files
 
-    gain_files = sorted(DEFAULT_GAIN_DIR.glob("*.npz"))
     try:
-        desired_trajectory()
-        for npz in gain_files:
-            name, _, schedule = npz.stem.rpartition("_")
-            GainSchedule.load(name, schedule, directory=DEFAULT_GAIN_DIR)
-    except (TrajectoryError, GainError) as exc:
-        raise DataChainError(f"data chain: {exc}") from exc
-    except (OSError, ValueError, KeyError) as exc:  # a file the loaders cannot even parse
-        raise DataChainError(f"data chain: cannot read the trajectory {DEFAULT_TRAJECTORY_FILE} or the gains in "
-                             f"{DEFAULT_GAIN_DIR}: {type(exc).__name__}: {exc}") from exc
-    files = [DEFAULT_PARAMETER_FILE, DEFAULT_TRAJECTORY_FILE, *gain_files]
-    return {_relative(f): sha256_file(f) for f in files}
+        return verify_data_files(REPO)
+    except FlexarmDataChainError as exc:
+        raise DataChainError(str(exc)) from exc
 
 
 def _relative(path: Path) -> str:
