@@ -28,7 +28,7 @@ from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 from . import master
 from .config import KINDS, Scenario, ScenarioError
 from .fmu_files import NotAnFmuError, read_description
-from .metrics import METRICS, UNITS, table_metrics
+from .metrics import METRICS, UNITS, saturation_warnings, table_metrics
 from .outdir import check_writable, run_folder
 from .results import write_csv
 from .values import check_parameters
@@ -61,6 +61,8 @@ class CaseResult:
     wall_time_s: float
     series: dict[str, np.ndarray]
     outcome: master.Outcome = field(default_factory=lambda: master.Outcome("ok"))
+    #: What the run did not do well (e.g. torque saturation, :func:`scenarios.metrics.saturation_warnings`).
+    warnings: list[str] = field(default_factory=list)
 
 
 def _build_tool():
@@ -341,6 +343,9 @@ def simulate_case(setup: Setup, m: master.Master, parameters: dict[str, dict],
     desired = setup.desired
     if len(desired["theta"]) != len(theta):  # a master that reports other time points
         desired = desired_states(desired_trajectory(), out["time"])
+    from flexarm.parameters import load_parameters
+
+    out.setdefault("warnings", []).extend(saturation_warnings(tau, load_parameters().peak_torque))
     return out, table_metrics(tau, theta, omega, desired["theta"], desired["omega"])
 
 
@@ -403,12 +408,13 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     wall = time.perf_counter() - t0
                     series = {"time": out["time"], **out["signals"]}
                     by_key[case.key] = CaseResult(case.key, case.label, out["status"], out["message"], metrics,
-                                                  wall, series, out["outcome"])
+                                                  wall, series, out["outcome"], list(out.get("warnings", [])))
                     write_csv(folder / f"{case.key}.csv", series)
                     write_json(folder / f"{case.key}.json", {
                         "scenario": scenario.name, "scenario_file": str(scenario.path),
                         "scenario_sha256": scenario_sha, "case": case.key, "label": case.label,
                         "status": out["status"], "message": out["message"], "outcome": out["outcome"].as_dict(),
+                        "warnings": list(out.get("warnings", [])),
                         "metrics": metrics, "metric_units": dict(UNITS), "parameters": params,
                         "samples": setup.n_steps, "step_size_s": scenario.step_size, "algorithm": algorithm,
                         "fmus": {k: str(v) for k, v in setup.paths.items()}, "fmu_sha256": checksums,
