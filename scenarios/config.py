@@ -224,3 +224,29 @@ def load_scenario(path: str | Path) -> Scenario:
 def list_scenarios() -> list[Scenario]:
     """Every scenario file shipped in ``scenarios/``."""
     return [load_scenario(p) for p in sorted(SCENARIO_DIR.glob("*.toml")) if p.stem != "paper_tables"]
+
+
+def check_inputs_given(scenario: Scenario, inputs: dict[str, list[str]], driven: set[tuple[str, str]]) -> None:
+    """With explicit wiring, every FMU input is connected or given a value by the scenario (in
+    ``[parameters.<fmu>]`` or in every case); otherwise ScenarioError naming the input. (Wired by name, an
+    input without a same-named output keeps its start value, as documented.)
+
+    Parameters
+    ----------
+    scenario : Scenario
+    inputs : dict
+        FMU instance -> names of its inputs (from the model descriptions).
+    driven : set of (instance, input)
+        The inputs the connections drive.
+    """
+    if scenario.connections is None:
+        return
+    for inst, names in inputs.items():
+        for var in names:
+            if (inst, var) in driven or var in scenario.parameters.get(inst, {}):
+                continue
+            if scenario.cases and all(var in c.parameters.get(inst, {}) for c in scenario.cases):
+                continue
+            raise ScenarioError(f"{scenario.path.name}: connections.explicit: input {inst}.{var} is not connected "
+                                f"and the scenario gives it no value; add a connection [\"<fmu>.<output>\", "
+                                f"\"{inst}.{var}\"] or set it in [parameters.{inst}] ({var} = ...)")

@@ -26,7 +26,7 @@ from flexarm.signals import names as signal_names
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
 from . import master
-from .config import KINDS, Scenario, ScenarioError
+from .config import KINDS, Scenario, ScenarioError, check_inputs_given, check_size
 from .fmu_files import NotAnFmuError, read_description
 from .metrics import METRICS, UNITS, saturation_warnings, table_metrics
 from .outdir import check_writable, run_folder
@@ -259,11 +259,16 @@ def verify_data_chain() -> dict[str, str]:
     """
     from flexarm.data_chain import DataChainError as FlexarmDataChainError
     from flexarm.data_chain import verify_data_files
+    from flexarm.trajectory import TrajectoryError
 
     try:
-        return verify_data_files(REPO)
+        chain = verify_data_files(REPO)
+        desired_trajectory()  # the trajectory the run tracks, through the same loader
     except FlexarmDataChainError as exc:
         raise DataChainError(str(exc)) from exc
+    except TrajectoryError as exc:
+        raise DataChainError(f"data chain: {exc}") from exc
+    return chain
 
 
 def _relative(path: Path) -> str:
@@ -316,6 +321,9 @@ def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str
     paths = resolve_fmus(scenario, fmu_dir, controller, build, names, kind, native_fmu_dir)
     descriptions = read_descriptions(paths)
     connections = connect_by_name(paths, scenario.connections, descriptions)
+    check_inputs_given(scenario, {inst: [v.name for v in md.modelVariables if v.causality == "input"]
+                                  for inst, md in descriptions.items()},
+                       {(c.dst_fmu, c.dst_var) for c in connections})
     torque_edges = [c for c in connections if c.dst_var == "tau1"]
     if not torque_edges:
         raise ScenarioError("connections: nothing drives an input 'tau1' (the plant's torque)")
@@ -439,10 +447,14 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
 
 
 def run_length(scenario: Scenario, traj) -> int:
-    """Communication steps of a run: the scenario's, or as many as cover the slew ("trajectory")."""
+    """Communication steps of a run: the scenario's, or as many as cover the slew ("trajectory"); ScenarioError
+    past :data:`scenarios.config.MAX_SAMPLES` unless the run allows it (:func:`scenarios.config.check_size`)."""
     if scenario.samples == "trajectory":
-        return math.ceil(traj.t_f / scenario.step_size - 1e-9)
-    return int(scenario.samples)
+        n = math.ceil(traj.t_f / scenario.step_size - 1e-9)
+    else:
+        n = int(scenario.samples)
+    check_size(scenario, n)
+    return n
 
 
 def start_parameters(traj) -> dict[str, float]:
@@ -493,10 +505,13 @@ def _bar(label: str):
         if pct != state["last"]:
             state["last"] = pct
             filled = pct // 4
-            sys.stderr.write(f"\r{label:28s} [{'#' * filled}{'.' * (25 - filled)}] {pct:3d}%")
-            if k == n:
-                sys.stderr.write("\n")
-            sys.stderr.flush()
+            try:  # a bar standard error cannot take (2>/dev/full) is no reason to stop a run
+                sys.stderr.write(f"\r{label:28s} [{'#' * filled}{'.' * (25 - filled)}] {pct:3d}%")
+                if k == n:
+                    sys.stderr.write("\n")
+                sys.stderr.flush()
+            except (OSError, ValueError):
+                pass
 
     return update
 

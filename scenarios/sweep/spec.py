@@ -16,7 +16,7 @@ import numpy as np
 
 from flexarm.provenance import sha256_bytes
 
-from ..config import NAME_FORM, NAME_PATTERN, SCENARIO_DIR, Case, Scenario, ScenarioError, load_scenario
+from ..config import MAX_SAMPLES, NAME_FORM, NAME_PATTERN, SCENARIO_DIR, Case, Scenario, ScenarioError, load_scenario
 from ..values import is_int as _is_int
 from ..values import is_number as _is_number
 
@@ -184,9 +184,10 @@ def load_sweep(name_or_path: str | Path) -> Sweep:
     case = scenario.cases[keys.index(case_key)]
     if "samples" in sw:
         samples = sw["samples"]
-        _require(samples == "trajectory" or (_is_int(samples) and 1 <= samples <= 10_000_000),
+        _require(samples == "trajectory" or (_is_int(samples) and 1 <= samples <= MAX_SAMPLES),
                  f"{p.name}: sweep.samples",
-                 "an integer in [1, 10000000] or \"trajectory\" (as long as the slew)", samples)
+                 f"an integer in [1, {MAX_SAMPLES}] or \"trajectory\" (as long as the slew; every point's record is "
+                 f"kept in memory, so a sweep stays under the cap of a scenario run)", samples)
         scenario = replace(scenario, samples=samples)
     axes_doc = doc.get("axes")
     instances = sorted(scenario.fmus)
