@@ -56,6 +56,8 @@ def check_size(scenario: Scenario, n_steps: int | None = None) -> None:
     allows it (``scenario.allow_large``, from ``python -m scenarios run --allow-large``)."""
     if scenario.allow_large:
         return
+    if n_steps is None and isinstance(scenario.samples, int):
+        n_steps = scenario.samples  # known from the file; "trajectory" is checked once the trajectory is read
     name = scenario.path.name
     if len(scenario.cases) > MAX_CASES:
         raise ScenarioError(f"{name}: [[cases]]: {len(scenario.cases)} cases, more than the {MAX_CASES} a run takes "
@@ -248,5 +250,5 @@ def check_inputs_given(scenario: Scenario, inputs: dict[str, list[str]], driven:
             if scenario.cases and all(var in c.parameters.get(inst, {}) for c in scenario.cases):
                 continue
             raise ScenarioError(f"{scenario.path.name}: connections.explicit: input {inst}.{var} is not connected "
-                                f"and the scenario gives it no value; add a connection [\"<fmu>.<output>\", "
-                                f"\"{inst}.{var}\"] or set it in [parameters.{inst}] ({var} = ...)")
+                                f"and the scenario gives it no value, so it would stay at its start value all run; "
+                                f"add a connection [\"<fmu>.<output>\", \"{inst}.{var}\"]")
