@@ -287,7 +287,8 @@ def test_saturation_is_said_in_the_table_and_the_json(tmp_path, capsys, kind):
     main(["run", str(path), "--out", str(tmp_path / "out"), "--quiet", "--no-plots"])
     printed = capsys.readouterr().out
     warnings = json.loads((tmp_path / "out" / "jacobi_4ms" / "none.json").read_text())["warnings"]
-    assert any(w.startswith("torque saturation: tau2") for w in warnings), warnings
+    tau2 = [w for w in warnings if w.startswith("torque saturation: tau2")]
+    assert len(tau2) == 1 and float(tau2[0].split("samples (")[1].split(" %")[0]) > 50.0, warnings
     assert f"none: warning: {warnings[0]}" in printed
     calm = write(tmp_path, scenario_text(name="calm", samples='"trajectory"', fmus=fmus, kind=kind), "calm.toml")
     assert run(calm, tmp_path / "out") == 0
