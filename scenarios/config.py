@@ -79,7 +79,7 @@ def _check_strings(doc, where: str) -> None:
         for k, v in items:
             here = f"{at}.{k}" if isinstance(node, dict) else f"{at}[{k}]"
             for text in (k, v):
-                if isinstance(text, str) and any(ord(ch) < 32 and ch not in "\t\n" for ch in text):
+                if isinstance(text, str) and any(ord(ch) < 32 and ch not in "\t\n\r" for ch in text):
                     raise ScenarioError(f"{here}: contains a control character (NUL or similar), got {text!r}; "
                                         f"names and values must be printable text")
             if isinstance(v, (dict, list)):
