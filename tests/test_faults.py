@@ -280,6 +280,7 @@ def test_two_connections_into_one_input_are_refused(tmp_path, capsys):
 
 
 def test_a_broken_trajectory_is_refused_through_the_loader(tmp_path, capsys, monkeypatch):
+    from flexarm.provenance import sha256_file, write_sealed_json
     from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
 
     with np.load(DEFAULT_TRAJECTORY_FILE) as d:
@@ -287,6 +288,8 @@ def test_a_broken_trajectory_is_refused_through_the_loader(tmp_path, capsys, mon
     arrays["tau1"], arrays["tau2"] = arrays["tau1"][:-100], arrays["tau2"][:-100]  # torques cut short
     bad = tmp_path / "trajectory.npz"
     np.savez(bad, **arrays)
+    meta = json.loads(DEFAULT_TRAJECTORY_FILE.with_suffix(".json").read_text())  # its side file records it
+    write_sealed_json(bad.with_suffix(".json"), {**meta, "npz_sha256": sha256_file(bad)})
     monkeypatch.setattr(runner, "desired_trajectory", lambda: load_trajectory(bad))
     assert main(["run", "table2", "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
     err = stderr_line(capsys)
