@@ -7,7 +7,9 @@
   ``ssd:Component`` per FMU instance of the case, ``source="resources/<instance>.fmu"``,
   with every input, output and parameter of the FMU as a typed ``ssd:Connector``
   (Reals with their unit, defined in ``ssd:Units``); ``ssd:Connections`` as the master wires them
-  (:func:`scenarios.runner.connect_by_name`, or the scenario's explicit list);
+  (:func:`scenarios.runner.connect_by_name`, or the scenario's explicit list), in evaluation order
+  (by the source's place in the scenario's ``order``, the torques last: a Gauss-Seidel master that
+  follows the SSD's connection order, as OMSimulator's does, adds no delay);
   ``ssd:DefaultExperiment`` from 0 to the scenario's run length (``samples`` ×
   ``step_size``), with the step in the Open Simulation Platform's annotation
   ``<osp:FixedStepAlgorithm baseStepSize="0.001"/>`` that libcosim reads, and on the system
@@ -278,7 +280,10 @@ def system_structure_xml(scenario: Scenario, plan: CasePlan) -> bytes:
         etree.SubElement(bindings, _q("ssd", "ParameterBinding"), type="application/x-ssp-parameter-set",
                          source=_ssv_path(inst))
     conns = etree.SubElement(system, _q("ssd", "Connections"))
-    for c in setup.connections:
+    # In evaluation order (by the source's place in the scenario's order: plant -> sensors -> controller ->
+    # plant): a Gauss-Seidel master that follows the SSD's connection order then puts no delay in the loop.
+    rank = {inst: i for i, inst in enumerate(scenario.order)}
+    for c in sorted(setup.connections, key=lambda c: rank.get(c.src_fmu, len(rank))):
         etree.SubElement(conns, _q("ssd", "Connection"), startElement=c.src_fmu, startConnector=c.src_var,
                          endElement=c.dst_fmu, endConnector=c.dst_var)
     h = scenario.step_size
