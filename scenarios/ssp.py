@@ -29,10 +29,10 @@
   bound to the component with one ``ssd:ParameterBinding`` (for masters that
   apply bindings: libcosim applies it, with the same result).
 
-A predictive controller's ``loop_delay_samples`` (the LQG) is the scenario's, in all three
-places (start value, ``resources/flexarm_start_values.*``, ``.ssv``): 0 for a Gauss-Seidel
-scenario (``lqg``), 2 for ``lqg_jacobi``; a scenario that does not set it gets what its stepping
-puts in the loop (:func:`loop_delay_parameters`).
+A predictive controller's ``loop_delay_samples`` (the LQG) is what the scenario's stepping puts in
+the loop, in all three places (start value, ``resources/flexarm_start_values.*``, ``.ssv``): 0 for
+a Gauss-Seidel scenario (``lqg``), 2n for a Jacobi one at n ms (``lqg_jacobi``: 2)
+(:func:`loop_delay_parameters`).
 
 A case that swaps an FMU (``fmus.controller = "controller_ff"``) simply has
 that FMU in its archive. Each archive is written to a temporary file beside
@@ -344,12 +344,12 @@ def export_ssp(scenario: Scenario, out_dir: str | Path = DEFAULT_SSP_DIR,
 def loop_delay_parameters(scenario: Scenario, params: dict, variables: dict) -> dict:
     """A controller's case parameters with the ``loop_delay_samples`` the scenario's master puts in the loop.
 
-    The archive is for a master that steps as the scenario says (``algorithm``): the case's own
-    ``loop_delay_samples`` when the scenario sets it (``lqg``: 0, Gauss-Seidel; ``lqg_jacobi``: 2),
-    else :func:`flexarm.lqg.required_loop_delay` for the scenario's stepping and step (0 for
-    Gauss-Seidel, 2n for Jacobi at n ms with the sensors FMU). An FMU without the parameter is unchanged.
+    The archive is for a master that steps as the scenario says (``algorithm``, ``step_size_s``):
+    :func:`flexarm.lqg.required_loop_delay` for that stepping, 0 for Gauss-Seidel (``lqg``, as its
+    file says), 2n for Jacobi at n ms with the sensors FMU (``lqg_jacobi``: 2 at 1 ms). An FMU without
+    the parameter is unchanged.
     """
-    if "loop_delay_samples" not in variables or "loop_delay_samples" in params:
+    if "loop_delay_samples" not in variables:
         return params
     return with_loop_delay(params, scenario.algorithm, _feedthrough_fmus(scenario), scenario.step_size)
 

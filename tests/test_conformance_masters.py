@@ -273,3 +273,33 @@ def test_master_gives_our_masters_rms_position_error(master, name, case, kind, a
     if reason and abs(theirs - ours) > tolerance(ours):
         pytest.skip(f"{reason}: today {master} {theirs:.6g} deg, ours {ours:.6g} deg")
     assert abs(theirs - ours) <= tolerance(ours), (master, name, case, kind, theirs, ours)
+
+
+def _loop_delays(ssp: Path) -> dict[str, str]:
+    """The controller's loop_delay_samples in the three places an archive states it."""
+    import json
+    import re
+
+    with zipfile.ZipFile(ssp) as zf:
+        ssv = zf.read("resources/controller.ssv").decode()
+        fmu = zipfile.ZipFile(io.BytesIO(zf.read("resources/controller.fmu")))
+    md = etree.fromstring(fmu.read("modelDescription.xml"))
+    start = md.find("ModelVariables/ScalarVariable[@name='loop_delay_samples']")[0].get("start")
+    names = fmu.namelist()
+    if "resources/flexarm_start_values.txt" in names:
+        import struct
+
+        lines = dict(ln.split(" ") for ln in fmu.read("resources/flexarm_start_values.txt").decode().splitlines())
+        baked = struct.unpack(">d", bytes.fromhex(lines["loop_delay_samples"]))[0]
+    else:
+        baked = json.loads(fmu.read("resources/flexarm_start_values.json"))["loop_delay_samples"]
+    (ssv_value,) = re.findall(r'name="loop_delay_samples"[^<]*<ssv:Integer value="(\d+)"', ssv)
+    return {"start": start, "baked": str(int(baked)), "ssv": ssv_value}
+
+
+@pytest.mark.parametrize("kind", ["native", "python"])
+def test_each_archive_carries_the_loop_delay_of_its_stepping(kind, archives, folders, tmp_path):
+    """Issue 21 item 3: 0 for the Gauss-Seidel lqg (as its file says), 2 for lqg_jacobi at 1 ms; everywhere."""
+    lqg = export_ssp(load_scenario("lqg"), tmp_path, build=False, cases=["none"], kind=kind, **folders)["none"]
+    assert _loop_delays(lqg) == {"start": "0", "baked": "0", "ssv": "0"}
+    assert _loop_delays(archives[(kind, "lqg_jacobi", "none")]) == {"start": "2", "baked": "2", "ssv": "2"}
