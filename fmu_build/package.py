@@ -156,9 +156,8 @@ def flexarm_modules(spec: FmuSpec) -> list[Path]:
 def all_flexarm_modules() -> list[Path]:
     """The union of :func:`flexarm_modules` over every FMU: what each FMU bundles.
 
-    FMUs loaded into one interpreter share the ``flexarm`` package imported first (modules are cached
-    by name), so the first FMU's copy must hold every module a later one imports. (Data files are
-    read from each FMU's own folder, see ``own_data_dir`` in the glue.)
+    Each FMU imports only its own copy (private module names, :mod:`fmu_build.isolate`); the union
+    keeps a module that a parameter value imports lazily (not seen by the one-step trace) in every FMU.
     """
     if not _ALL_MODULES:
         _ALL_MODULES.extend(sorted({f for spec in FMUS.values() for f in flexarm_modules(spec)}))
