@@ -335,8 +335,14 @@ def relative_path(path) -> str:
 
 
 def _resolve(recorded: str) -> Path:
+    """A recorded path (:func:`relative_path`) as a file: ``flexarm/...`` is this package's own folder, whatever
+    the package is called (inside an FMU it is bundled under a private name, see fmu_build/isolate.py)."""
     p = Path(recorded)
-    return p if p.is_absolute() else SOURCE_ROOT / p
+    if p.is_absolute():
+        return p
+    if p.parts[:1] == ("flexarm",):
+        return Path(__file__).resolve().parent.joinpath(*p.parts[1:])
+    return SOURCE_ROOT / p
 
 
 def write_design_files(stem, arrays: dict, metadata: dict, compressed: bool = True) -> Path:
