@@ -1,4 +1,5 @@
-"""Command line: ``python -m scenarios list | run NAME|PATH|all | sweep NAME|PATH | export-ssp NAME | results-page``.
+"""Command line: ``python -m scenarios list | run NAME|PATH|all [--case KEY] | sweep NAME|PATH | export-ssp NAME |
+results-page``.
 
 Exit codes (docs/outcomes.md): 0 every case or point finished, ok or unbounded (both are results);
 1 some case or point ended with an FMU error (recorded as such); 2 refused before anything ran (bad
@@ -9,13 +10,14 @@ disk full); 130 interrupted (Ctrl-C; nothing recorded as a result); 143 terminat
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import signal
 import sys
 import tomllib
 from pathlib import Path
 
-from .config import SCENARIO_DIR, ScenarioError, list_scenarios, load_scenario
+from .config import SCENARIO_DIR, Scenario, ScenarioError, list_scenarios, load_scenario
 from .master import CoSimulationError
 from .outdir import OutputError, describe_os_error
 from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, check_kind, format_table, run_scenario
@@ -43,6 +45,8 @@ def main(argv=None) -> int:
                           "a scenario writes OUT/<name>/, replacing an earlier run's folder when it completes")
     run.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
     _kind_options(run)
+    run.add_argument("--case", action="append", metavar="KEY",
+                     help="run only this case (repeatable; default: all); OUT/<name>/ then holds only these cases")
     run.add_argument("--controller", help="controller FMU to use instead of the scenario's (name or .fmu path)")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -141,7 +145,7 @@ def _dispatch(args) -> int:
             print(f"{s.name:16s} {len(s.cases)} cases  {s.description}")
         return EXIT_OK
     names = [s.name for s in list_scenarios()] if args.scenarios == ["all"] else args.scenarios
-    scenarios = [load_scenario(name) for name in names]  # every file refused before anything runs
+    scenarios = [select_cases(load_scenario(name), args.case) for name in names]  # refused before anything runs
     kinds = [check_kind(sc, args.kind, args.controller) for sc in scenarios]  # and every FMU without that kind
     paper = tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
     code = EXIT_OK
@@ -158,6 +162,21 @@ def _dispatch(args) -> int:
         print("   wall time per case: " + ", ".join(f"{r.key} {r.wall_time_s:.2f} s" for r in results))
         print(f"   results: {args.out / sc.name}")
     return code
+
+
+def select_cases(scenario: Scenario, keys: list[str] | None) -> Scenario:
+    """`scenario` with only the cases whose key is in `keys` (in the file's order); all of them for None.
+
+    A key the scenario does not have is refused (:class:`ScenarioError`, naming the keys it has).
+    """
+    if keys is None:
+        return scenario
+    have = [c.key for c in scenario.cases]
+    unknown = [k for k in dict.fromkeys(keys) if k not in have]
+    if unknown:
+        raise ScenarioError(f"--case: {', '.join(unknown)} not a case of scenario {scenario.name} "
+                            f"(allowed: {', '.join(have)})")
+    return dataclasses.replace(scenario, cases=[c for c in scenario.cases if c.key in keys])
 
 
 def _results_page(results_page, args) -> int:

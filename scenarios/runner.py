@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from flexarm.parameters import DEFAULT_PARAMETER_FILE
-from flexarm.provenance import git_commit, sha256_file, write_json
+from flexarm.provenance import git_commit, package_version, sha256_file, write_json
 from flexarm.signals import names as signal_names
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
@@ -255,7 +255,7 @@ def verify_data_chain() -> dict[str, str]:
     DataChainError
         The loader's message: both files and the command that regenerates them.
     """
-    from flexarm.lqr import DEFAULT_GAIN_DIR, GainError, GainSchedule
+    from flexarm.gain_schedule import DEFAULT_GAIN_DIR, GainError, GainSchedule  # not flexarm.lqr: no SciPy design
     from flexarm.trajectory import TrajectoryError
 
     gain_files = sorted(DEFAULT_GAIN_DIR.glob("*.npz"))
@@ -422,7 +422,8 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                         "samples": setup.n_steps, "step_size_s": scenario.step_size, "algorithm": algorithm,
                         "fmus": {k: str(v) for k, v in setup.paths.items()}, "fmu_sha256": checksums,
                         "fmu_kind": setup.kind, "fmu_kinds": kinds,
-                        "commit": commit, "wall_time_s": wall, "steps_done": out["steps_done"],
+                        "commit": commit, "version": package_version(), "wall_time_s": wall,
+                        "steps_done": out["steps_done"],
                         "trajectory_sha256": chain[_relative(DEFAULT_TRAJECTORY_FILE)],
                         "parameter_file": _relative(DEFAULT_PARAMETER_FILE),
                         "parameter_file_sha256": chain[_relative(DEFAULT_PARAMETER_FILE)],
@@ -487,19 +488,26 @@ def desired_states(traj, times, dt: float | None = None) -> dict[str, np.ndarray
     return {"theta": th, "omega": om}
 
 
-def _bar(label: str):
-    """A one-line text progress bar on stderr."""
-    state = {"last": -1}
+def _bar(label: str, stream=None):
+    """Progress of one case on stderr: a redrawn bar on a terminal; otherwise (a log, a pipe) one line when
+    the case ends, with no carriage-return frames."""
+    stream = sys.stderr if stream is None else stream
+    tty = hasattr(stream, "isatty") and stream.isatty()
+    state = {"last": -1, "t0": time.perf_counter()}
 
     def update(k: int, n: int) -> None:
         pct = int(100 * k / n)
-        if pct != state["last"]:
-            state["last"] = pct
+        if pct == state["last"]:
+            return
+        state["last"] = pct
+        if tty:
             filled = pct // 4
-            sys.stderr.write(f"\r{label:28s} [{'#' * filled}{'.' * (25 - filled)}] {pct:3d}%")
+            stream.write(f"\r{label:28s} [{'#' * filled}{'.' * (25 - filled)}] {pct:3d}%")
             if k == n:
-                sys.stderr.write("\n")
-            sys.stderr.flush()
+                stream.write("\n")
+        elif k == n:
+            stream.write(f"{label:28s} {n} steps in {time.perf_counter() - state['t0']:.1f} s\n")
+        stream.flush()
 
     return update
 
