@@ -396,6 +396,8 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                 setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")
             setups.append((setup, cases))
         check_writable(folder, sum(BYTES_PER_SAMPLE * (s.n_steps + 1) * len(c) for s, c in setups))
+        if progress and any(s.fmu_kinds().get(s.plant) == "python" for s, _ in setups):
+            _say_numba_compile()
         opened = []
         try:
             for setup, cases in setups:  # every case probed before the first one runs
@@ -486,6 +488,31 @@ def desired_states(traj, times, dt: float | None = None) -> dict[str, np.ndarray
     om = np.column_stack([np.interp(times, t, omega[:, j]) for j in range(omega.shape[1])])
     om[times > t[-1] + 1e-12] = 0.0
     return {"theta": th, "omega": om}
+
+
+def numba_kernels_cached() -> bool | None:
+    """Whether the plant's Numba kernels are compiled and cached already; None when Numba will not be used.
+
+    A Python plant FMU in this process uses the ``flexarm`` imported first (this one), whose kernels Numba
+    caches beside their source (``flexarm/__pycache__/_kernels.*.nbi``), else in ``$NUMBA_CACHE_DIR`` or the
+    user's cache folder.
+    """
+    import importlib.util
+
+    if os.environ.get("FLEXARM_NO_NUMBA") or importlib.util.find_spec("numba") is None:
+        return None
+    spec = importlib.util.find_spec("flexarm._kernels")
+    places = [Path(spec.origin).parent / "__pycache__"] if spec and spec.origin else []
+    # where Numba caches when the source's folder is not writable (an install in a system site-packages)
+    places.append(Path(os.environ.get("NUMBA_CACHE_DIR") or
+                       Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "numba"))
+    return any(next(place.rglob("_kernels.*.nbi"), None) is not None for place in places if place.is_dir())
+
+
+def _say_numba_compile() -> None:
+    if numba_kernels_cached() is False:
+        print("compiling the plant's Numba kernels on its first step (once: about a minute, then cached)",
+              file=sys.stderr, flush=True)
 
 
 def _bar(label: str, stream=None):

@@ -35,9 +35,6 @@ import zipfile
 from pathlib import Path
 
 import fmpy
-from fmpy.validation import validate_fmu
-
-from . import lqg_resources, physics_codegen
 
 ROOT = Path(__file__).resolve().parents[2]
 NATIVE_DIR = Path(__file__).resolve().parent
@@ -68,13 +65,18 @@ def _read_description(python_fmu: Path) -> bytes:
 
 #: The interface contract's enumerations (docs/fmu-interface.md) for the controllers' former String parameters:
 #: old name -> (new name, declared type, {value: item name}, start value, description).
-_STRING_TO_ENUMERATION = {
-    "gain_set": ("gain_set", "GainSet", physics_codegen.GAIN_SETS, 2,
-                 "LQR gain set (Q = diag(10 I, gamma I) weights or eq. 32); controller_dlqr uses its discrete-time "
-                 "design"),
-    "omega7": ("omega7_estimate", "Omega7Estimate", physics_codegen.OMEGA7_ESTIMATES, 1,
-               "How the theta7-rate error is formed: tachometer (qd2 error) or rigid (qd1 + qd2 errors)"),
-}
+#: (A function: physics_codegen, which needs CasADi and Numba, is imported only for a build, so that a run
+#: that only asks which FMUs have a native build, or whether they are up to date, starts fast.)
+def _string_to_enumeration() -> dict:
+    from . import physics_codegen
+
+    return {
+        "gain_set": ("gain_set", "GainSet", physics_codegen.GAIN_SETS, 2,
+                     "LQR gain set (Q = diag(10 I, gamma I) weights or eq. 32); controller_dlqr uses its "
+                     "discrete-time design"),
+        "omega7": ("omega7_estimate", "Omega7Estimate", physics_codegen.OMEGA7_ESTIMATES, 1,
+                   "How the theta7-rate error is formed: tachometer (qd2 error) or rigid (qd1 + qd2 errors)"),
+    }
 
 
 def interface_description(python_xml: bytes) -> bytes:
@@ -85,6 +87,7 @@ def interface_description(python_xml: bytes) -> bytes:
     2 gamma0.1, 3 gamma0, 4 eq32; start 2) and ``omega7_estimate`` of type ``Omega7Estimate`` (1 tachometer,
     2 rigid; start 1). A description that has them already is returned unchanged.
     """
+    string_to_enumeration = _string_to_enumeration()
     root = ET.fromstring(python_xml)
     variables = root.find("ModelVariables")
     strings = [sv for sv in variables if next(iter(sv)).tag == "String"]
@@ -96,10 +99,10 @@ def interface_description(python_xml: bytes) -> bytes:
         after = [i for i, el in enumerate(root) if el.tag in ("ModelExchange", "CoSimulation", "UnitDefinitions")]
         root.insert(max(after) + 1 if after else 0, types)
     for sv in strings:
-        if sv.get("name") not in _STRING_TO_ENUMERATION:
+        if sv.get("name") not in string_to_enumeration:
             raise NativeBuildError(f"{sv.get('name')}: a String variable with no Enumeration in the interface "
                                    "contract (the native glue has no Strings)")
-        new, declared, items, start, description = _STRING_TO_ENUMERATION[sv.get("name")]
+        new, declared, items, start, description = string_to_enumeration[sv.get("name")]
         simple = ET.SubElement(types, "SimpleType", name=declared)
         enum = ET.SubElement(simple, "Enumeration")
         for value, item in items.items():
@@ -300,6 +303,8 @@ CONTROLLER_VARIANTS = {"controller": (1, 1, False), "controller_ff": (1, 0, Fals
 
 def _stage_sources(name: str, staging: Path, python_fmu: Path) -> tuple[str, str, list[str]]:
     """Write sources/ and resources/ of one FMU into `staging`; return (model identifier, GUID, source names)."""
+    from . import lqg_resources, physics_codegen  # CasADi, Numba, SciPy: only when a native FMU is built
+
     src, res = staging / "sources", staging / "resources"
     src.mkdir(parents=True)
     res.mkdir(parents=True)
@@ -370,6 +375,8 @@ def build_native_fmu(name: str, python_fmu: Path, out_dir: Path, platforms=tuple
                     info.external_attr = 0o644 << 16
                     info.compress_type = zipfile.ZIP_DEFLATED
                     z.writestr(info, p.read_bytes())
+        from fmpy.validation import validate_fmu
+
         problems = validate_fmu(str(tmp_fmu)) if "linux64" in platforms else []
         if problems:
             raise NativeBuildError(f"{name}: fmpy.validate_fmu found problems:\n" + "\n".join(problems))
