@@ -380,6 +380,8 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     previous results stay as they were.
     """
     algorithm = algorithm or scenario.algorithm
+    if progress and (kind or scenario.kind) == "python":
+        _say_numba_compile()  # before the FMUs are built: a build's trace step compiles them too
     chain = verify_data_chain()
     by_key: dict[str, CaseResult] = {}
     commit = git_commit()
@@ -396,8 +398,6 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                 setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")
             setups.append((setup, cases))
         check_writable(folder, sum(BYTES_PER_SAMPLE * (s.n_steps + 1) * len(c) for s, c in setups))
-        if progress and any(s.fmu_kinds().get(s.plant) == "python" for s, _ in setups):
-            _say_numba_compile()
         opened = []
         try:
             for setup, cases in setups:  # every case probed before the first one runs
@@ -511,8 +511,8 @@ def numba_kernels_cached() -> bool | None:
 
 def _say_numba_compile() -> None:
     if numba_kernels_cached() is False:
-        print("compiling the plant's Numba kernels on its first step (once: about a minute, then cached)",
-              file=sys.stderr, flush=True)
+        print("the plant's Numba kernels are not compiled yet: the first plant step (or FMU build) compiles them, "
+              "once, in about a minute", file=sys.stderr, flush=True)
 
 
 def _bar(label: str, stream=None):

@@ -20,7 +20,7 @@ from .journal import DONE, STATUSES, Journal, table_columns, table_rows, write_t
 from .plan import Plan, plan_sweep
 from .report import Progress, _short, format_summary, summary_plots
 from .spec import Sweep, SweepError, load_sweep
-from .worker import close_loaded, iter_dask, iter_serial, local_cluster
+from .worker import close_loaded, close_local_cluster, iter_dask, iter_serial, local_cluster
 
 #: Default results folder: relative to the current directory, so it works with any install.
 DEFAULT_OUT_DIR = Path("results") / "sweeps"
@@ -155,7 +155,7 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
                         resources.callback(client.close)
                     else:
                         cluster = local_cluster(workers, allowed_failures)
-                        resources.callback(cluster.close)
+                        resources.callback(close_local_cluster, cluster)
                         client = Client(cluster)
                         resources.callback(client.close)
                         resources.callback(_quietly, client.run, close_loaded)
