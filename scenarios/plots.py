@@ -4,13 +4,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure  # not pyplot: no GUI backend, no global state, a faster import
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from flexarm.provenance import write_atomic
 
-from flexarm.provenance import write_atomic  # noqa: E402
+
+def _figure(nrows: int = 1, ncols: int = 1, **kwargs):
+    """(figure, axes) like ``pyplot.subplots``, on a figure of its own (drawn by Agg when saved)."""
+    figsize = kwargs.pop("figsize", None)
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols, **kwargs)
 
 
 def _save(fig, path: Path) -> None:
@@ -18,14 +22,13 @@ def _save(fig, path: Path) -> None:
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
     write_atomic(path, buf.getvalue())
 
 
 def plot_scenario(name: str, results, desired: dict, traj, plant: str, driver: str, folder: Path) -> list[Path]:
     """Three PNGs in `folder`; returns their paths."""
     out = []
-    fig, ax = plt.subplots(figsize=(6, 6))
+    fig, ax = _figure(figsize=(6, 6))
     ax.plot(traj.tip[:, 0], traj.tip[:, 1], "k--", lw=2, label="desired (optimiser)")
     for r in results:
         if f"{plant}.tip_x" in r.series:
@@ -37,7 +40,7 @@ def plot_scenario(name: str, results, desired: dict, traj, plant: str, driver: s
     _save(fig, folder / "tip_path.png")
     out.append(folder / "tip_path.png")
 
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig, axes = _figure(2, 1, figsize=(8, 6), sharex=True)
     for j, ax in enumerate(axes):
         for r in results:
             ax.plot(r.series["time"], r.series[f"{driver}.tau{j + 1}"], lw=0.8, label=r.label)
@@ -49,7 +52,7 @@ def plot_scenario(name: str, results, desired: dict, traj, plant: str, driver: s
     _save(fig, folder / "torques.png")
     out.append(folder / "torques.png")
 
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig, axes = _figure(2, 1, figsize=(8, 6), sharex=True)
     for r in results:
         if r.status != "ok":
             continue
