@@ -497,16 +497,23 @@ def numba_kernels_cached() -> bool | None:
     caches beside their source (``flexarm/__pycache__/_kernels.*.nbi``), else in ``$NUMBA_CACHE_DIR`` or the
     user's cache folder.
     """
+    import hashlib
     import importlib.util
 
     if os.environ.get("FLEXARM_NO_NUMBA") or importlib.util.find_spec("numba") is None:
         return None
     spec = importlib.util.find_spec("flexarm._kernels")
-    places = [Path(spec.origin).parent / "__pycache__"] if spec and spec.origin else []
-    # where Numba caches when the source's folder is not writable (an install in a system site-packages)
-    places.append(Path(os.environ.get("NUMBA_CACHE_DIR") or
-                       Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "numba"))
-    return any(next(place.rglob("_kernels.*.nbi"), None) is not None for place in places if place.is_dir())
+    if spec is None or not spec.origin:
+        return None
+    source = Path(os.path.abspath(spec.origin)).parent
+    # Numba's own places: beside the source, else (not writable) a folder named after the source's folder
+    # in $NUMBA_CACHE_DIR or the user's cache (numba.core.caching: get_suitable_cache_subpath).
+    sub = f"{source.name}_{hashlib.sha1(str(source).encode()).hexdigest()}"
+    user = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "numba"
+    places = [source / "__pycache__", user / sub]
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        places.insert(0, Path(os.environ["NUMBA_CACHE_DIR"]) / sub)
+    return any(next(place.glob("_kernels.*.nbi"), None) is not None for place in places if place.is_dir())
 
 
 def _say_numba_compile() -> None:
