@@ -116,7 +116,7 @@ def build_native_all(python_fmus: dict[str, Path], out_dir: str | os.PathLike | 
         return result
     check_native_toolchain()
     say(f"building native {', '.join(f'{n}.fmu' for n in stale)} into {out_dir} with Zig for linux64, win64 and "
-        f"darwin64: about 2 s each{_zig_first_time()}")
+        f"darwin64: about 2-5 s each{_zig_first_time()}")
     try:
         result.update(build_native.build_native_fmus(out_dir, {n: Path(python_fmus[n]) for n in stale}, only=stale))
     except build_native.NativeBuildError as exc:
