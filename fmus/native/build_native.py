@@ -38,7 +38,8 @@ import fmpy
 
 ROOT = Path(__file__).resolve().parents[2]
 NATIVE_DIR = Path(__file__).resolve().parent
-DEFAULT_OUT = ROOT / "build" / "fmus-native"
+#: Under the current directory (as fmu_build's default): an installed package writes no FMU into site-packages.
+DEFAULT_OUT = Path("build") / "fmus-native"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 COMMON_SOURCES = ("fmi2_glue.c", "fmi2_glue.h", "fmi2_glue_resources.c", "sha256.c", "sha256.h", "portable_math.c",
                   "portable_math.h", "libm.h")
