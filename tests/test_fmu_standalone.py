@@ -162,10 +162,16 @@ def _scenario_files(name: str, md, folder: Path) -> tuple[list[str], Path]:
     return sets, path
 
 
+#: Settings of the BLAS/LAPACK kernels (OPENBLAS_CORETYPE picks other kernels than autodetection, a few 1e-9
+#: apart): the native host keeps them, as the fmpy reference does, so both processes compute with the same ones.
+_BLAS_SETTINGS = ("OPENBLAS_", "OMP_", "MKL_", "GOTO_")
+
+
 def _native_env(libpython: Path, home: Path, site_packages: Path, folder: Path, **extra) -> dict[str, str]:
     env = {"PATH": "/usr/bin:/bin", "HOME": str(folder), "LANG": "C.UTF-8", "LD_PRELOAD": str(libpython),
            "PYTHONHOME": str(home), "PYTHONPATH": str(site_packages), "PYTHONNOUSERSITE": "1",
            "PYTHONDONTWRITEBYTECODE": "1"}
+    env.update({k: v for k, v in os.environ.items() if k.startswith(_BLAS_SETTINGS)})
     env.update(extra)
     return {k: v for k, v in env.items() if v is not None}
 
