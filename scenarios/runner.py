@@ -524,23 +524,23 @@ def _say_numba_compile() -> None:
 
 def _bar(label: str, stream=None):
     """Progress of one case on stderr: a redrawn bar on a terminal; otherwise (a log, a pipe) one line when
-    the case ends, with no carriage-return frames."""
+    the case is under way (its first report), with no carriage-return frames."""
     stream = sys.stderr if stream is None else stream
     tty = hasattr(stream, "isatty") and stream.isatty()
-    state = {"last": -1, "t0": time.perf_counter()}
+    state = {"last": -1}
 
     def update(k: int, n: int) -> None:
         pct = int(100 * k / n)
         if pct == state["last"]:
             return
-        state["last"] = pct
+        first, state["last"] = state["last"] == -1, pct
         if tty:
             filled = pct // 4
             stream.write(f"\r{label:28s} [{'#' * filled}{'.' * (25 - filled)}] {pct:3d}%")
             if k == n:
                 stream.write("\n")
-        elif k == n:
-            stream.write(f"{label:28s} {n} steps in {time.perf_counter() - state['t0']:.1f} s\n")
+        elif first:
+            stream.write(f"{label:28s} running, {n} steps\n")
         stream.flush()
 
     return update

@@ -152,7 +152,7 @@ def test_progress_is_a_bar_on_a_terminal_and_one_line_in_a_log():
             update(k, 2058)
         update(2058, 2058)
     assert "\r" not in log.getvalue() and log.getvalue().count("\n") == 1
-    assert log.getvalue().startswith("table2:none") and "2058 steps in" in log.getvalue()
+    assert log.getvalue().startswith("table2:none") and log.getvalue().endswith("running, 2058 steps\n")
     assert tty.getvalue().count("\r") > 50 and tty.getvalue().endswith("100%\n")
 
 
