@@ -451,9 +451,9 @@ def _schedule_rms_tip(runs: PageRuns) -> str:
 @block("table2-none-figures")
 def _table2_none_figures(runs: PageRuns) -> str:
     """docs/fmus-in-other-tools.md (inline): the no-payload case's headline figures."""
-    m = lambda metric: _m(runs, "table2", "none", metric)  # noqa: E731
-    return (f"rms position error {m('rms_position_error'):.4f}°, peak {m('peak_position_error'):.4f}°, "
-            f"peak τ1 {m('peak_tau1'):.3f} N·m")
+    rms, peak, tau1 = (_m(runs, "table2", "none", m) for m in ("rms_position_error", "peak_position_error",
+                                                                  "peak_tau1"))
+    return f"rms position error {rms:.4f}°, peak {peak:.4f}°, peak τ1 {tau1:.3f} N·m"
 
 
 def _slew_length() -> float:
