@@ -7,4 +7,7 @@ import sys
 
 def say(message: str) -> None:
     """Print ``fmu_build: <message>`` on stderr at once (a log shows it while the step runs)."""
-    print(f"fmu_build: {message}", file=sys.stderr, flush=True)
+    try:
+        print(f"fmu_build: {message}", file=sys.stderr, flush=True)
+    except (OSError, ValueError):  # standard error unwritable (2>/dev/full): no reason to stop a build
+        pass
