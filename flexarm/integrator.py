@@ -141,7 +141,7 @@ def advance(model: ArmModel, z, tau, dt: float, substeps: int = DEFAULT_SUBSTEPS
     except (ValueError, ZeroDivisionError, np.linalg.LinAlgError) as exc:
         # Absurd torques or steps overflow the stage systems to inf/NaN before the state does: the
         # kernels' factorisations then report a singular or indefinite matrix (Gauss: no convergence).
-        raise IntegrationError(f"state or stage system became non-finite ({exc})") from exc
+        raise IntegrationError(f"state or stage system became non-finite or did not converge ({exc})") from exc
     if not np.isfinite(z_new).all():
         raise IntegrationError("state became non-finite")
     return z_new, float(err)
