@@ -108,7 +108,7 @@ def measure(fmu_path: Path, n_lib: int, n_fmu: int) -> dict:
 
 def _print(result: dict) -> None:
     for key in sorted(k for k in result if "/" in k):
-        kind, integrator = key.split("/")
+        kind, integrator = key.split("/", 1)
         label = ("library advance()" if kind == "library_us"
                  else f"FMU doStep + getReal({result['n_outputs']} outputs)") + f" [{integrator}]"
         us = result[key]

@@ -51,7 +51,7 @@ PARTS = ("damping", "energy", "loops", "step_size", "horizons")
 SCHEMES = (("rodas4, 2/ms", "rodas4", 2), ("exponential, 2/ms", "exponential", 2), ("gauss, 2/ms", "gauss", 2),
            ("gauss, 32/ms", "gauss", 32), ("reference (RK4 2.5 µs)", "reference", 2))
 REFERENCE = "reference (RK4 2.5 µs)"
-#: The energy part adds Gauss at 4 substeps per ms (the finest step at which its energy error stays below 1e-4).
+#: The energy part adds Gauss at 4 substeps per ms (the fewest at which its energy error stays below 1e-4).
 ENERGY_SCHEMES = SCHEMES[:3] + (("gauss, 4/ms", "gauss", 4),) + SCHEMES[3:]
 #: The closed loops: (label, scenario, case key).
 LOOPS = (("γ = 1, noise", "table1", "noise"), ("γ = 0.1, noise", "table2", "noise"),
@@ -337,7 +337,7 @@ def _g(x, digits=2) -> str:
         return x
     if x == 0:
         return "0"
-    return f"{x:.{digits}g}" if abs(x) >= 1e-3 or abs(x) < 1e-300 else f"{x:.{digits}e}".replace("e-0", "e-")
+    return f"{x:.{digits}g}"
 
 
 def render(data: dict) -> str:
