@@ -153,6 +153,8 @@ def _dispatch(args) -> int:
         for r in results:
             if r.status != "ok":
                 print(f"   {r.key}: {r.status} ({r.message})")
+            if r.loop_stability and r.loop_stability["note"]:
+                print(f"   {r.key}: warning: {r.loop_stability['note']}")
             if r.status == "error":
                 code = EXIT_ERROR
         print("   wall time per case: " + ", ".join(f"{r.key} {r.wall_time_s:.2f} s" for r in results))

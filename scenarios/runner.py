@@ -31,6 +31,7 @@ from .fmu_files import NotAnFmuError, read_description
 from .metrics import METRICS, UNITS, table_metrics
 from .outdir import check_writable, run_folder
 from .results import write_csv
+from .stability import loop_stability
 from .values import check_parameters
 
 REPO = Path(__file__).resolve().parent.parent
@@ -61,6 +62,9 @@ class CaseResult:
     wall_time_s: float
     series: dict[str, np.ndarray]
     outcome: master.Outcome = field(default_factory=lambda: master.Outcome("ok"))
+    #: The linearised sampled loop's stability and, when unstable, what this run's plant can show of it
+    #: (:func:`scenarios.stability.loop_stability`; None when the check does not apply).
+    loop_stability: dict | None = None
 
 
 def _build_tool():
@@ -411,8 +415,9 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     out, metrics = simulate_case(setup, m, case.parameters, progress=bar)
                     wall = time.perf_counter() - t0
                     series = {"time": out["time"], **out["signals"]}
+                    stab = loop_stability(setup.paths, setup.plant, setup.driver, params, scenario.step_size)
                     by_key[case.key] = CaseResult(case.key, case.label, out["status"], out["message"], metrics,
-                                                  wall, series, out["outcome"])
+                                                  wall, series, out["outcome"], stab)
                     write_csv(folder / f"{case.key}.csv", series)
                     write_json(folder / f"{case.key}.json", {
                         "scenario": scenario.name, "scenario_file": str(scenario.path),
@@ -426,7 +431,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                         "trajectory_sha256": chain[_relative(DEFAULT_TRAJECTORY_FILE)],
                         "parameter_file": _relative(DEFAULT_PARAMETER_FILE),
                         "parameter_file_sha256": chain[_relative(DEFAULT_PARAMETER_FILE)],
-                        "data_sha256": chain, "fmu_log_tail": out["log"][-20:],
+                        "data_sha256": chain, "fmu_log_tail": out["log"][-20:], "loop_stability": stab,
                     })
         finally:
             for m in opened:

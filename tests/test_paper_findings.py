@@ -201,3 +201,23 @@ def test_findings_2_5_12_quote_the_reference_runs():
         for text in texts:
             assert text in rows[n], (n, text, rows[n])
     assert not re.search(r"\b1880\b|1\.2 1/s", doc)  # the exponential scheme's figures past 4 s are gone
+
+
+def test_a_run_whose_loop_is_unstable_says_so(tmp_path):
+    """γ = 1 undamped (linear growth +3.27 1/s at the bracket mode): under the default RODAS4 plant the run looks
+    quiet, so its results carry a warning naming the growth and the cure; under the reference plant the note says
+    the run shows it; γ = 0.1 with ζ = 0.005 is stable and gets no note (issue 24 item 5)."""
+    s = load_scenario("table1")
+    s.cases = [c for c in s.cases if c.key == "none"]
+    s.samples = 20
+    (r,) = run_scenario(s, tmp_path, progress=False)
+    stab = r.loop_stability
+    assert stab["growth_per_s"] == pytest.approx(3.27, abs=0.01)
+    assert "rodas4" in stab["note"] and "does not show" in stab["note"] and "reference" in stab["note"]
+    (r,) = run_scenario(with_plant(s, integrator="reference"), tmp_path, progress=False)
+    assert "shows that growth" in r.loop_stability["note"]
+    s2 = load_scenario("table2")
+    s2.cases = [c for c in s2.cases if c.key == "none"]
+    s2.samples = 20
+    (r,) = run_scenario(with_plant(s2, damping_ratio=0.005), tmp_path, progress=False)
+    assert r.loop_stability["growth_per_s"] < 0 and r.loop_stability["note"] == ""
