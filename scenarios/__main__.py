@@ -154,7 +154,7 @@ def _dispatch(args) -> int:
             if r.status != "ok":
                 print(f"   {r.key}: {r.status} ({r.message})")
             if r.loop_stability and r.loop_stability["note"]:
-                print(f"   {r.key}: warning: {r.loop_stability['note']}")
+                print(f"   {sc.name}/{r.key}: warning: {r.loop_stability['note']}", file=sys.stderr)
             if r.status == "error":
                 code = EXIT_ERROR
         print("   wall time per case: " + ", ".join(f"{r.key} {r.wall_time_s:.2f} s" for r in results))
