@@ -392,7 +392,9 @@ def render(data: dict) -> str:
                 for m in MARKS:
                     v = r["peak_velocity_error"].get(f"{m:g}")
                     rv = ref["peak_velocity_error"].get(f"{m:g}") if ref else None
-                    if isinstance(v, (int, float)) and isinstance(rv, (int, float)) and s_label != REFERENCE:
+                    if isinstance(v, float) and not math.isfinite(v):
+                        cells.append("failed")
+                    elif isinstance(v, (int, float)) and isinstance(rv, (int, float)) and s_label != REFERENCE:
                         cells.append(f"{v:.4g} ({100 * (v / rv - 1):+.1f} %)")
                     else:
                         cells.append(_g(v, 4))
