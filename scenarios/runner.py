@@ -31,6 +31,7 @@ from .fmu_files import NotAnFmuError, read_description
 from .metrics import METRICS, UNITS, saturation_warnings, table_metrics
 from .outdir import check_writable, run_folder
 from .results import write_csv
+from .stability import loop_stability
 from .values import check_parameters
 
 REPO = Path(__file__).resolve().parent.parent
@@ -61,8 +62,12 @@ class CaseResult:
     wall_time_s: float
     series: dict[str, np.ndarray]
     outcome: master.Outcome = field(default_factory=lambda: master.Outcome("ok"))
-    #: What the run did not do well (e.g. torque saturation, :func:`scenarios.metrics.saturation_warnings`).
+    #: What the run did not do well (e.g. torque saturation, :func:`scenarios.metrics.saturation_warnings`; an
+    #: unstable sampled loop the plant scheme cannot show, :func:`scenarios.stability.loop_stability`).
     warnings: list[str] = field(default_factory=list)
+    #: The linearised sampled loop's stability (:func:`scenarios.stability.loop_stability`; None when the check
+    #: does not apply).
+    loop_stability: dict | None = None
 
 
 def _build_tool():
@@ -417,14 +422,16 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     out, metrics = simulate_case(setup, m, case.parameters, progress=bar)
                     wall = time.perf_counter() - t0
                     series = {"time": out["time"], **out["signals"]}
+                    stab = loop_stability(setup.paths, setup.plant, setup.driver, params, scenario.step_size)
+                    notes = list(out.get("warnings", [])) + ([stab["note"]] if stab and stab["note"] else [])
                     by_key[case.key] = CaseResult(case.key, case.label, out["status"], out["message"], metrics,
-                                                  wall, series, out["outcome"], list(out.get("warnings", [])))
+                                                  wall, series, out["outcome"], notes, stab)
                     write_csv(folder / f"{case.key}.csv", series)
                     write_json(folder / f"{case.key}.json", {
                         "scenario": scenario.name, "scenario_file": str(scenario.path),
                         "scenario_sha256": scenario_sha, "case": case.key, "label": case.label,
                         "status": out["status"], "message": out["message"], "outcome": out["outcome"].as_dict(),
-                        "warnings": list(out.get("warnings", [])),
+                        "warnings": by_key[case.key].warnings,
                         "metrics": metrics, "metric_units": dict(UNITS), "parameters": params,
                         "samples": setup.n_steps, "step_size_s": scenario.step_size, "algorithm": algorithm,
                         "fmus": {k: str(v) for k, v in setup.paths.items()}, "fmu_sha256": checksums,
@@ -434,7 +441,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                         "trajectory_sha256": chain[_relative(DEFAULT_TRAJECTORY_FILE)],
                         "parameter_file": _relative(DEFAULT_PARAMETER_FILE),
                         "parameter_file_sha256": chain[_relative(DEFAULT_PARAMETER_FILE)],
-                        "data_sha256": chain, "fmu_log_tail": out["log"][-20:],
+                        "data_sha256": chain, "fmu_log_tail": out["log"][-20:], "loop_stability": stab,
                     })
         finally:
             for m in opened:
