@@ -27,6 +27,10 @@ _USAGE = {
                    "slew starts at t = 0. Direct feedthrough: set the measurements at t<sub>k</sub>, read the "
                    "torques computed from them, hand them to the plant, which holds them over "
                    "[t<sub>k</sub>, t<sub>k</sub> + h)."),
+    "reference": ("Communication points on the trajectory's 1 ms grid (any multiple of 1 ms as the step); the "
+                  "slew starts at t = 0. No inputs: the outputs at t<sub>k</sub> are the trajectory's sample "
+                  "k = round(t<sub>k</sub> / 1 ms), the final state held after t<sub>f</sub>; wire them by name "
+                  "into a controller's inputs (docs/own-controller.md)."),
 }
 
 
