@@ -307,11 +307,11 @@ def write_reference_resource(path: Path) -> None:
     from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
 
     ref = ReferenceSignals(load_trajectory(DEFAULT_TRAJECTORY_FILE))
-    physics_codegen.write_resource(path, {"n_steps": [ref.n_steps], "dt": [ref.dt], "n_outputs": [len(REFERENCE_OUTPUTS)],
-                                          "table": ref.table},
-                                   f"flexarm reference signals for the native reference FMU (IEEE-754 hex bit patterns)\n"
-                                   f"source: {DEFAULT_TRAJECTORY_FILE.name} sha256 {sha256_file(DEFAULT_TRAJECTORY_FILE)}\n"
-                                   f"columns: {', '.join(REFERENCE_OUTPUTS)}")
+    entries = {"n_steps": [ref.n_steps], "dt": [ref.dt], "n_outputs": [len(REFERENCE_OUTPUTS)], "table": ref.table}
+    physics_codegen.write_resource(
+        path, entries, "flexarm reference signals for the native reference FMU (IEEE-754 hex bit patterns)\n"
+                       f"source: {DEFAULT_TRAJECTORY_FILE.name} sha256 {sha256_file(DEFAULT_TRAJECTORY_FILE)}\n"
+                       f"columns: {', '.join(REFERENCE_OUTPUTS)}")
 
 
 def _stage_sources(name: str, staging: Path, python_fmu: Path) -> tuple[str, str, list[str]]:
