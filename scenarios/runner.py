@@ -30,7 +30,7 @@ from .config import KINDS, Scenario, ScenarioError
 from .fmu_files import NotAnFmuError, read_description
 from .metrics import METRICS, UNITS, table_metrics
 from .outdir import check_writable, run_folder
-from .results import write_csv
+from .results import analysis_columns, write_csv
 from .values import check_parameters
 
 REPO = Path(__file__).resolve().parent.parent
@@ -480,8 +480,12 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     by_key: dict[str, CaseResult] = {}
     commit = git_commit()
     scenario_sha = sha256_file(scenario.path)
+    from flexarm.reference import ReferenceSignals
+
+    reference = ReferenceSignals(desired_trajectory())  # the CSV's ref.* columns (scenarios/results.py)
     with run_folder(out_dir, scenario.name) as folder:  # locked and writable before FMUs are built
         groups: dict[tuple, list] = {}
+        reported: list[str] = []
         for case in scenario.cases:
             groups.setdefault(tuple(sorted(case.fmus.items())) if case.fmus else (), []).append(case)
         setups = []
@@ -492,7 +496,10 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
             for case in cases:
                 setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")
             setups.append((setup, cases))
-            report_swap(setup)
+            for line in swap_report(setup):  # once per run, not once per FMU set
+                if line not in reported:
+                    reported.append(line)
+                    print(line)
         check_writable(folder, sum(BYTES_PER_SAMPLE * (s.n_steps + 1) * len(c) for s, c in setups))
         opened = []
         try:
@@ -509,6 +516,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     out, metrics = simulate_case(setup, m, case.parameters, progress=bar)
                     wall = time.perf_counter() - t0
                     series = {"time": out["time"], **out["signals"]}
+                    series.update(analysis_columns(series, setup.plant, reference))
                     by_key[case.key] = CaseResult(case.key, case.label, out["status"], out["message"], metrics,
                                                   wall, series, out["outcome"])
                     write_csv(folder / f"{case.key}.csv", series)
@@ -556,17 +564,19 @@ def with_overrides(scenario: Scenario, overrides: dict[str, dict] | None) -> Sce
     return replace(scenario, cases=cases)
 
 
-def report_swap(setup: Setup) -> None:
-    """One line per swapped-in FMU naming the scenario parameters left out, and one naming inputs held at start."""
+def swap_report(setup: Setup) -> list[str]:
+    """Lines naming the scenario parameters a swapped-in FMU does not have (left out), the inputs held at their
+    start values, and what the reference FMU feeds."""
+    name, lines = setup.scenario.name, []
     for inst, missing in setup.left_out.items():
-        print(f"{setup.scenario.name}: {inst} {setup.descriptions[inst].modelName} does not have the scenario's "
-              f"{inst} parameter(s) {', '.join(missing)}: left out")
+        lines.append(f"{name}: {inst} {setup.descriptions[inst].modelName} does not have the scenario's {inst} "
+                     f"parameter(s) {', '.join(missing)}: left out")
     for inst, held in setup.held_inputs.items():
-        print(f"{setup.scenario.name}: {inst} input(s) {', '.join(held)} fed by nothing: held at their start values")
+        lines.append(f"{name}: {inst} input(s) {', '.join(held)} fed by nothing: held at their start values")
     if REFERENCE_FMU in setup.paths:
         fed = sorted({c.dst_fmu for c in setup.connections if c.src_fmu == REFERENCE_FMU})
-        print(f"{setup.scenario.name}: {', '.join(fed) or 'nothing'} fed by the reference FMU "
-              f"({setup.paths[REFERENCE_FMU]})")
+        lines.append(f"{name}: {', '.join(fed) or 'nothing'} fed by the reference FMU ({setup.paths[REFERENCE_FMU]})")
+    return lines
 
 
 def run_length(scenario: Scenario, traj) -> int:
