@@ -49,6 +49,14 @@ def reference_fmu(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
+def native_reference_fmu(reference_fmu, tmp_path_factory) -> Path:
+    from fmus.native.build_native import build_native_fmus
+
+    return build_native_fmus(tmp_path_factory.mktemp("native"), {"reference": reference_fmu}, only=["reference"],
+                             platforms=("linux64",))["reference"]
+
+
+@pytest.fixture(scope="module")
 def examples(tmp_path_factory) -> dict[str, Path]:
     """Both worked examples built with their documented commands (pythonfmu; gcc + zip)."""
     out = tmp_path_factory.mktemp("examples")
@@ -61,6 +69,7 @@ def examples(tmp_path_factory) -> dict[str, Path]:
 
 @pytest.mark.parametrize("step_ms", [1, 3])
 def test_reference_fmu_outputs_are_the_trajectory_samples_bit_for_bit(reference_fmu, step_ms):
+    """Python kind (the native one equals it bit for bit, below)."""
     traj = load_trajectory()
     h = step_ms * 1e-3
     stop = round((traj.n_samples + 150) / step_ms) * h  # past t_f: the final state is held
@@ -74,18 +83,26 @@ def test_reference_fmu_outputs_are_the_trajectory_samples_bit_for_bit(reference_
     assert res["tau1_ff"][-1] == 0.0 and res["progress"][-1] == 1.0
 
 
-def test_reference_fmu_refuses_a_step_off_the_millisecond_grid(reference_fmu, tmp_path):
-    with pytest.raises(Exception, match="doStep|fmi2DoStep|status"):
-        fmpy.simulate_fmu(str(reference_fmu), step_size=1.5e-3, stop_time=0.01)
+@pytest.mark.parametrize("kind", ["python", "native"])
+def test_reference_fmu_refuses_a_step_off_the_millisecond_grid(reference_fmu, native_reference_fmu, kind, tmp_path):
+    from fmpy import extract
+    from fmpy.fmi1 import FMICallException
+    from fmu_harness import Slave
+
+    fmu = reference_fmu if kind == "python" else native_reference_fmu
+    ref = Slave(fmu, extract(str(fmu), str(tmp_path / "x")), "grid")
+    try:
+        ref.fmu.doStep(0.0, 2e-3)
+        with pytest.raises(FMICallException):
+            ref.fmu.doStep(2e-3, 0.5e-3)
+        assert any("step_size" in m and "sample grid" in m for m in ref.errors())
+    finally:
+        ref.close()
 
 
-def test_native_reference_fmu_equals_the_python_one(reference_fmu, tmp_path):
-    from fmus.native.build_native import build_native_fmus
-
-    native = build_native_fmus(tmp_path, {"reference": reference_fmu}, only=["reference"],
-                               platforms=("linux64",))["reference"]
+def test_native_reference_fmu_equals_the_python_one(reference_fmu, native_reference_fmu):
     runs = [fmpy.simulate_fmu(str(f), step_size=2e-3, output_interval=2e-3, stop_time=2.2,
-                              output=list(REFERENCE_OUTPUTS)) for f in (reference_fmu, native)]
+                              output=list(REFERENCE_OUTPUTS)) for f in (reference_fmu, native_reference_fmu)]
     for name in REFERENCE_OUTPUTS:
         np.testing.assert_array_equal(runs[0][name], runs[1][name], err_msg=name)
 
