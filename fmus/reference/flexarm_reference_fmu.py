@@ -6,7 +6,8 @@ communication point t_k its outputs are those of sample k = round(t_k / 1 ms) of
 records is checked when the FMU initialises): the desired states ``theta_ref1..11``, ``omega_ref1..11``,
 the joint references ``q1_ref, q2_ref`` (q2 = θ7 − θ6), ``qd1_ref, qd2_ref``, the feedforward torques
 ``tau1_ff, tau2_ff`` (0 after the slew), the desired tip ``tip_x_ref, tip_y_ref`` and ``progress`` (k / n,
-1 from t_f on). After t_f the final state is held. Any step of whole milliseconds is accepted.
+1 from t_f on). After t_f the final state is held. A step must be a whole number of milliseconds (within
+1e-9 s; 0 samples: nothing happens).
 
 Names: the signal catalogue (``flexarm/data/signals.toml``, fmu "reference"), so a user controller whose
 inputs carry these names is wired to it by name. Interface: ``docs/own-controller.md``.
@@ -18,7 +19,7 @@ import functools
 from pathlib import Path
 
 import numpy as np
-from flexarm_feedthrough import FeedthroughSlave
+from flexarm_feedthrough import FeedthroughSlave, whole_samples
 from flexarm_fmu_base import Var, own_data_dir, pin_module_namespace, slew_experiment, variable_table
 
 from flexarm.lqr import default_trajectory_path
@@ -56,12 +57,8 @@ class FlexarmReference(FeedthroughSlave):
     def evaluate(self) -> np.ndarray:
         return self.ref.at_time(self.time)
 
-    def check_step(self, t: float, h: float) -> None:
-        dt = self.ref.dt
-        end = (t + h) / dt
-        if abs(end - round(end)) > 1e-6:
-            raise ValueError(f"step_size: t + h = {t + h!r} s is not on the reference's sample grid "
-                             f"(multiples of {dt:g} s, the trajectory's sample time)")
+    def samples_in_step(self, t: float, h: float) -> int:
+        return whole_samples(h, self.ref.dt, "the reference's sample (the trajectory's sample time)")
 
     def set_sample_state(self, state: dict) -> None:
         self.setup()

@@ -5,7 +5,7 @@
  * computed by flexarm.reference (resource reference.txt, SHA-256 checked by the glue), k = lround(t / dt):
  * the desired states, joint references, feedforward torques (0 after the slew), desired tip and progress,
  * in the order of the variable table (the signal catalogue's "reference" outputs). Row n (t = t_f) is held
- * after the slew. Steps must end on the dt grid.
+ * after the slew. A step must be a whole number of samples (glue_whole_samples).
  */
 #include <math.h>
 #include <stdlib.h>
@@ -71,10 +71,11 @@ static fmi2Status reference_sample(Instance *inst)
 static fmi2Status reference_do_step(Instance *inst, double t, double h)
 {
     const ReferenceData *d = inst->data;
-    double end = (t + h) / d->dt;
-    if (fabs(end - nearbyint(end)) > 1e-6) {
-        glue_log(inst, fmi2Error, "fmi2DoStep: step_size: t + h = %.17g s is not on the reference's sample grid "
-                 "(multiples of %g s, the trajectory's sample time)", t + h, d->dt);
+    double n;
+    if (glue_whole_samples(h, d->dt, &n)) {
+        glue_log(inst, fmi2Error, "fmi2DoStep: step_size: %.17g s at t = %.17g s is not a whole multiple of the "
+                 "reference's sample (%g s, the trajectory's sample time, within %g s)", h, t, d->dt,
+                 GLUE_STEP_TOLERANCE);
         return fmi2Error;
     }
     return fmi2OK; /* stateless: the outputs are a function of the time */
