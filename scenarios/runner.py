@@ -298,6 +298,8 @@ class Setup:
     left_out: dict[str, list[str]] = field(default_factory=dict)
     #: Instance -> inputs that nothing feeds, held at their declared start values (:func:`unfed_inputs`).
     held_inputs: dict[str, list[str]] = field(default_factory=dict)
+    #: The outputs wired into the torques' source (what the controller saw), recorded after :attr:`record`.
+    seen: list[tuple[str, str]] = field(default_factory=list)
 
     def fmu_kinds(self) -> dict[str, str]:
         """Instance -> kind of the FMU file it runs, from its model description (:func:`fmu_kind`)."""
@@ -341,11 +343,10 @@ def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str
     record += [tuple(s.split(".", 1)) for s in scenario.record if tuple(s.split(".", 1)) not in record]
     traj = desired_trajectory()
     n = run_length(scenario, traj)
-    record += [(c.src_fmu, c.src_var) for c in connections  # what the torque's source saw (results' CSV)
-               if c.dst_fmu == driver and (c.src_fmu, c.src_var) not in record]
+    seen = [(c.src_fmu, c.src_var) for c in connections if c.dst_fmu == driver and (c.src_fmu, c.src_var) not in record]
     return Setup(scenario, paths, connections, plant, driver, record, n,
                  desired_states(traj, np.arange(n + 1) * scenario.step_size), start_parameters(traj),
-                 descriptions, kind, left_out, held)
+                 descriptions, kind, left_out, held, list(dict.fromkeys(seen)))
 
 
 #: The FMU name of the reference signals (fmus/reference/), added to a run whose controller asks for them.
@@ -427,8 +428,8 @@ def check_overrides(setup: Setup, overrides: dict[str, dict]) -> dict[str, dict]
 def simulate_case(setup: Setup, m: master.Master, parameters: dict[str, dict],
                   progress=None) -> tuple[dict, dict[str, float] | None]:
     """One run on a loaded master: the master's result and the table metrics (None unless the outcome is ok)."""
-    out = m.run(setup.case_parameters(parameters), setup.record, setup.n_steps, setup.scenario.step_size,
-                progress=progress)
+    out = m.run(setup.case_parameters(parameters), setup.record + setup.seen, setup.n_steps,
+                setup.scenario.step_size, progress=progress)
     if out["status"] != "ok":
         return out, None
     sig, p, d = out["signals"], setup.plant, setup.driver
