@@ -100,6 +100,19 @@ def test_reference_fmu_refuses_a_step_off_the_millisecond_grid(reference_fmu, na
         ref.close()
 
 
+def test_reference_fmu_refuses_a_trajectory_whose_parameter_file_changed(reference_fmu, tmp_path):
+    """The same data chain as the controllers: the bundled trajectory is checked against its parameter file."""
+    from fmpy import extract
+    from fmu_harness import Slave
+
+    folder = Path(extract(str(reference_fmu), str(tmp_path / "x")))
+    params = folder / "resources" / "flexarm" / "data" / "sandia_arm.toml"
+    params.write_text(params.read_text() + "\n# edited after the trajectory was made\n")
+    # refused when instantiated (the bundle's manifest) or initialised (the trajectory's parameter SHA-256)
+    with pytest.raises(Exception, match="instantiate|fmi2ExitInitializationMode"):
+        Slave(reference_fmu, str(folder), "stale")
+
+
 def test_native_reference_fmu_equals_the_python_one(reference_fmu, native_reference_fmu):
     runs = [fmpy.simulate_fmu(str(f), step_size=2e-3, output_interval=2e-3, stop_time=2.2,
                               output=list(REFERENCE_OUTPUTS)) for f in (reference_fmu, native_reference_fmu)]
