@@ -203,16 +203,21 @@ def test_an_input_nothing_feeds_is_refused_unless_it_has_a_start_value():
     assert runner.unfed_inputs(mds, conns) == {"controller": ["gain"]}
 
 
-def test_reference_wired_by_name_in_fmpy_simulate_ssp(examples, tmp_path):
-    """The exported SSP connects the reference FMU's outputs to the user's controller by name; fmpy runs it."""
+@pytest.mark.parametrize("named", [True, False], ids=["reference-named", "reference-added"])
+def test_reference_wired_by_name_in_fmpy_simulate_ssp(examples, tmp_path, named):
+    """The exported SSP connects the reference FMU's outputs to the user's controller by name; fmpy runs it.
+
+    The scenario file names the reference FMU, or not (the runner adds it, and the export carries it)."""
     from fmpy.ssp.simulation import simulate_ssp
 
     from scenarios.ssp import export_ssp
 
     text = (ROOT / "scenarios" / "table2.toml").read_text()
-    text = text.replace('controller = "controller"', f'controller = "{examples["c"]}"\nreference = "reference"')
-    text = text.replace('order = ["plant", "sensors", "controller"]',
-                        'order = ["reference", "plant", "sensors", "controller"]')
+    text = text.replace('controller = "controller"', f'controller = "{examples["c"]}"'
+                        + ('\nreference = "reference"' if named else ""))
+    if named:
+        text = text.replace('order = ["plant", "sensors", "controller"]',
+                            'order = ["reference", "plant", "sensors", "controller"]')
     text = text.split("[parameters.controller]")[0] + "[[cases]]" + text.split("[[cases]]", 1)[1]
     scenario_file = tmp_path / "own_table2.toml"
     scenario_file.write_text(text)
