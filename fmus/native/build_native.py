@@ -224,6 +224,7 @@ HANDLED_PARAMETERS = {
     # omega7_estimate: accepted and not used, as by the Python FMU (the Kalman filter estimates every velocity)
     "controller_lqg": {"gain_set", "schedule_period", "tau1_max", "tau2_max", "omega7_estimate",
                        "loop_delay_samples", "integral_action", "estimator"},
+    "reference": set(),
 }
 
 
@@ -350,10 +351,25 @@ NATIVE_FMUS = {
     **{name: ("controller/controller.c",) for name in ("controller", "controller_ff", "controller_fb",
                                                        "controller_dlqr")},
     "controller_lqg": ("controller/controller_lqg.c", "controller/controller_lqg.h", "controller/lqg_bank.c"),
+    "reference": ("reference/reference.c",),
 }
 #: controller variants: (feedforward, feedback, discrete-time gains), as fmus/controller/*.py
 CONTROLLER_VARIANTS = {"controller": (1, 1, False), "controller_ff": (1, 0, False), "controller_fb": (0, 1, False),
                        "controller_dlqr": (1, 1, True)}
+
+
+def write_reference_resource(path: Path) -> None:
+    """The reference FMU's table (:class:`flexarm.reference.ReferenceSignals`, bit patterns) for the native twin."""
+    from flexarm.provenance import sha256_file
+    from flexarm.reference import REFERENCE_OUTPUTS, ReferenceSignals
+    from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
+
+    ref = ReferenceSignals(load_trajectory(DEFAULT_TRAJECTORY_FILE))
+    entries = {"n_steps": [ref.n_steps], "dt": [ref.dt], "n_outputs": [len(REFERENCE_OUTPUTS)], "table": ref.table}
+    physics_codegen.write_resource(
+        path, entries, "flexarm reference signals for the native reference FMU (IEEE-754 hex bit patterns)\n"
+                       f"source: {DEFAULT_TRAJECTORY_FILE.name} sha256 {sha256_file(DEFAULT_TRAJECTORY_FILE)}\n"
+                       f"columns: {', '.join(REFERENCE_OUTPUTS)}")
 
 
 def _stage_sources(name: str, staging: Path, python_fmu: Path) -> tuple[str, str, list[str]]:
@@ -381,6 +397,8 @@ def _stage_sources(name: str, staging: Path, python_fmu: Path) -> tuple[str, str
         physics_codegen.write_sensor_resource(res / physics_codegen.SENSOR_RESOURCE)
     elif name == "controller_lqg":
         lqg_resources.write_lqg_resources(res)
+    elif name == "reference":
+        write_reference_resource(res / "reference.txt")
     else:
         ff, fb, discrete = CONTROLLER_VARIANTS[name]
         (src / "controller_mode.h").write_text(
