@@ -10,7 +10,6 @@ disk full); 130 interrupted (Ctrl-C; nothing recorded as a result); 143 terminat
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import signal
 import sys

@@ -364,6 +364,8 @@ def write_reference_resource(path: Path) -> None:
     from flexarm.reference import REFERENCE_OUTPUTS, ReferenceSignals
     from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
 
+    from . import physics_codegen
+
     ref = ReferenceSignals(load_trajectory(DEFAULT_TRAJECTORY_FILE))
     entries = {"n_steps": [ref.n_steps], "dt": [ref.dt], "n_outputs": [len(REFERENCE_OUTPUTS)], "table": ref.table}
     physics_codegen.write_resource(
