@@ -239,13 +239,17 @@ class NormOptimalIlc:
     """
 
     def __init__(self, model: LtvModel, error_weight: float = ERROR_WEIGHT, input_weight: float = INPUT_WEIGHT,
-                 q_cutoff_hz: float | None = Q_FILTER_CUTOFF_HZ, q_order: int = Q_FILTER_ORDER):
+                 q_cutoff_hz: float | None = Q_FILTER_CUTOFF_HZ, q_order: int = Q_FILTER_ORDER,
+                 leak_weight: float = 0.0):
         if not (np.isfinite(error_weight) and error_weight > 0):
             raise IlcError(f"error_weight: a finite weight > 0 rad^-2, got {error_weight!r}")
         if not (np.isfinite(input_weight) and input_weight > 0):
             raise IlcError(f"input_weight: a finite weight > 0 (N m)^-2, got {input_weight!r}")
+        if not (np.isfinite(leak_weight) and leak_weight >= 0):
+            raise IlcError(f"leak_weight: a finite weight >= 0 (N m)^-2, got {leak_weight!r}")
         self.model = model
         self.error_weight, self.input_weight = float(error_weight), float(input_weight)
+        self.leak_weight = float(leak_weight)
         self.q_cutoff_hz, self.q_order = q_cutoff_hz, int(q_order)
         self._riccati()
 
@@ -254,9 +258,10 @@ class NormOptimalIlc:
         m = self.model
         n = m.n_samples
         CtQC = self.error_weight * m.C.T @ m.C
-        R = self.input_weight * np.eye(2)
+        R = (self.input_weight + self.leak_weight) * np.eye(2)
         self._K = np.empty((n, 2, N_STATE))
         self._G = np.empty((n, 2, N_STATE))
+        self._Minv = np.empty((n, 2, 2))
         self._Acl_T = np.empty((n, N_STATE, N_STATE))
         P = CtQC.copy()  # cost-to-go of δx_N
         for k in range(n - 1, -1, -1):
@@ -266,16 +271,24 @@ class NormOptimalIlc:
             K = np.linalg.solve(M, PB.T @ A)
             self._K[k] = K
             self._G[k] = np.linalg.solve(M, B.T)
+            self._Minv[k] = np.linalg.inv(M)
             acl = A - B @ K
             self._Acl_T[k] = acl.T
             # the output cost of δx_k (k ≥ 1) plus the cost-to-go through sample k
             P = (CtQC if k > 0 else 0.0) + A.T @ P @ acl
             P = 0.5 * (P + P.T)
 
-    def step(self, error) -> np.ndarray:
-        """Δu = L e, shape (N, 2): the norm-optimal change of the correction for the errors e_1..e_N, shape (N, 11)."""
+    def step(self, error, correction=None) -> np.ndarray:
+        """The norm-optimal change Δu of the correction, shape (N, 2), for the errors e_1..e_N, shape (N, 11).
+
+        Minimises ‖e − GΔu‖²_Qe + r‖Δu‖² + s‖u + Δu‖² (r = ``input_weight``, s = ``leak_weight``, u =
+        `correction`, default zero): Δu = (GᵀQeG + (r + s)I)⁻¹(GᵀQe e − s u); with s = 0 this is L e.
+        """
         m = self.model
         e = np.asarray(error, dtype=float)
+        h = None
+        if self.leak_weight and correction is not None:
+            h = self.leak_weight * np.asarray(correction, dtype=float)
         if e.shape != (m.n_samples, len(m.C)):
             raise IlcError(f"error: expected shape ({m.n_samples}, {len(m.C)}) (samples 1..N, rad), got {e.shape}")
         if not np.isfinite(e).all():
@@ -283,13 +296,19 @@ class NormOptimalIlc:
         n = m.n_samples
         s = np.zeros((n + 1, N_STATE))  # adjoint s_k: V_k(x) = xᵀP_k x − 2 s_kᵀ x + c
         qc = self.error_weight * m.C.T
+        # with the leak term 2hᵀΔu_k per sample: s_k = CᵀQe_k + (A−BK)ᵀs_(k+1) + K_kᵀh_k,
+        # Δu_k = −K_k x_k + M_k⁻¹(Γ_kᵀ s_(k+1) − h_k)
         s[n] = qc @ e[n - 1]
         for k in range(n - 1, 0, -1):
             s[k] = qc @ e[k - 1] + self._Acl_T[k] @ s[k + 1]
+            if h is not None:
+                s[k] += self._K[k].T @ h[k]
         du = np.empty((n, 2))
         x = np.zeros(N_STATE)
         for k in range(n):
             du[k] = -self._K[k] @ x + self._G[k] @ s[k + 1]
+            if h is not None:
+                du[k] -= self._Minv[k] @ h[k]
             x = m.A[k] @ x + m.B[k] @ du[k]
         return du
 
@@ -314,7 +333,7 @@ class NormOptimalIlc:
         u = np.asarray(correction, dtype=float)
         if u.shape != (self.model.n_samples, 2):
             raise IlcError(f"correction: expected shape ({self.model.n_samples}, 2) N·m, got {u.shape}")
-        nxt = q_filter(u + self.step(error), self.model.dt, self.q_cutoff_hz, self.q_order)
+        nxt = q_filter(u + self.step(error, u), self.model.dt, self.q_cutoff_hz, self.q_order)
         if limits is not None:
             lim = np.asarray(limits, dtype=float)
             ff = np.zeros_like(nxt) if feedforward is None else np.asarray(feedforward, dtype=float)
@@ -336,15 +355,16 @@ class NormOptimalIlc:
         return G
 
     def dense_operator(self) -> tuple[np.ndarray, np.ndarray]:
-        """(L, T): the dense learning gain L = (GᵀQeG + Ru)⁻¹GᵀQe, shape (2N, 11N), and the learning operator on
-        the correction, T = Q(I − LG), shape (2N, 2N) (u_(j+1) = T u_j + Q L r for a fixed reference r)."""
+        """(L, T): the dense learning gain L = (GᵀQeG + (r + s)I)⁻¹GᵀQe, shape (2N, 11N), and the learning operator
+        on the correction, T = Q(I − L G − s H⁻¹), shape (2N, 2N), H = GᵀQeG + (r + s)I: on a plant equal to the
+        model, e_j = e_0 − G u_j and u_(j+1) = T u_j + Q L e_0."""
         G = self.lifted_matrix()
         n = self.model.n_samples
-        H = self.error_weight * G.T @ G + self.input_weight * np.eye(2 * n)
+        H = self.error_weight * G.T @ G + (self.input_weight + self.leak_weight) * np.eye(2 * n)
         L = np.linalg.solve(H, self.error_weight * G.T)
         Qm = q_filter_matrix(n, self.model.dt, self.q_cutoff_hz, self.q_order) if self.q_cutoff_hz else np.eye(n)
         Q2 = np.kron(Qm, np.eye(2))  # sample-major: the same filter on each channel
-        return L, Q2 @ (np.eye(2 * n) - L @ G)
+        return L, Q2 @ (np.eye(2 * n) - L @ G - self.leak_weight * np.linalg.inv(H))
 
 
 # -- measurements -------------------------------------------------------------------

@@ -68,6 +68,8 @@ OMEGA7_ITEMS = (
     (2, "rigid", "from both tachometers, rigid-body (qd1 + qd2 errors)"),
 )
 DEFAULT_GAIN_SET = 2  # gamma0.1
+#: String parameter: a learned feedforward correction file (:func:`flexarm.ilc.write_learned_feedforward`).
+FEEDFORWARD_CORRECTION = "feedforward_correction_file"
 
 VARIABLES = variable_table([
     *[Var(s.name, "input", "continuous", s.unit, s.description, 0.0) for s in signals("controller", "input")],
@@ -85,6 +87,10 @@ VARIABLES = variable_table([
         "(qd1 + qd2 errors)", 1, 1, 2, type="Integer", choices=OMEGA7_ITEMS),
     *[Var(s.name, "output", "continuous", s.unit, s.description, depends_on=USED_INPUTS)
       for s in signals("controller", "output")],
+    # Last, so that the native twins (no Strings in their glue) leave it out without a gap in the references.
+    Var(FEEDFORWARD_CORRECTION, "parameter", "fixed", None,
+        "Learned feedforward correction: path of a flexarm.ilc design file (.npz with its .json); "
+        "empty: none", "", type="String"),
 ])
 
 
@@ -113,13 +119,15 @@ def schedule_label(period: float) -> str:
 
 @functools.lru_cache(maxsize=16)
 def _tracking_controller(data: str | None, mode: str, name: str, schedule: str, tau1_max: float, tau2_max: float,
-                         omega7: str) -> TrackingController:
+                         omega7: str, correction: tuple = ("", "")) -> TrackingController:
     """The control law of one configuration, built once per process (about 25 ms).
 
     Shared by the instances (and resets) with the same configuration and data folder: a
     TrackingController does not change after construction. `data` is this FMU's own
     ``resources/flexarm/data`` (FMUs in one process share the ``flexarm`` package imported first,
-    which need not carry this FMU's trajectory and gains), or None for the package's.
+    which need not carry this FMU's trajectory and gains), or None for the package's. `correction`: the
+    learned-feedforward file and its SHA-256 (part of the cache key: a file rewritten between runs is read anew),
+    ("", "") for none.
     """
     gains = None
     if mode != "ff":  # feedforward only needs no gains (the name is still checked by the caller)
@@ -127,7 +135,13 @@ def _tracking_controller(data: str | None, mode: str, name: str, schedule: str, 
 
         gains = GainSchedule.load(name, schedule, directory=None if data is None else Path(data) / "gains")
     trajectory = default_trajectory_path() if data is None else Path(data) / "trajectory.npz"
-    return TrackingController(trajectory, gains, mode=mode, saturation=(tau1_max, tau2_max), omega7=omega7)
+    learned = None
+    if correction[0]:
+        from flexarm.ilc import read_learned_feedforward
+
+        learned = read_learned_feedforward(correction[0]).correction
+    return TrackingController(trajectory, gains, mode=mode, saturation=(tau1_max, tau2_max), omega7=omega7,
+                              feedforward_correction=learned)
 
 
 class ControllerSlave(FeedthroughSlave):
@@ -154,8 +168,16 @@ class ControllerSlave(FeedthroughSlave):
             raise ValueError(f"omega7_estimate: {self.value('omega7_estimate')!r} is not one of "
                              + ", ".join(f"{v} ({n})" for v, n, _ in OMEGA7_ITEMS))
         name = gain_set_name(self.value("gain_set"), self.DISCRETE)
+        path = self.value(FEEDFORWARD_CORRECTION)
+        correction = ("", "")
+        if path:
+            from flexarm.provenance import sha256_file
+
+            if not Path(path).is_file():
+                raise ValueError(f"{FEEDFORWARD_CORRECTION}: no file {path!r}")
+            correction = (str(Path(path).resolve()), sha256_file(path))
         return (name, schedule_label(self.value("schedule_period")), self.value("tau1_max"),
-                self.value("tau2_max"), omega7)
+                self.value("tau2_max"), omega7, correction)
 
     def setup(self) -> None:
         key = self._config()
@@ -165,7 +187,8 @@ class ControllerSlave(FeedthroughSlave):
             self.law = _tracking_controller(own_data_dir(self.resources), self.MODE, *key)
         except (ValueError, OSError) as exc:
             raise ValueError(f"gain_set = {self.value('gain_set')!r}, schedule_period = "
-                             f"{self.value('schedule_period')!r} s: {exc}") from None
+                             f"{self.value('schedule_period')!r} s, {FEEDFORWARD_CORRECTION} = "
+                             f"{self.value(FEEDFORWARD_CORRECTION)!r}: {exc}") from None
         self._key = key
 
     def evaluate(self) -> np.ndarray:

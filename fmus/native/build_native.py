@@ -77,6 +77,11 @@ _STRING_TO_ENUMERATION = {
 }
 
 
+#: String parameters of the Python FMUs that the native ones leave out (the native glue has no Strings): the
+#: learned feedforward file of the Python controllers (flexarm.ilc), the last variable of their interface.
+PYTHON_ONLY_STRINGS = ("feedforward_correction_file",)
+
+
 def interface_description(python_xml: bytes) -> bytes:
     """The Python FMU's description with the interface contract's Enumerations for String parameters.
 
@@ -87,9 +92,12 @@ def interface_description(python_xml: bytes) -> bytes:
     """
     root = ET.fromstring(python_xml)
     variables = root.find("ModelVariables")
+    dropped = [sv for sv in variables if sv.get("name") in PYTHON_ONLY_STRINGS]
+    for sv in dropped:
+        variables.remove(sv)
     strings = [sv for sv in variables if next(iter(sv)).tag == "String"]
     if not strings:
-        return python_xml
+        return ET.tostring(root, encoding="utf-8") if dropped else python_xml
     types = root.find("TypeDefinitions")
     if types is None:
         types = ET.Element("TypeDefinitions")
