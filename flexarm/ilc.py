@@ -71,7 +71,7 @@ from .gain_schedule import (
 )
 from .gain_sets import GainError
 from .lqr_design import effective_gain, measurement_map
-from .model import N, N_STATE
+from .model import N_STATE, N
 from .provenance import git_commit
 
 #: Error weight Qe = ERROR_WEIGHT · I11 on the 11 reconstructed angle errors, rad⁻².

@@ -33,7 +33,6 @@ import numpy as np
 
 from flexarm.provenance import git_commit, sha256_file, write_atomic, write_json
 
-from . import master
 from .config import SCENARIO_DIR, Scenario, ScenarioError, load_scenario
 from .metrics import table_metrics
 from .outdir import check_writable, folder_lock, remove_stale
