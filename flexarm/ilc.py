@@ -240,7 +240,7 @@ class NormOptimalIlc:
 
     def __init__(self, model: LtvModel, error_weight: float = ERROR_WEIGHT, input_weight: float = INPUT_WEIGHT,
                  q_cutoff_hz: float | None = Q_FILTER_CUTOFF_HZ, q_order: int = Q_FILTER_ORDER,
-                 leak_weight: float = 0.0):
+                 leak_weight: float = 0.0, time_weight=None):
         if not (np.isfinite(error_weight) and error_weight > 0):
             raise IlcError(f"error_weight: a finite weight > 0 rad^-2, got {error_weight!r}")
         if not (np.isfinite(input_weight) and input_weight > 0):
@@ -250,6 +250,11 @@ class NormOptimalIlc:
         self.model = model
         self.error_weight, self.input_weight = float(error_weight), float(input_weight)
         self.leak_weight = float(leak_weight)
+        w = np.ones(model.n_samples) if time_weight is None else np.asarray(time_weight, dtype=float)
+        if w.shape != (model.n_samples,) or not np.isfinite(w).all() or w.min() < 0:
+            raise IlcError(f"time_weight: {model.n_samples} finite weights >= 0 (samples 1..N), got shape {w.shape}")
+        #: Per-sample factor of the error weight (sample k + 1 of the errors).
+        self.time_weight = w
         self.q_cutoff_hz, self.q_order = q_cutoff_hz, int(q_order)
         self._riccati()
 
@@ -257,13 +262,14 @@ class NormOptimalIlc:
         """Backward Riccati sweep of the LQ tracking problem: the feedback K_k, M_k⁻¹Γ_kᵀ and (A−BK)ᵀ per sample."""
         m = self.model
         n = m.n_samples
-        CtQC = self.error_weight * m.C.T @ m.C
+        CtQC = self.error_weight * m.C.T @ m.C  # times time_weight[k − 1] for the error of sample k
+        w = self.time_weight
         R = (self.input_weight + self.leak_weight) * np.eye(2)
         self._K = np.empty((n, 2, N_STATE))
         self._G = np.empty((n, 2, N_STATE))
         self._Minv = np.empty((n, 2, 2))
         self._Acl_T = np.empty((n, N_STATE, N_STATE))
-        P = CtQC.copy()  # cost-to-go of δx_N
+        P = w[n - 1] * CtQC  # cost-to-go of δx_N
         for k in range(n - 1, -1, -1):
             A, B = m.A[k], m.B[k]
             PB = P @ B
@@ -275,7 +281,7 @@ class NormOptimalIlc:
             acl = A - B @ K
             self._Acl_T[k] = acl.T
             # the output cost of δx_k (k ≥ 1) plus the cost-to-go through sample k
-            P = (CtQC if k > 0 else 0.0) + A.T @ P @ acl
+            P = (w[k - 1] * CtQC if k > 0 else 0.0) + A.T @ P @ acl
             P = 0.5 * (P + P.T)
 
     def step(self, error, correction=None) -> np.ndarray:
@@ -298,9 +304,10 @@ class NormOptimalIlc:
         qc = self.error_weight * m.C.T
         # with the leak term 2hᵀΔu_k per sample: s_k = CᵀQe_k + (A−BK)ᵀs_(k+1) + K_kᵀh_k,
         # Δu_k = −K_k x_k + M_k⁻¹(Γ_kᵀ s_(k+1) − h_k)
-        s[n] = qc @ e[n - 1]
+        we = e * self.time_weight[:, None]
+        s[n] = qc @ we[n - 1]
         for k in range(n - 1, 0, -1):
-            s[k] = qc @ e[k - 1] + self._Acl_T[k] @ s[k + 1]
+            s[k] = qc @ we[k - 1] + self._Acl_T[k] @ s[k + 1]
             if h is not None:
                 s[k] += self._K[k].T @ h[k]
         du = np.empty((n, 2))
@@ -360,8 +367,9 @@ class NormOptimalIlc:
         model, e_j = e_0 − G u_j and u_(j+1) = T u_j + Q L e_0."""
         G = self.lifted_matrix()
         n = self.model.n_samples
-        H = self.error_weight * G.T @ G + (self.input_weight + self.leak_weight) * np.eye(2 * n)
-        L = np.linalg.solve(H, self.error_weight * G.T)
+        Wq = self.error_weight * np.repeat(self.time_weight, len(self.model.C))
+        H = (G.T * Wq) @ G + (self.input_weight + self.leak_weight) * np.eye(2 * n)
+        L = np.linalg.solve(H, G.T * Wq)
         Qm = q_filter_matrix(n, self.model.dt, self.q_cutoff_hz, self.q_order) if self.q_cutoff_hz else np.eye(n)
         Q2 = np.kron(Qm, np.eye(2))  # sample-major: the same filter on each channel
         return L, Q2 @ (np.eye(2 * n) - L @ G - self.leak_weight * np.linalg.inv(H))
