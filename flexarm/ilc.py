@@ -240,7 +240,7 @@ class NormOptimalIlc:
 
     def __init__(self, model: LtvModel, error_weight: float = ERROR_WEIGHT, input_weight: float = INPUT_WEIGHT,
                  q_cutoff_hz: float | None = Q_FILTER_CUTOFF_HZ, q_order: int = Q_FILTER_ORDER,
-                 leak_weight: float = 0.0, time_weight=None):
+                 leak_weight: float = 0.0, time_weight=None, learning_gain: float = 1.0):
         if not (np.isfinite(error_weight) and error_weight > 0):
             raise IlcError(f"error_weight: a finite weight > 0 rad^-2, got {error_weight!r}")
         if not (np.isfinite(input_weight) and input_weight > 0):
@@ -250,6 +250,10 @@ class NormOptimalIlc:
         self.model = model
         self.error_weight, self.input_weight = float(error_weight), float(input_weight)
         self.leak_weight = float(leak_weight)
+        if not (np.isfinite(learning_gain) and 0 < learning_gain < 2):
+            raise IlcError(f"learning_gain: a step factor in (0, 2), got {learning_gain!r}")
+        #: β: the update takes β Δu (β = 1: the norm-optimal step; the fixed point does not depend on β).
+        self.learning_gain = float(learning_gain)
         w = np.ones(model.n_samples) if time_weight is None else np.asarray(time_weight, dtype=float)
         if w.shape != (model.n_samples,) or not np.isfinite(w).all() or w.min() < 0:
             raise IlcError(f"time_weight: {model.n_samples} finite weights >= 0 (samples 1..N), got shape {w.shape}")
@@ -340,7 +344,7 @@ class NormOptimalIlc:
         u = np.asarray(correction, dtype=float)
         if u.shape != (self.model.n_samples, 2):
             raise IlcError(f"correction: expected shape ({self.model.n_samples}, 2) N·m, got {u.shape}")
-        nxt = q_filter(u + self.step(error, u), self.model.dt, self.q_cutoff_hz, self.q_order)
+        nxt = q_filter(u + self.learning_gain * self.step(error, u), self.model.dt, self.q_cutoff_hz, self.q_order)
         if limits is not None:
             lim = np.asarray(limits, dtype=float)
             ff = np.zeros_like(nxt) if feedforward is None else np.asarray(feedforward, dtype=float)

@@ -58,6 +58,7 @@ ILC_KEYS = {
     "error_weight": "a weight > 0, rad^-2",
     "input_weight": "a weight > 0, (N m)^-2",
     "leak_weight": "a weight >= 0, (N m)^-2",
+    "learning_gain": "a step factor in (0, 2)",
     "q_filter_cutoff_hz": "a cut-off in [0, 500) Hz (0: no Q-filter)",
     "q_filter_order": "an integer in [1, 8]",
     "evaluate_cases": "a list of case keys",
@@ -76,6 +77,7 @@ class IlcSettings:
     error_weight: float
     input_weight: float
     leak_weight: float
+    learning_gain: float
     q_filter_cutoff_hz: float
     q_filter_order: int
     evaluate_cases: list[str]
@@ -135,6 +137,7 @@ def load_ilc(name) -> tuple[Scenario, IlcSettings]:
         error_weight=float(get("error_weight", 1.0, number(0.0, 1e12, True))),
         input_weight=float(get("input_weight", 1e-4, number(0.0, 1e12, True))),
         leak_weight=float(get("leak_weight", 0.0, number(0.0, 1e12))),
+        learning_gain=float(get("learning_gain", 1.0, lambda v: number(0.0, 1.999999, True)(v))),
         q_filter_cutoff_hz=float(get("q_filter_cutoff_hz", 10.0, lambda v: number(0.0, 499.999)(v))),
         q_filter_order=get("q_filter_order", 2, integer(1, 8)),
         evaluate_cases=list(get("evaluate_cases", [], lambda v: isinstance(v, list) and all(x in keys for x in v))),
@@ -232,7 +235,8 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         n_slew = min(traj.n_samples, n)
         model = ilc.closed_loop_model(n, payload_mass=settings.model_payload_mass)
         law = ilc.NormOptimalIlc(model, settings.error_weight, settings.input_weight, settings.q_filter_cutoff_hz,
-                                 settings.q_filter_order, settings.leak_weight)
+                                 settings.q_filter_order, settings.leak_weight,
+                                 learning_gain=settings.learning_gain)
         feedforward = ilc.feedforward_over(traj, n)
         journal = Journal(folder / "journal.jsonl")
         records = journal.read()

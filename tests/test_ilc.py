@@ -59,13 +59,16 @@ def test_update_equals_a_hand_computed_small_case():
 
 @pytest.mark.parametrize("leak", [0.0, 1e-3])
 def test_riccati_sweep_equals_the_dense_norm_optimal_update(small_model, leak):
-    law = ilc.NormOptimalIlc(small_model, error_weight=1.0, input_weight=1e-4, q_cutoff_hz=10.0, leak_weight=leak)
     rng = np.random.default_rng(3)
+    w = rng.uniform(0.5, 3.0, small_model.n_samples)  # per-sample error weights
+    law = ilc.NormOptimalIlc(small_model, error_weight=1.0, input_weight=1e-4, q_cutoff_hz=10.0, leak_weight=leak,
+                             time_weight=w)
     e = rng.normal(scale=1e-3, size=(small_model.n_samples, 11))
     u = rng.normal(scale=0.1, size=(small_model.n_samples, 2))
     G = law.lifted_matrix()
-    H = G.T @ G + (1e-4 + leak) * np.eye(G.shape[1])
-    dense = np.linalg.solve(H, G.T @ e.ravel() - leak * u.ravel()).reshape(-1, 2)
+    W = np.repeat(w, 11)
+    H = (G.T * W) @ G + (1e-4 + leak) * np.eye(G.shape[1])
+    dense = np.linalg.solve(H, (G.T * W) @ e.ravel() - leak * u.ravel()).reshape(-1, 2)
     sweep = law.step(e, u)
     assert np.abs(sweep - dense).max() <= 1e-9 * np.abs(dense).max()
     # and G itself is the model: its product equals simulating the LTV model
