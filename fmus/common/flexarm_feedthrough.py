@@ -1,26 +1,36 @@
-"""Direct-feedthrough sampling for this project's FMUs (sensors, controllers).
+"""Sampled FMUs of this project (sensors, controllers): outputs that reads cannot change.
 
-The sensors and controller FMUs are *sampled* components: their outputs at a
-communication point t_k are a function of the inputs present at t_k (direct
-feedthrough), not of the inputs held over the previous step. A master sets
-the inputs at t_k and then reads the outputs, which must already reflect
-them. :class:`FeedthroughSlave` implements that on top of
-:class:`flexarm_fmu_base.FlexarmSlave`:
+The sensors and controller FMUs are *sampled* components with a state that
+advances once per sample. :class:`FeedthroughSlave` gives them one rule, on
+top of :class:`flexarm_fmu_base.FlexarmSlave`:
+
+**The outputs are a pure function of the committed state and the inputs
+present.** :meth:`~FeedthroughSlave.evaluate` computes them from the state
+committed at the last ``fmi2DoStep`` (or at initialisation) without changing
+it. Reading any output, any number of times, at any moment, changes nothing:
 
 * setting any input marks the outputs *stale*;
-* reading any output while they are stale evaluates :meth:`~FeedthroughSlave.evaluate`
-  once (the sample k) and publishes the result; reading again returns the
-  same numbers without re-evaluating;
-* ``fmi2DoStep(t_k, h)`` first takes the sample if nobody read the outputs
-  (so the sequence of samples, e.g. the noise stream, does not depend on
-  which outputs the master reads), then calls :meth:`~FeedthroughSlave.commit`
-  and marks the outputs stale: the next sample belongs to t_k + h.
+* reading an output while they are stale evaluates once and caches the
+  result (the cache is only a cache: the same state and inputs give the same
+  numbers); reading again returns it;
+* ``fmi2DoStep(t, h)`` counts the samples in the step
+  (:meth:`~FeedthroughSlave.samples_in_step`), evaluates from the inputs
+  present *at ``fmi2DoStep``* (whatever was read before) and calls
+  :meth:`~FeedthroughSlave.commit`, which makes the state advance by those
+  samples; the outputs are then stale (the next sample belongs to t + h).
 
-If an input is set again after the outputs were read at the same
-communication point, the next read evaluates again *from the same committed
-state* (the subclass rolls back any state it advanced in
-:meth:`~FeedthroughSlave.evaluate`), so each communication point advances
-the internal state exactly once, with the inputs present at ``fmi2DoStep``.
+A component with direct feedthrough (the sensors, the stateless
+controllers, ``controller_lqg`` with ``loop_delay_samples = 0``) evaluates
+from its inputs; one without (``controller_lqg`` with a loop delay) returns
+what its last commit computed, so its outputs do not depend on the inputs at
+all. Either way, what a master reads never depends on how often or when it
+reads.
+
+Step sizes (:func:`whole_samples`): a step within 1e-9 s of n whole samples
+counts as n samples; n = 0 (a step of at most 1e-9 s, such as the
+1.15e-13 s last step a master accumulating time in doubles produces) is
+accepted and does nothing: no sample instant lies inside it. Any other step
+is refused naming ``step_size``.
 
 The staleness flag is part of the FMU state (``fmi2Get/SetFMUstate``).
 This module is bundled into each FMU that uses it and imported by name
@@ -34,15 +44,35 @@ from abc import abstractmethod
 import numpy as np
 from flexarm_fmu_base import _INITIALIZATION, FlexarmSlave
 
-__all__ = ["FeedthroughSlave"]
+__all__ = ["STEP_TOLERANCE", "FeedthroughSlave", "whole_samples"]
+
+#: A step within this many seconds of a whole number of samples counts as that number, s.
+STEP_TOLERANCE = 1e-9
+
+
+def whole_samples(h: float, period: float, what: str) -> int:
+    """The number n >= 0 of samples of `period` (s) in a communication step `h` (s).
+
+    Raises
+    ------
+    ValueError
+        Naming ``step_size`` when `h` is not within :data:`STEP_TOLERANCE` of ``n * period``;
+        `what` says which sample (e.g. "the controller's 1 ms sample").
+    """
+    n = round(h / period)
+    if abs(h - n * period) > STEP_TOLERANCE:
+        raise ValueError(f"step_size: {h!r} s is not a whole multiple of {what} ({period:g} s; allowed: n * "
+                         f"{period:g} s within {STEP_TOLERANCE:g} s, n = 0, 1, 2, ...; a step of n = 0 samples "
+                         "does nothing)")
+    return n
 
 
 class FeedthroughSlave(FlexarmSlave):
     """A :class:`FlexarmSlave` whose outputs at t_k are computed from the inputs set at t_k.
 
     Subclasses implement :meth:`setup` (build from the parameters),
-    :meth:`evaluate` (outputs of the current sample), optionally
-    :meth:`commit`, :meth:`check_step`, :meth:`get_sample_state` and
+    :meth:`evaluate` (outputs of the current sample), :meth:`samples_in_step`,
+    optionally :meth:`commit`, :meth:`get_sample_state` and
     :meth:`set_sample_state`.
     """
 
@@ -60,18 +90,25 @@ class FeedthroughSlave(FlexarmSlave):
 
     @abstractmethod
     def evaluate(self) -> np.ndarray:
-        """Outputs (table order) of the sample at ``self.time`` from the current inputs.
+        """Outputs (table order) at ``self.time``: a function of the committed state and the inputs present.
 
-        May be called several times per communication point (each time the
-        inputs changed after a read); every call must start from the state
-        committed at the previous :meth:`commit`.
+        May be called any number of times per communication point; it must
+        not change the committed state (what it derives for :meth:`commit`
+        is recomputed at every call).
         """
 
-    def commit(self, t: float, h: float) -> None:
-        """Make the sample of the current communication point final (called by ``fmi2DoStep``)."""
+    @abstractmethod
+    def samples_in_step(self, t: float, h: float) -> int:
+        """Samples n >= 0 in a step from t of size h (s); raise naming ``step_size`` if not allowed.
 
-    def check_step(self, t: float, h: float) -> None:
-        """Raise if a step from t of size h (s) is not allowed (before anything changes)."""
+        Called before anything changes; n = 0: the step does nothing (see :func:`whole_samples`).
+        """
+
+    def commit(self, t: float, h: float, n: int) -> None:
+        """Advance the state by the n >= 1 samples of the step, from the inputs present (``fmi2DoStep``).
+
+        Called right after :meth:`evaluate` with the inputs present at ``fmi2DoStep``.
+        """
 
     def get_sample_state(self) -> dict:
         """JSON-serialisable snapshot of the subclass's state."""
@@ -88,9 +125,11 @@ class FeedthroughSlave(FlexarmSlave):
         self._ready = True
 
     def step(self, t: float, h: float) -> None:
-        self.check_step(t, h)
-        self._refresh()
-        self.commit(t, h)
+        n = self.samples_in_step(t, h)
+        if n == 0:
+            return  # no sample instant inside the step: nothing changes
+        self._refresh()  # the outputs of the inputs present now (any set since a read made them stale)
+        self.commit(t, h, n)
         self._stale = True
 
     def get_internal_state(self) -> dict:
@@ -105,6 +144,7 @@ class FeedthroughSlave(FlexarmSlave):
 
     # -- sampling -------------------------------------------------------------------
     def _refresh(self) -> None:
+        """Bring the cached outputs up to date (a cache: evaluating again gives the same numbers)."""
         if self._stale:
             outputs = self.evaluate()
             self.set_outputs(outputs)

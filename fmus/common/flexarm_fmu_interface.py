@@ -229,7 +229,11 @@ def complete_model_description(root: Element, variables: list[Var], units: dict[
     * ``<UnitDefinitions>`` for every unit used;
     * ``<ModelStructure>``: ``<Outputs>`` with the declared dependencies and
       ``<InitialUnknowns>`` (every output, whose ``initial`` defaults to
-      "calculated" in co-simulation, and every calculated parameter).
+      "calculated" in co-simulation, and every calculated parameter). An
+      output with direct feedthrough (non-empty ``depends_on``) depends at
+      initialisation on those inputs and the parameters; the others declare
+      no list, i.e. every known (the plant's outputs at the start use the
+      torque present then).
 
     Parameters
     ----------
@@ -296,8 +300,12 @@ def complete_model_description(root: Element, variables: list[Var], units: dict[
     initial = [v for v in variables if v.causality in ("output", "calculatedParameter")]
     if initial:
         node = SubElement(structure, "InitialUnknowns")
+        knowns = [v.name for v in variables if v.causality == "parameter"]
         for v in initial:  # table order = value-reference order, as FMI 2.0 requires
-            SubElement(node, "Unknown", index=str(index[v.name]))
+            attrib = {"index": str(index[v.name])}
+            if v.causality == "output" and v.depends_on:  # its inputs and the parameters (sorted indices)
+                attrib["dependencies"] = " ".join(str(i) for i in sorted(index[d] for d in {*v.depends_on, *knowns}))
+            SubElement(node, "Unknown", attrib)
 
 
 def blank_value(typ: str):

@@ -30,9 +30,10 @@ trajectory (``flexarm/data/trajectory.npz``) and the gain schedules
 (``flexarm/data/gains/``) travel in the bundled ``flexarm`` package.
 
 Sampling (direct feedthrough, :mod:`flexarm_feedthrough`): the torques at
-communication point t_k are computed from the measurements present at t_k,
-with the trajectory sample k = round(t_k / 1 ms); the plant holds them over
-[t_k, t_k + h).
+communication point t_k are a pure function of the measurements present at
+t_k and the trajectory sample k = round(t_k / 1 ms) (reads change nothing);
+the plant holds them over [t_k, t_k + h). A step must be a whole number of
+samples (within 1e-9 s; 0 samples: nothing happens).
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-from flexarm_feedthrough import FeedthroughSlave
+from flexarm_feedthrough import FeedthroughSlave, whole_samples
 from flexarm_fmu_base import Var, own_data_dir, slew_experiment, variable_table
 
 from flexarm.control import PEAK_TORQUE, TrackingController
@@ -195,12 +196,8 @@ class ControllerSlave(FeedthroughSlave):
         x = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)  # q1_m .. eps6_m
         return self.law.torque_from_measurements(self.law.sample_index(self.time), x)
 
-    def check_step(self, t: float, h: float) -> None:
-        dt = self.law.dt
-        end = (t + h) / dt
-        if abs(end - round(end)) > 1e-6:
-            raise ValueError(f"step_size: t + h = {t + h!r} s is not on the controller's sample grid "
-                             f"(multiples of {dt:g} s, the trajectory's sample time)")
+    def samples_in_step(self, t: float, h: float) -> int:
+        return whole_samples(h, self.law.dt, "the controller's sample (the trajectory's sample time)")
 
     def get_sample_state(self) -> dict:
         return {}  # stateless: the torque is a function of the time and the inputs

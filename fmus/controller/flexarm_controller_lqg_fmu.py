@@ -13,20 +13,30 @@ estimates every velocity). The law: :mod:`flexarm.lqg`; the design files:
 ``flexarm/data/lqg/`` (:mod:`flexarm.lqg_design`).
 
 The controller has a state (the filter's estimate, the torques sent, the
-integrators) and runs at the trajectory's 1 ms sample. A communication step h
-may be any whole multiple n of it (others are refused naming ``step_size``).
-The sample it commits at ``fmi2DoStep`` is the one whose torques the master
-*read* last (what the plant got), not a re-evaluation with inputs set after
-that read; with n > 1 the filter then runs the n - 1 samples inside the step
-with the inputs held (those present at ``fmi2DoStep``), as a sampled-data
-controller does between a master's communication points, so the torques read
-after the step are those of sample (t + h) / 1 ms. ``loop_delay_samples``
-counts 1 ms samples.
-A Gauss-Seidel master sets the inputs and then reads (the measurement of the
-state at t_k: delay 0); a Jacobi master reads first and sets the inputs after,
-so the torques it takes at t_k come from the inputs it set at t_(k-1), the
-sensors' sample of the plant at t_(k-2): delay 2. Either way the filter knows
-exactly which torque acted when, which its predictor needs.
+integrators) and runs at the trajectory's 1 ms sample. Its torques are a pure
+function of that state and, with ``loop_delay_samples = 0`` only, of the
+inputs present: reading them, any number of times, changes nothing; the
+state advances at ``fmi2DoStep`` from the inputs present then.
+
+* ``loop_delay_samples = 0`` (a Gauss-Seidel master, which sets the inputs
+  before it reads): direct feedthrough. The torques at t_k are sample k of
+  the law with the measurements present; ``fmi2DoStep`` commits that sample.
+* ``loop_delay_samples = d > 0``: no direct feedthrough. ``fmi2DoStep(t_k, h)``
+  runs the samples k + 1 .. k + n (h = n ms) with the inputs present at
+  ``fmi2DoStep`` (held inside the step) and publishes the torques of sample
+  k + n, held until the next ``fmi2DoStep``. The measurement received at
+  sample s is taken as that of the plant at s - d; for s < d none exists
+  yet, and the filter gets the one the committed trajectory predicts at
+  t = 0 (zero innovation): sample 0's torques are computed at
+  initialisation from the parameters and the trajectory alone, so the start
+  does not depend on how a master initialises. A Jacobi master (reads, then
+  sets, then steps every FMU) at 1 ms gives d = 2 exactly: the sensors'
+  direct feedthrough delays by one sample, this hold by one.
+
+A step of n = 0 samples (within 1e-9 s of 0, e.g. a last step shortened by
+rounding) does nothing; a step that is no whole number of samples (within
+1e-9 s) is refused naming ``step_size``. Design note: docs/control.md
+("Sampling and the loop delay").
 """
 
 from __future__ import annotations
@@ -35,6 +45,7 @@ import functools
 
 import numpy as np
 from flexarm_controller_base import VARIABLES, ControllerSlave
+from flexarm_feedthrough import whole_samples
 from flexarm_fmu_base import Var, pin_module_namespace, variable_table
 
 from flexarm.lqg import MAX_DELAY_SAMPLES, LqgController, lqg_controller
@@ -72,8 +83,10 @@ class FlexarmControllerLQG(ControllerSlave):
     VARIABLES = variable_table([
         *VARIABLES,
         Var("loop_delay_samples", "parameter", "fixed", None,
-            "Samples between the plant state and the measurement received (Jacobi master with separate "
-            "sensors and controller FMUs: 2; Gauss-Seidel: 0); the estimator predicts across them",
+            "Samples between the plant state measured and the sample whose torques use it; the estimator "
+            "predicts across them. 0: direct feedthrough (Gauss-Seidel master); d > 0: no direct feedthrough, "
+            "the torques are computed at fmi2DoStep and held (Jacobi master at n ms with separate sensors "
+            "and controller FMUs: 2n)",
             0, 0, MAX_DELAY_SAMPLES, type="Integer"),
         Var("integral_action", "parameter", "fixed", None,
             "Feed back the integrated joint-angle errors (anti-windup: frozen while a torque saturates)",
@@ -88,9 +101,9 @@ class FlexarmControllerLQG(ControllerSlave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.state = None  # LqgState or BankState (the estimator's)
-        self._pending = None  # the state after the last evaluated sample
-        self._delivered = None  # ... of the evaluation whose torques were last read
+        self.state = None  # LqgState or BankState (the estimator's), committed
+        self._pending = None  # loop_delay_samples = 0: the state after the sample the outputs show (derived)
+        self._tau = None  # loop_delay_samples > 0: the torques held until the next doStep
 
     def _config(self) -> tuple:
         name, schedule, tau1_max, tau2_max, _omega7 = super()._config()
@@ -108,43 +121,52 @@ class FlexarmControllerLQG(ControllerSlave):
                              f"{exc}") from None
         self._key = key
         self.state = self.law.initial_state()
-        self._pending = None
-        self._delivered = None
+        self._pending = self._tau = None
+        if self.law.delay > 0:  # sample 0 from the trajectory alone (no measurement exists yet)
+            self._sample(self.law.sample_index(self.time), None)
+
+    def _measurements(self) -> np.ndarray:
+        return np.array([self._values[vr] for vr in self._used_vrs], dtype=float)  # q1_m .. eps6_m
+
+    def _sample(self, k: int, measurements) -> None:
+        """Run sample k of the delayed law (loop_delay_samples > 0): commit it and hold its torques.
+
+        The measurement of sample k is that of the plant at k - d; before k = d there is none and the filter
+        gets the measurement the trajectory predicts at t = 0 (zero innovation on the zero initial error).
+        """
+        if k < self.law.delay:
+            measurements = self.law.design.C @ self.law.z[0]
+        self._tau, self.state = self.law.step(self.state, k, measurements)
 
     def evaluate(self) -> np.ndarray:
-        x = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)  # q1_m .. eps6_m
-        tau, self._pending = self.law.step(self.state, self.law.sample_index(self.time), x)
+        if self.law.delay > 0:
+            return self._tau
+        tau, self._pending = self.law.step(self.state, self.law.sample_index(self.time), self._measurements())
         return tau
 
-    def get_real(self, vrs):
-        values = super().get_real(vrs)
-        if self._ready and not self._output_vr_set.isdisjoint(vrs):
-            self._delivered = self._pending  # the master has these torques: they are the sample's
-        return values
-
-    def commit(self, t: float, h: float) -> None:
-        state = self._delivered if self._delivered is not None else self._pending
-        if self._samples_in(h) > 1:  # the samples inside the step, of the inputs held since t
-            held = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)
-            for _ in range(self._samples_in(h) - 1):
-                _, state = self.law.step(state, state.k, held)
+    def commit(self, t: float, h: float, n: int) -> None:
+        held = self._measurements()  # the inputs present at fmi2DoStep, held inside the step
+        if self.law.delay > 0:  # samples k + 1 .. k + n; the last one's torques are published
+            if self.state.k != self.law.sample_index(t) + 1:
+                raise ValueError(f"current_time: {t!r} s is sample {self.law.sample_index(t)}, but the controller "
+                                 f"computed sample {self.state.k - 1} last (one fmi2DoStep per communication "
+                                 "point, from t = 0)")
+            for _ in range(n):
+                self._sample(self.state.k, held)
+            return
+        state, self._pending = self._pending, None  # sample k, evaluated from the inputs present
+        for _ in range(n - 1):
+            _, state = self.law.step(state, state.k, held)
         self.state = state
-        self._pending = self._delivered = None
 
-    def _samples_in(self, h: float) -> int:
-        return round(h / self.law.dt)
-
-    def check_step(self, t: float, h: float) -> None:
-        dt = self.law.dt
-        if self._samples_in(h) < 1 or abs(h / dt - self._samples_in(h)) > 1e-6:
-            raise ValueError(f"step_size: {h!r} s is not a whole multiple of the controller's 1 ms sample "
-                             f"(allowed: n * {dt:g} s, n = 1, 2, ...; controller_lqg is a sampled filter and "
-                             "runs the samples inside a longer step with its inputs held)")
-        super().check_step(t, h)
+    def samples_in_step(self, t: float, h: float) -> int:
+        return whole_samples(h, self.law.dt, "the controller's 1 ms sample (controller_lqg is a sampled filter "
+                             "and runs the samples inside a longer step with its inputs held)")
 
     def get_sample_state(self) -> dict:
         as_dict = lambda s: None if s is None else s.as_dict()  # noqa: E731
-        return {"lqg": as_dict(self.state), "pending": as_dict(self._pending), "delivered": as_dict(self._delivered)}
+        return {"lqg": as_dict(self.state), "pending": as_dict(self._pending),
+                "tau": None if self._tau is None else self._tau.tolist()}
 
     def set_sample_state(self, state: dict) -> None:
         if self.law is None or self._key != self._config():
@@ -153,4 +175,5 @@ class FlexarmControllerLQG(ControllerSlave):
         from_dict = lambda d: None if d is None else state_type.from_dict(d)  # noqa: E731
         if state.get("lqg") is not None:
             self.state = from_dict(state["lqg"])
-        self._pending, self._delivered = from_dict(state.get("pending")), from_dict(state.get("delivered"))
+        self._pending = from_dict(state.get("pending"))
+        self._tau = None if state.get("tau") is None else np.array(state["tau"], dtype=float)

@@ -37,7 +37,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-from flexarm_feedthrough import FeedthroughSlave
+from flexarm_feedthrough import FeedthroughSlave, whole_samples
 from flexarm_fmu_base import Var, pin_module_namespace, slew_experiment, variable_table
 
 from flexarm.sensors import MEASURED_SIGNALS, TRUE_SIGNALS, SensorBank, SensorSettings
@@ -152,24 +152,18 @@ class FlexarmSensors(FeedthroughSlave):
         values = self._values
         return self.bank.measure(np.array([values[vr] for vr in self._true_vrs], dtype=float))
 
-    def commit(self, t: float, h: float) -> None:
+    def commit(self, t: float, h: float, n: int) -> None:
         # A step of n sample periods: the sample at t was taken; the n - 1 samples inside the step
         # measure the inputs held since t (one filter update and one noise draw each).
         held = np.array([self._values[vr] for vr in self._true_vrs], dtype=float)
-        for _ in range(self._samples_in(h) - 1):
+        for _ in range(n - 1):
             self.bank.measure(held)
         self._pre = None
 
-    def _samples_in(self, h: float) -> int:
-        return max(1, round(h / self.value("sample_period")))
-
-    def check_step(self, t: float, h: float) -> None:
-        period = self.value("sample_period")
-        n = self._samples_in(h)
-        if abs(h - n * period) > 1e-9 * h:
-            raise ValueError(f"step_size: {h!r} s is not a whole multiple of the parameter sample_period = "
-                             f"{period!r} s (the filters are discretised for that period; the FMU samples at "
-                             "its period inside a longer step, holding its inputs)")
+    def samples_in_step(self, t: float, h: float) -> int:
+        return whole_samples(h, self.value("sample_period"),
+                             "the parameter sample_period (the filters are discretised for that period; the FMU "
+                             "samples at its period inside a longer step, holding its inputs)")
 
     def get_sample_state(self) -> dict:
         return {"bank": _bank_state_as_lists(self.bank.get_state()),

@@ -237,7 +237,6 @@ static fmi2Status get_values(fmi2Component c, const fmi2ValueReference vr[], siz
     if (needs_outputs) {
         fmi2Status s = refresh_outputs(inst);
         if (s > fmi2Warning) return s;
-        if (MODEL_INFO.outputs_read != NULL) MODEL_INFO.outputs_read(inst);
     }
     for (size_t k = 0; k < nvr; k++) x[k] = inst->values[find_var(vr[k])];
     return fmi2OK;
@@ -626,6 +625,12 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
     return fmi2Error;
 }
 
+int glue_whole_samples(double h, double period, double *n)
+{
+    *n = nearbyint(h / period);
+    return fabs(h - *n * period) <= GLUE_STEP_TOLERANCE ? 0 : -1;
+}
+
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
                       fmi2Boolean noSetFMUStatePriorToCurrentPoint)
 {
@@ -638,7 +643,7 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
         return fmi2Error;
     }
     if (blocked_by_invalid(inst, "fmi2DoStep", CA_INPUT)) return fmi2Error;
-    if (inst->outputs_stale && MODEL_INFO.sample != NULL) { /* the sample of t is taken even if nobody read it */
+    if (inst->outputs_stale && MODEL_INFO.sample != NULL) { /* the sample of t, from the inputs present now */
         fmi2Status s = MODEL_INFO.sample(inst);
         if (s > fmi2Warning) return s;
         inst->outputs_stale = 0;

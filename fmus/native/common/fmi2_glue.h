@@ -51,13 +51,13 @@ typedef struct {
     /* From the parameters and inputs: set the state at the start time and the outputs. fmi2Error names the
        parameter (the FMU stays in initialisation mode). Called for reads in initialisation mode and at exit. */
     fmi2Status (*initialize)(struct Instance *inst);
-    /* Direct-feedthrough models: compute the outputs of the current sample from the committed state and the
-       inputs (without committing). NULL: the outputs do not depend on the inputs. */
+    /* Sampled models: the outputs of the current sample, a pure function of the committed state and the inputs
+       present (it must not change the committed state: reads, any number of them, change nothing). Called
+       before a read when inputs changed, and by fmi2DoStep before do_step. NULL: outputs change only in do_step. */
     fmi2Status (*sample)(struct Instance *inst);
-    /* Advance from t to t + h (inputs held); the outputs at t + h. Must leave the state unchanged on error. */
+    /* Advance from t to t + h (inputs held: those present at fmi2DoStep); the outputs at t + h. Must leave the
+       state unchanged on error. Sampled models count whole samples with glue_whole_samples. */
     fmi2Status (*do_step)(struct Instance *inst, double t, double h);
-    /* Optional (NULL: none): the host has just read outputs (after they were brought up to date). */
-    void (*outputs_read)(struct Instance *inst);
 } ModelInfo;
 
 typedef struct Instance {
@@ -92,6 +92,14 @@ void glue_log(const Instance *inst, fmi2Status status, const char *fmt, ...)
    Returns 0 and fills out[0..n-1], or -1 after logging what is wrong. */
 int glue_read_doubles(const Instance *inst, const char *file, const char *text, const char *name, double *out,
                       size_t n);
+
+/* A step within this many seconds of a whole number of samples counts as that number. */
+#define GLUE_STEP_TOLERANCE 1e-9
+
+/* The number *n >= 0 of samples of `period` s in a communication step h s: 0 if |h - n period| <= 1e-9 s, else -1
+   (the caller refuses the step naming step_size). n = 0 (a step of at most 1e-9 s, e.g. a last step shortened
+   by rounding) means no sample instant lies in the step: a sampled model does nothing. */
+int glue_whole_samples(double h, double period, double *n);
 
 /* Read and check every resource of MODEL_INFO, then MODEL_INFO.load; 0 on success (after logging why not). */
 int glue_load_resources(Instance *inst, const char *uri);

@@ -214,10 +214,11 @@ static fmi2Status controller_initialize(Instance *inst)
 static fmi2Status controller_do_step(Instance *inst, double t, double h)
 {
     ControllerData *d = inst->data;
-    double end = (t + h) / d->dt;
-    if (fabs(end - nearbyint(end)) > 1e-6) {
-        glue_log(inst, fmi2Error, "fmi2DoStep: step_size: t + h = %.17g s is not on the controller's sample grid "
-                 "(multiples of %g s, the trajectory's sample time)", t + h, d->dt);
+    double n;
+    if (glue_whole_samples(h, d->dt, &n)) {
+        glue_log(inst, fmi2Error, "fmi2DoStep: step_size: %.17g s at t = %.17g s is not a whole multiple of the "
+                 "controller's sample (%g s, the trajectory's sample time, within %g s)", h, t, d->dt,
+                 GLUE_STEP_TOLERANCE);
         return fmi2Error;
     }
     return fmi2OK; /* stateless: the torque is a function of the time and the inputs */

@@ -10,10 +10,16 @@
  *   5. integral action:      xi += dt C_q x_now, only in a sample whose torque does not saturate (anti-windup)
  * The torque deviations tau - tau_ff of the last d + 1 samples are kept for steps 1 and 3.
  *
- * FMU stepping (as the Python FMU): a read of the outputs evaluates the sample from the committed state
- * ("pending") and marks it delivered; fmi2DoStep commits the sample whose torques the master read last, or the
- * last evaluated one if the master read none; a step of n 1 ms samples (any whole n >= 1) then runs the n - 1
- * samples inside the step with the inputs held, so the torques read after it are the sample of t + h. The
+ * FMU stepping (as the Python FMU; docs/control.md, "Sampling and the loop delay"): the torques are a pure
+ * function of the committed state and, with d = 0 only, of the inputs present; reads change nothing.
+ *   d = 0: direct feedthrough. The torques at t_k are sample k from the measurements present (into a "pending"
+ *          state); fmi2DoStep commits the sample of the inputs present then and runs the n - 1 samples inside
+ *          a step of n ms with them held.
+ *   d > 0: no direct feedthrough. fmi2DoStep(t_k, n ms) runs samples k + 1 .. k + n from the inputs present
+ *          (held) and holds the torques of the last one until the next fmi2DoStep; sample 0 is computed at
+ *          initialisation. A measurement at sample s < d (of the plant before t = 0) does not exist: the filter
+ *          gets the desired measurement of t = 0 (zero innovation), so the start depends on no master.
+ * A step of 0 samples (within 1e-9 s) does nothing. The
  * resources (lqg_resources.py): the trajectory and the designs of the three schedules, IEEE-754 bit patterns,
  * SHA-256 checked by the glue.
  *
@@ -39,8 +45,9 @@ static const int MEAS[N_MEAS] = {IDX_q1_m, IDX_q2_m, IDX_qd1_m, IDX_qd2_m, IDX_e
                                  IDX_eps2_m, IDX_eps3_m, IDX_eps4_m, IDX_eps5_m, IDX_eps6_m};
 
 typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
-    LqgState committed, pending, delivered;
-    int has_pending, has_delivered;
+    LqgState committed; /* after the last sample run */
+    LqgState pending;   /* d = 0: after the sample the outputs show (derived from committed and the inputs) */
+    double held[2];     /* d > 0: the torques of the last sample run, N.m */
 } FmuState;
 
 /* -- resources -------------------------------------------------------------------------------------------- */
@@ -280,12 +287,32 @@ static void law_step(const LqgData *d, const LqgState *s, long long k, const dou
     else lqg_step(d, s, k, m, limit, tau, next);
 }
 
+/* d > 0: run sample committed.k from the measurements m (ignored before sample d) and hold its torques. */
+static void delayed_sample(Instance *inst, const double m_present[N_MEAS])
+{
+    LqgData *d = inst->data;
+    FmuState *st = inst->state;
+    const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
+    const long long k = st->committed.k;
+    const double *m = k < d->delay ? d->desired : m_present; /* no measurement before t = 0: y_d(0) */
+    LqgState next;
+    law_step(d, &st->committed, k, m, limit, st->held, &next);
+    st->committed = next;
+    VALUE(inst, IDX_tau1) = st->held[0];
+    VALUE(inst, IDX_tau2) = st->held[1];
+}
+
 static fmi2Status lqg_sample(Instance *inst)
 {
     LqgData *d = inst->data;
     FmuState *st = inst->state;
     fmi2Status status = configure(inst);
     if (status != fmi2OK) return status;
+    if (d->delay > 0) { /* no feedthrough: the torques held since the last step */
+        VALUE(inst, IDX_tau1) = st->held[0];
+        VALUE(inst, IDX_tau2) = st->held[1];
+        return fmi2OK;
+    }
     double t = inst->time;
     if (!isfinite(t) || t < -0.5 * d->dt) {
         glue_log(inst, fmi2Error, "evaluating the outputs at t = %.17g s: t: must be a finite time >= 0 s", t);
@@ -301,51 +328,58 @@ static fmi2Status lqg_sample(Instance *inst)
     const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
     for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
     law_step(d, &st->committed, (long long)k, m, limit, tau, &st->pending);
-    st->has_pending = 1;
     VALUE(inst, IDX_tau1) = tau[0];
     VALUE(inst, IDX_tau2) = tau[1];
     return fmi2OK;
 }
 
-static void lqg_outputs_read(Instance *inst)
-{
-    FmuState *st = inst->state;
-    if (st->has_pending) st->delivered = st->pending, st->has_delivered = 1; /* the plant gets these torques */
-}
-
 static fmi2Status lqg_initialize(Instance *inst)
 {
-    if (!inst->outputs_stale) return fmi2OK; /* exit right after a read, nothing set since: keep that sample */
     FmuState *st = inst->state;
+    LqgData *d = inst->data;
     fmi2Status status = configure(inst);
     if (status != fmi2OK) return status;
     memset(st, 0, sizeof *st); /* on the trajectory, nothing sent, integrators empty */
-    if (((LqgData *)inst->data)->use_bank) bank_initial_state(&((LqgData *)inst->data)->bank, &st->committed);
-    return lqg_sample(inst);
+    if (d->use_bank) bank_initial_state(&d->bank, &st->committed);
+    if (d->delay == 0) return lqg_sample(inst);
+    if (nearbyint(inst->time / d->dt) != 0.0) {
+        glue_log(inst, fmi2Error, "fmi2ExitInitializationMode: start time %.17g s: controller_lqg starts at t = 0 "
+                 "(sample 0 of the trajectory)", inst->time);
+        return fmi2Error;
+    }
+    delayed_sample(inst, d->desired); /* sample 0, from the parameters and the trajectory alone */
+    return fmi2OK;
 }
 
 static fmi2Status lqg_do_step(Instance *inst, double t, double h)
 {
     LqgData *d = inst->data;
     FmuState *st = inst->state;
-    double n = nearbyint(h / d->dt), end = (t + h) / d->dt;
-    if (n < 1 || fabs(h / d->dt - n) > 1e-6) {
-        glue_log(inst, fmi2Error, "fmi2DoStep: step_size: %.17g s is not a whole multiple of the controller's 1 ms "
-                 "sample (allowed: n * %g s, n = 1, 2, ...; controller_lqg is a sampled filter and runs the samples "
-                 "inside a longer step with its inputs held)", h, d->dt);
+    double n;
+    if (glue_whole_samples(h, d->dt, &n)) {
+        glue_log(inst, fmi2Error, "fmi2DoStep: step_size: %.17g s at t = %.17g s is not a whole multiple of the "
+                 "controller's 1 ms sample (allowed: n * %g s within %g s, n = 0, 1, 2, ...; controller_lqg is a "
+                 "sampled filter and runs the samples inside a longer step with its inputs held)", h, t, d->dt,
+                 GLUE_STEP_TOLERANCE);
         return fmi2Error;
     }
-    if (fabs(end - nearbyint(end)) > 1e-6) {
-        glue_log(inst, fmi2Error, "fmi2DoStep: step_size: t + h = %.17g s is not on the controller's sample grid "
-                 "(multiples of %g s, the trajectory's sample time)", t + h, d->dt);
-        return fmi2Error;
+    if (n == 0) return fmi2OK; /* no sample instant in the step: nothing changes */
+    double m[N_MEAS];
+    for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]); /* present at fmi2DoStep, held in the step */
+    if (d->delay > 0) {
+        if (nearbyint(t / d->dt) + 1 != (double)st->committed.k) {
+            glue_log(inst, fmi2Error, "fmi2DoStep: current_time: %.17g s is sample %.0f, but the controller computed "
+                     "sample %lld last (one fmi2DoStep per communication point, from t = 0)", t,
+                     nearbyint(t / d->dt), st->committed.k - 1);
+            return fmi2Error;
+        }
+        for (double i = 0; i < n; i++) delayed_sample(inst, m);
+        return fmi2OK;
     }
-    st->committed = st->has_delivered ? st->delivered : st->pending;
-    st->has_pending = st->has_delivered = 0;
+    st->committed = st->pending; /* sample k, from the inputs present (the glue sampled them before this call) */
     if (n > 1) { /* the samples inside the step, of the inputs held since t (their torques are not published) */
-        double m[N_MEAS], tau[2];
+        double tau[2];
         const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
-        for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
         for (double i = 1; i < n; i++) {
             LqgState next;
             law_step(d, &st->committed, st->committed.k, m, limit, tau, &next);
@@ -357,5 +391,5 @@ static fmi2Status lqg_do_step(Instance *inst, double t, double h)
 
 const ModelInfo MODEL_INFO = {
     MODEL_IDENTIFIER_STRING, MODEL_GUID_STRING, MODEL_VARS, MODEL_N_VARS, MODEL_RESOURCES, MODEL_N_RESOURCES,
-    sizeof(FmuState), lqg_load, lqg_unload, lqg_initialize, lqg_sample, lqg_do_step, lqg_outputs_read,
+    sizeof(FmuState), lqg_load, lqg_unload, lqg_initialize, lqg_sample, lqg_do_step,
 };

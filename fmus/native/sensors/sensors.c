@@ -7,9 +7,10 @@
  * same seed) -> quantisation (encoder counter, A/D with saturation). With filters, noise and quantisation
  * off the outputs equal the inputs exactly. Segment lengths of the gauges come from resources/.
  *
- * Sampling (direct feedthrough): the outputs at t_k are the sample of the inputs set at t_k, computed from
- * the committed bank into a pending copy; fmi2DoStep commits it, and a step of n sample periods takes the
- * n - 1 samples inside the step with the inputs held.
+ * Sampling (direct feedthrough): the outputs at t_k are a pure function of the committed bank and the inputs
+ * present (computed into a pending copy; reads change nothing); fmi2DoStep commits the sample of the inputs
+ * present then, and a step of n sample periods takes the n - 1 samples inside the step with the inputs held.
+ * A step of 0 samples (within 1e-9 s) does nothing.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -299,13 +300,15 @@ static fmi2Status sensors_sample(Instance *inst)
 static fmi2Status sensors_do_step(Instance *inst, double t, double h)
 {
     SensorsState *s = inst->state;
-    double n = fmax(1.0, nearbyint(h / s->period));
-    if (fabs(h - n * s->period) > 1e-9 * h) {
+    double n;
+    if (glue_whole_samples(h, s->period, &n)) {
         glue_log(inst, fmi2Error, "fmi2DoStep: step_size: %.17g s at t = %.17g s is not a whole multiple of the "
-                 "parameter sample_period = %.17g s (the filters are discretised for that period; the FMU samples "
-                 "at its period inside a longer step, holding its inputs)", h, t, s->period);
+                 "parameter sample_period = %.17g s (within %g s; the filters are discretised for that period; the "
+                 "FMU samples at its period inside a longer step, holding its inputs)", h, t, s->period,
+                 GLUE_STEP_TOLERANCE);
         return fmi2Error;
     }
+    if (n == 0) return fmi2OK; /* no sample instant in the step: nothing changes */
     double x[N_SIGNALS], y[N_SIGNALS];
     for (int i = 0; i < N_SIGNALS; i++) x[i] = VALUE(inst, TRUE_IDX[i]);
     for (double k = 1; k < n; k++) measure(s, &s->pending, x, y);
