@@ -145,32 +145,55 @@ def test_learned_feedforward_file_round_trip_and_data_chain(tmp_path):
         ilc.read_learned_feedforward(path)
 
 
-def test_python_controller_fmu_adds_the_learned_correction(tmp_path):
-    """The controller FMU with feedforward_correction_file equals the library law with the same correction, bit
-    for bit; the native twin leaves the String parameter out (its glue has no Strings)."""
-    from fmu_harness import _controller_inputs, built_fmus
-    from native_fmus import run_fmpy
-
+def _learned_file(tmp_path, n: int):
     from flexarm.parameters import DEFAULT_PARAMETER_FILE
     from flexarm.provenance import sha256_file
 
-    n = 400
     u = 0.05 * np.sin(np.arange(2 * n).reshape(n, 2) * 0.01)
     meta = {"trajectory_file": str(DEFAULT_TRAJECTORY_FILE), "trajectory_sha256": sha256_file(DEFAULT_TRAJECTORY_FILE),
             "parameter_file": str(DEFAULT_PARAMETER_FILE), "parameter_sha256": sha256_file(DEFAULT_PARAMETER_FILE)}
-    path = ilc.write_learned_feedforward(tmp_path / "u", u, 1e-3, meta)
-    fmu = built_fmus()["controller"]
-    names, rows = run_fmpy(fmu, n, _controller_inputs, {"feedforward_correction_file": str(path)})
+    return u, ilc.write_learned_feedforward(tmp_path / "u", u, 1e-3, meta)
+
+
+def _torques(fmu, n, params):
+    from fmu_harness import _controller_inputs
+    from native_fmus import run_fmpy
+
+    names, rows = run_fmpy(fmu, n, _controller_inputs, params)
+    return np.asarray(rows)[:, [names.index("tau1"), names.index("tau2")]]
+
+
+def test_controller_fmus_add_the_learned_correction_python_and_native_alike(tmp_path):
+    """Both kinds of controller FMU with feedforward_correction_file: the Python one equals the library law with
+    the same correction bit for bit; the native one equals the Python one to 1e-13 N·m (their K·m products sum in
+    different orders: the unlearned controllers differ by the same ~1e-14 N·m), a run past the file's end and the
+    saturation included; a missing or stale file is refused by both."""
+    from fmu_harness import _controller_inputs, built_fmus
+    from native_fmus import native_fmus
+
+    n = 2200  # past the slew (2058 samples) and past the correction's 400 samples
+    u, path = _learned_file(tmp_path, 400)
+    py, native = built_fmus()["controller"], native_fmus()["controller"]
+    got = _torques(py, n, {"feedforward_correction_file": str(path)})
     law = TrackingController(DEFAULT_TRAJECTORY_FILE, "gamma0.1", feedforward_correction=u)
     keys = ("q1_m", "q2_m", "qd1_m", "qd2_m", *(f"eps{i}_m" for i in range(1, 7)))
     expect = np.array([law.torque_from_measurements(k, [_controller_inputs(k)[x] for x in keys])
                        for k in range(n + 1)])
-    got = np.asarray(rows)[:, [names.index("tau1"), names.index("tau2")]]
     assert np.array_equal(got, expect)
-    _, plain = run_fmpy(fmu, n, _controller_inputs, {})
-    assert not np.array_equal(np.asarray(plain)[:, :2], got)
-    with pytest.raises(Exception):  # noqa: B017 - fmpy raises its own exception type for fmi2Error
-        run_fmpy(fmu, 2, _controller_inputs, {"feedforward_correction_file": str(tmp_path / "missing.npz")})
+    plain = _torques(py, n, {})
+    assert not np.array_equal(plain[:400], got[:400]) and np.array_equal(plain[400:], got[400:])
+    native_got, native_plain = _torques(native, n, {"feedforward_correction_file": str(path)}), _torques(native, n, {})
+    assert np.abs(native_got - got).max() <= 1e-13 and np.abs(native_plain - plain).max() <= 1e-13
+    # the correction itself is applied identically: learned − unlearned agree where nothing saturates
+    free = (np.abs(got) < [7.0, 2.25]).all(axis=1) & (np.abs(plain) < [7.0, 2.25]).all(axis=1)
+    assert np.abs((native_got - native_plain)[free] - (got - plain)[free]).max() <= 1e-13
+    doc = json.loads((tmp_path / "u.json").read_text())
+    doc["parameter_sha256"] = "0" * 64
+    (tmp_path / "u.json").write_text(json.dumps(doc))
+    for fmu in (py, native):
+        for bad in (path, tmp_path / "missing.npz"):
+            with pytest.raises(Exception):  # noqa: B017 - fmpy raises its own exception type for fmi2Error
+                _torques(fmu, 2, {"feedforward_correction_file": str(bad)})
 
 
 def test_ilc_scenario_learns_through_the_fmus_and_resumes(tmp_path):

@@ -169,19 +169,25 @@ class ControllerSlave(FeedthroughSlave):
             raise ValueError(f"omega7_estimate: {self.value('omega7_estimate')!r} is not one of "
                              + ", ".join(f"{v} ({n})" for v, n, _ in OMEGA7_ITEMS))
         name = gain_set_name(self.value("gain_set"), self.DISCRETE)
-        path = self.value(FEEDFORWARD_CORRECTION)
-        correction = ("", "")
-        if path:
-            from flexarm.provenance import sha256_file
-
-            if not Path(path).is_file():
-                raise ValueError(f"{FEEDFORWARD_CORRECTION}: no file {path!r}")
-            correction = (str(Path(path).resolve()), sha256_file(path))
         return (name, schedule_label(self.value("schedule_period")), self.value("tau1_max"),
-                self.value("tau2_max"), omega7, correction)
+                self.value("tau2_max"), omega7)
+
+    def _correction(self) -> tuple[str, str]:
+        """The learned-feedforward file (absolute) and its SHA-256, ("", "") for none."""
+        path = self.value(FEEDFORWARD_CORRECTION)
+        if not path:
+            return ("", "")
+        from flexarm.provenance import sha256_file
+
+        if not Path(path).is_file():
+            raise ValueError(f"{FEEDFORWARD_CORRECTION}: no file {path!r}")
+        return (str(Path(path).resolve()), sha256_file(path))
+
+    def _law_key(self) -> tuple:
+        return (*self._config(), self._correction())
 
     def setup(self) -> None:
-        key = self._config()
+        key = self._law_key()
         if self.law is not None and key == self._key:
             return
         try:
@@ -203,5 +209,5 @@ class ControllerSlave(FeedthroughSlave):
         return {}  # stateless: the torque is a function of the time and the inputs
 
     def set_sample_state(self, state: dict) -> None:
-        if self.law is None or self._key != self._config():
+        if self.law is None or self._key != self._law_key():
             self.setup()
