@@ -171,10 +171,11 @@ def render(summary: dict, studies: list[tuple[str, dict]], floor: dict, need: di
             f"no correction of any size reaches (the residual of the least-squares projection on the range of G) "
             f"is **{floor['rms_floor_deg']:.3f}°** rms over the slew (the run itself: {floor['rms_now_deg']:.3f}°), "
             f"and reaching even that would take {floor['peak_tau_needed'][0]:.0f} / "
-            f"{floor['peak_tau_needed'][1]:.0f} N·m. The torque limits bind too: a rigid arm with the payload "
-            f"needs peaks of {need['0.275'][0]:.2f} / {need['0.275'][1]:.2f} N·m to follow the slew's joint "
-            f"motion ({need['0.0'][0]:.2f} / {need['0.0'][1]:.2f} N·m without payload; the motors give 7.0 / "
-            "2.25). The learning settles where the leak term balances what the limits and the floor leave.",
+            f"{floor['peak_tau_needed'][1]:.0f} N·m. The torque limits bind too: to follow the slew's joint motion "
+            f"exactly, a rigid arm with the payload needs peaks of {need['0.275'][0]:.2f} / "
+            f"{need['0.275'][1]:.2f} N·m ({need['0.0'][0]:.2f} / {need['0.0'][1]:.2f} N·m without payload; the "
+            "motors give 7.0 / 2.25). The learning settles where the leak term balances what the limits and the "
+            "floor leave.",
             "", "### Where it breaks (the same scenario, one setting changed, "
             f"{STUDY_TRIALS} trials through the FMUs)", "",
             "| variant | rms pos. ° at trials 0 / 3 / 6 / last | best | peak τ1 / τ2 max, N·m | saturated "
