@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import datetime as _dt
 import importlib.metadata
-import json
 import os
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,7 +29,15 @@ from .gain_sets import DISCRETE_PREFIX, GainError, canonical_name, state_weight
 from .lqr_design import DEFAULT_DT, MEASURED_VELOCITY_STATES, R_PAPER, design_gain, reduce_gain
 from .model import N_STATE, ArmModel, N
 from .parameters import DATA_DIR
-from .provenance import SOURCE_ROOT, git_commit, sha256_file, write_atomic
+from .provenance import (
+    SOURCE_ROOT,
+    DataFileError,
+    git_commit,
+    read_sealed_json,
+    sha256_file,
+    write_atomic,
+    write_sealed_json,
+)
 from .trajectory.io import DEFAULT_TRAJECTORY_FILE, TrajectoryResult, load_trajectory
 from .trajectory.io import REGENERATE_COMMAND as CHAIN_COMMAND
 
@@ -326,8 +335,14 @@ def relative_path(path) -> str:
 
 
 def _resolve(recorded: str) -> Path:
+    """A recorded path (:func:`relative_path`) as a file: ``flexarm/...`` is this package's own folder, whatever
+    the package is called (inside an FMU it is bundled under a private name, see fmu_build/isolate.py)."""
     p = Path(recorded)
-    return p if p.is_absolute() else SOURCE_ROOT / p
+    if p.is_absolute():
+        return p
+    if p.parts[:1] == ("flexarm",):
+        return Path(__file__).resolve().parent.joinpath(*p.parts[1:])
+    return SOURCE_ROOT / p
 
 
 def write_design_files(stem, arrays: dict, metadata: dict, compressed: bool = True) -> Path:
@@ -348,7 +363,7 @@ def write_design_files(stem, arrays: dict, metadata: dict, compressed: bool = Tr
     save = np.savez_compressed if compressed else np.savez
     write_atomic(npz_path, lambda f: save(f, **arrays))
     meta = dict(metadata, npz_file=npz_path.name, npz_sha256=sha256_file(npz_path))
-    write_atomic(Path(f"{stem}.json"), json.dumps(meta, indent=2) + "\n")
+    write_sealed_json(Path(f"{stem}.json"), meta)  # sealed: an edit of the JSON itself is found too
     return npz_path
 
 
@@ -373,8 +388,12 @@ def read_design_files(stem, what: str) -> tuple[dict, dict]:
     if not npz_path.exists():
         raise GainError(f"{what} {npz_path} does not exist; run `{REGENERATE_COMMAND}`")
     meta = read_design_metadata(Path(f"{stem}.json"), npz_path)
-    with np.load(npz_path) as d:
-        return meta, {k: d[k] for k in d.files}
+    try:
+        with np.load(npz_path, allow_pickle=False) as d:
+            return meta, {k: d[k] for k in d.files}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise StaleDataError(f"{what} {npz_path}: cannot be read ({type(exc).__name__}: {exc}); regenerate it "
+                             f"with `{REGENERATE_COMMAND}`") from exc
 
 
 def read_design_metadata(json_path, data_path) -> dict:
@@ -407,9 +426,14 @@ def read_design_metadata(json_path, data_path) -> dict:
     if not json_path.exists():
         raise StaleDataError(f"design file {data_path}: its provenance file {json_path} is missing; "
                              f"regenerate with `{REGENERATE_COMMAND}`")
-    meta = json.loads(json_path.read_text())
+    try:
+        meta = read_sealed_json(json_path, REGENERATE_COMMAND)
+    except DataFileError as exc:
+        raise StaleDataError(f"design file {data_path}: its provenance file {exc}") from exc
     problems = []
-    if meta.get("npz_sha256") and sha256_file(data_path) != meta["npz_sha256"]:
+    if not meta.get("npz_sha256"):
+        problems.append(f"{json_path.name} records no SHA-256 of {data_path.name}")
+    elif sha256_file(data_path) != meta["npz_sha256"]:
         problems.append(f"{data_path.name} differs from the SHA-256 recorded in {json_path.name}")
     for kind in ("trajectory", "parameter"):
         recorded, sha = meta.get(f"{kind}_file", ""), meta.get(f"{kind}_sha256", "")

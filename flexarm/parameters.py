@@ -225,8 +225,18 @@ def load_parameters(path: str | os.PathLike | None = None, payload_mass: float |
     raw = path.read_bytes()
     try:
         doc = tomllib.loads(raw.decode())
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
         raise ParameterError(f"{path}: not valid TOML: {exc}") from exc
+    try:
+        return _parameters_from(doc, path, raw, payload_mass)
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        if isinstance(exc, ParameterError):
+            raise
+        raise ParameterError(f"{path}: {type(exc).__name__}: {exc} (a table or key is missing or of the wrong "
+                             f"type)") from exc
+
+
+def _parameters_from(doc: dict, path: Path, raw: bytes, payload_mass: float | None) -> ArmParameters:
     elements = doc.get("element", [])
     if len(elements) != N_ELEMENTS:
         raise ParameterError(f"{path}: expected {N_ELEMENTS} [[element]] tables, found {len(elements)}")

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import subprocess
 import tempfile
 from collections.abc import Callable
@@ -104,3 +105,75 @@ def jsonable(x):
 def write_json(path: str | Path, obj) -> Path:
     """Write ``obj`` as indented JSON, atomically (see :func:`write_atomic`)."""
     return write_atomic(path, json.dumps(obj, indent=2, default=jsonable) + "\n")
+
+
+# -- sealed JSON: a provenance file that carries the SHA-256 of its own bytes ------------------------------------
+#: The key of the seal; always the last one of the file.
+SEAL_KEY = "json_sha256"
+_SEAL_PLACEHOLDER = "0" * 64
+_SEAL_RE = re.compile(rb'"json_sha256": "([0-9a-f]{64})"')
+
+
+class DataFileError(ValueError):
+    """A data file is corrupt, edited by hand or unreadable (the message names it and what to do)."""
+
+
+def sealed_json_text(obj: dict) -> str:
+    """``obj`` as indented JSON whose last key, :data:`SEAL_KEY`, is the SHA-256 of the file's own bytes.
+
+    The digest is taken over the text with the digest written as 64 zeros, so any change of any byte of the file
+    (a value edited by hand, a flipped bit) is found by :func:`read_sealed_json`.
+    """
+    body = {k: v for k, v in obj.items() if k != SEAL_KEY}
+    text = json.dumps({**body, SEAL_KEY: _SEAL_PLACEHOLDER}, indent=2, default=jsonable) + "\n"
+    return text.replace(f'"{SEAL_KEY}": "{_SEAL_PLACEHOLDER}"', f'"{SEAL_KEY}": "{sha256_bytes(text.encode())}"')
+
+
+def write_sealed_json(path: str | Path, obj: dict) -> Path:
+    """Write ``obj`` with its seal (:func:`sealed_json_text`), atomically."""
+    return write_atomic(path, sealed_json_text(obj))
+
+
+def read_sealed_json(path: str | Path, regenerate: str) -> dict:
+    """Read a JSON provenance file written by :func:`write_sealed_json` and check its seal.
+
+    Parameters
+    ----------
+    path : path-like
+    regenerate : str
+        The command that rewrites the file, for the message.
+
+    Returns
+    -------
+    dict
+        The content, without the seal.
+
+    Raises
+    ------
+    DataFileError
+        The file is missing, unreadable, not JSON, has no seal or its bytes differ from the sealed ones.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise DataFileError(f"{path}: cannot be read ({exc.strerror or exc}); regenerate it with "
+                            f"`{regenerate}`") from exc
+    seals = _SEAL_RE.findall(raw)
+    if len(seals) != 1:
+        raise DataFileError(f"{path}: carries no seal ({SEAL_KEY}, the SHA-256 of its own bytes), so an edit "
+                            f"cannot be told from the file as written; regenerate it with `{regenerate}`")
+    seal = seals[0].decode()
+    unsealed = raw.replace(f'"{SEAL_KEY}": "{seal}"'.encode(), f'"{SEAL_KEY}": "{_SEAL_PLACEHOLDER}"'.encode())
+    if sha256_bytes(unsealed) != seal:
+        raise DataFileError(f"{path}: its bytes differ from the ones it was written with ({SEAL_KEY} "
+                            f"{seal[:12]}... does not match): edited or corrupt; regenerate it with "
+                            f"`{regenerate}` (or restore it from git)")
+    try:
+        obj = json.loads(raw)
+    except ValueError as exc:  # unreachable for a sealed file, kept for a clear message
+        raise DataFileError(f"{path}: not JSON ({exc}); regenerate it with `{regenerate}`") from exc
+    if not isinstance(obj, dict):
+        raise DataFileError(f"{path}: not a JSON object; regenerate it with `{regenerate}`")
+    obj.pop(SEAL_KEY, None)
+    return obj

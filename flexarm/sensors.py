@@ -242,8 +242,8 @@ class SensorSettings:
         """Load a settings file (default: ``flexarm/data/sensors_default.toml``)."""
         path = Path(path) if path is not None else DEFAULT_SENSOR_FILE
         try:
-            doc = tomllib.loads(path.read_text())
-        except tomllib.TOMLDecodeError as exc:
+            doc = tomllib.loads(path.read_bytes().decode())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
             raise SensorSettingsError(f"{path}: not valid TOML: {exc}") from exc
         try:
             return cls.from_dict(doc)

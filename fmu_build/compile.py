@@ -64,15 +64,21 @@ def libpython_name() -> str:
     return str(name)
 
 
-def compile_shim(guid: str, model_identifier: str, dest: Path) -> Path:
-    """Compile the front end for one FMU into `dest` (a .so); BuildError with the compiler's output."""
-    if not all(c.isalnum() or c in "-{}" for c in guid) or not model_identifier.isidentifier():
-        raise BuildError(f"unexpected GUID {guid!r} or model identifier {model_identifier!r}")
+def compile_shim(guid: str, model_identifier: str, dest: Path, preflight: str = "flexarm_fmu_preflight.py") -> Path:
+    """Compile the front end for one FMU into `dest` (a .so); BuildError with the compiler's output.
+
+    `preflight` is the file name (in the FMU's ``resources``) of the start-up check the front end runs.
+    """
+    if not all(c.isalnum() or c in "-{}" for c in guid) or not model_identifier.isidentifier() \
+            or not (preflight.endswith(".py") and preflight[:-3].isidentifier()):
+        raise BuildError(f"unexpected GUID {guid!r}, model identifier {model_identifier!r} or start-up check "
+                         f"{preflight!r}")
     version = f"{sys.version_info.major}.{sys.version_info.minor}"
     cmd = [c_compiler(), "-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
            f"-I{fmi_headers()}", f"-I{SOURCES / 'common'}", f'-DFLEXARM_FMU_GUID="{guid}"',
            f'-DFLEXARM_MODEL_IDENTIFIER="{model_identifier}"', f'-DFLEXARM_LIBPYTHON="{libpython_name()}"',
-           f'-DFLEXARM_PYTHON_VERSION="{version}"', "-o", str(dest), *map(str, SHIM_SOURCES), "-ldl", "-lpthread"]
+           f'-DFLEXARM_PYTHON_VERSION="{version}"', f'-DFLEXARM_PREFLIGHT_FILE="{preflight}"',
+           "-o", str(dest), *map(str, SHIM_SOURCES), "-ldl", "-lpthread"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise BuildError(f"compiling the FMI front end failed:\n  {' '.join(cmd)}\n{proc.stderr.strip()}")

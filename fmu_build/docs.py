@@ -19,14 +19,18 @@ _USAGE = {
               "the step that ended at the communication point, so the controller's torques can be set after the "
               "outputs are read without an algebraic loop."),
     "sensors": ("Every communication step must be a whole multiple n of the parameter <code>sample_period</code> "
-                "(1 ms by default; the filters are discretised for it): the FMU then samples n times inside the "
-                "step, at its own period, holding the inputs set at t<sub>k</sub>. Direct feedthrough: set the "
-                "inputs at t<sub>k</sub>, then read the outputs, which are the sample of those inputs; one sample "
-                "per sample period (one noise draw, one filter update), whatever the number of reads."),
-    "controller": ("Communication points on the trajectory's 1 ms grid (any multiple of 1 ms as the step); the "
-                   "slew starts at t = 0. Direct feedthrough: set the measurements at t<sub>k</sub>, read the "
-                   "torques computed from them, hand them to the plant, which holds them over "
-                   "[t<sub>k</sub>, t<sub>k</sub> + h)."),
+                "(within 1e-9 s; 1 ms by default; the filters are discretised for it): the FMU then samples n times "
+                "inside the step, at its own period, holding the inputs present at <code>fmi2DoStep</code>; a step "
+                "of n = 0 (at most 1e-9 s) does nothing. Direct feedthrough: the outputs are a pure function of the "
+                "committed state and the inputs present, so set the inputs at t<sub>k</sub>, then read; reads, any "
+                "number of them, change nothing, and <code>fmi2DoStep</code> takes the sample of the inputs present "
+                "then (one noise draw, one filter update)."),
+    "controller": ("Communication steps of whole 1 ms samples (within 1e-9 s; a step of at most 1e-9 s does "
+                   "nothing); the slew starts at t = 0. Direct feedthrough: the torques are a pure function of the "
+                   "measurements present at t<sub>k</sub> (reads change nothing); the plant holds them over "
+                   "[t<sub>k</sub>, t<sub>k</sub> + h). <code>controller_lqg</code> with "
+                   "<code>loop_delay_samples</code> &gt; 0 has no direct feedthrough: <code>fmi2DoStep</code> "
+                   "computes the torques from the inputs present and holds them until the next step."),
 }
 
 

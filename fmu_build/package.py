@@ -3,17 +3,22 @@
 Each FMU is built with pythonfmu's builder and carries, in its ``resources``,
 only what it needs at run time:
 
-* its slave script (module name unique per FMU, e.g. ``flexarm_plant_fmu``) and
-  the glue ``fmus/common/*.py``;
+* its slave script and the glue ``fmus/common/*.py``;
 * the ``flexarm`` modules the slave imports when it is loaded, initialised and
   stepped (traced in a subprocess: no optimiser or CasADi code), and the data
   files its :class:`~fmu_build.registry.FmuSpec` names (only its own gain files;
   no figures);
 * pythonfmu's run-time modules (not its builder), with an ``__init__`` that
   imports no builder;
-* ``flexarm_bundle.json``: SHA-256 of the bundled ``flexarm`` (to detect FMUs of
-  different builds in one interpreter) and of every bundled data file, which the
-  FMU checks when it is instantiated (``flexarm_fmu_preflight.py``).
+* ``flexarm_bundle.json``: the private module names (below), SHA-256 of the bundled
+  ``flexarm`` and of every bundled data file, which the FMU checks when it is
+  instantiated (the glue's ``flexarm_fmu_preflight.py``).
+
+Every top-level module and package of an FMU (``flexarm``, the glue, the slave)
+is bundled under a name private to that FMU build (:mod:`fmu_build.isolate`:
+``_flexarm_<fmu>_<digest>``, imports rewritten), so any number of our FMUs, of
+any builds, in any load order, share one interpreter and each runs its own code
+on its own data (``resources/_flexarm_<fmu>_<digest>/data``).
 
 Before bundling, the data's recorded SHA-256 chain (gain files → trajectory and
 parameter file, trajectory → parameter file) must verify. Afterwards the FMU's
@@ -37,11 +42,13 @@ import subprocess
 import sys
 import tempfile
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 from xml.etree import ElementTree
 
 from .compile import BuildError, c_compiler, check_platform, compile_shim
 from .docs import render_documentation
+from .isolate import build_digest, private_name, rewrite_tree
 from .registry import COMMON_DIR, DOC_FILE, FLEXARM_DIR, FMUS, SHIM_SOURCES, SOURCES, FmuSpec, default_out_dir
 
 #: The pythonfmu version whose internals the glue works around (fmus/common/flexarm_fmu_pythonfmu.py).
@@ -149,9 +156,8 @@ def flexarm_modules(spec: FmuSpec) -> list[Path]:
 def all_flexarm_modules() -> list[Path]:
     """The union of :func:`flexarm_modules` over every FMU: what each FMU bundles.
 
-    FMUs loaded into one interpreter share the ``flexarm`` package imported first (modules are cached
-    by name), so the first FMU's copy must hold every module a later one imports. (Data files are
-    read from each FMU's own folder, see ``own_data_dir`` in the glue.)
+    Each FMU imports only its own copy (private module names, :mod:`fmu_build.isolate`); the union
+    keeps a module that a parameter value imports lazily (not seen by the one-step trace) in every FMU.
     """
     if not _ALL_MODULES:
         _ALL_MODULES.extend(sorted({f for spec in FMUS.values() for f in flexarm_modules(spec)}))
@@ -179,12 +185,13 @@ def _import_paths(spec: FmuSpec) -> list[Path]:
 
 
 @contextlib.contextmanager
-def import_sandbox(paths: list[Path]):
+def import_sandbox(paths: list[Path], private: set[str] = frozenset()):
     """Let pythonfmu import the slave script, then undo sys.path and sys.modules changes.
 
     Without this, a later in-process load of the built FMU would find the
     project's copy of the slave module already in ``sys.modules`` instead
-    of the one bundled in the FMU.
+    of the one bundled in the FMU. `private`: the private module names of the FMU being
+    built (:mod:`fmu_build.isolate`), dropped from ``sys.modules`` afterwards with their submodules.
     """
     saved_path = list(sys.path)
     ours = {p.stem for p in SOURCES.glob("*/*.py")}
@@ -197,6 +204,8 @@ def import_sandbox(paths: list[Path]):
     finally:
         sys.path[:] = saved_path
         for name in ours & set(sys.modules):
+            del sys.modules[name]
+        for name in [n for n in sys.modules if n.split(".")[0] in private]:
             del sys.modules[name]
         sys.modules.update(shadowing)
 
@@ -245,27 +254,59 @@ def _slew() -> dict[str, float]:
         return importlib.import_module("flexarm_fmu_base").slew()
 
 
-def stage(spec: FmuSpec, folder: Path) -> list[Path]:
-    """Lay out the FMU's project files in `folder`; return them (pythonfmu's ``project_files``)."""
+@dataclass
+class Staged:
+    """An FMU's project files, laid out under their private names (:mod:`fmu_build.isolate`)."""
+
+    #: the slave script under its private name (what pythonfmu builds from)
+    script: Path
+    #: everything else pythonfmu puts into ``resources`` (the private package, the manifest, the glue)
+    project_files: list[Path]
+    #: top-level module name -> private name
+    names: dict[str, str]
+
+
+def stage(spec: FmuSpec, folder: Path) -> Staged:
+    """Lay out the FMU's files in `folder` under private module names (:mod:`fmu_build.isolate`).
+
+    The ``flexarm`` modules and data the FMU needs, the glue and the slave script are copied, every
+    top-level name among them gets the private name of this build (``flexarm`` ->
+    ``_flexarm_<fmu>_<digest>``, ``flexarm_fmu_base`` -> ``_flexarm_fmu_base_<fmu>_<digest>``, ...), their
+    imports are rewritten to match, and ``flexarm_bundle.json`` records the names.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
     flexarm = folder / "flexarm"
     for src in [*all_flexarm_modules(), *data_files(spec)]:
         dest = flexarm / src.relative_to(FLEXARM_DIR)
         dest.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(src, dest)
-    glue = [folder / f.name for f in sorted(COMMON_DIR.glob("*.py"))]
-    for f in sorted(COMMON_DIR.glob("*.py")):
+    modules = [*sorted(COMMON_DIR.glob("*.py")), *[e for e in spec.extra_files if e.suffix == ".py"], spec.script]
+    others = [e for e in spec.extra_files if e.suffix != ".py"]
+    for f in [*modules, *others]:
         shutil.copy2(f, folder / f.name)
+    digest = build_digest(spec.name, [*bundle_files(flexarm), *[folder / f.name for f in [*modules, *others]]],
+                          folder)
+    names = {"flexarm": private_name("flexarm", spec.name, digest)}
+    names.update({f.stem: private_name(f.stem, spec.name, digest) for f in modules})
+    rewrite_tree(bundle_files(flexarm), names, literals=False)
+    rewrite_tree([folder / f.name for f in modules], names)
+    package = folder / names["flexarm"]
+    flexarm.rename(package)
+    renamed = {f.stem: (folder / f.name).rename(folder / f"{names[f.stem]}.py") for f in modules}
     manifest = folder / _glue()["preflight"]["BUNDLE_MANIFEST"]
-    data_dir = flexarm / "data"
+    data_dir = package / "data"
     manifest.write_text(json.dumps({
-        "fmu": spec.name, "slave_module": spec.script.stem, "flexarm_sha256": tree_sha256(flexarm),
-        "flexarm_files": [f.relative_to(flexarm).as_posix() for f in bundle_files(flexarm)],
+        "fmu": spec.name, "slave_module": names[spec.script.stem], "package": names["flexarm"],
+        "modules": names, "preflight": f"{names['flexarm_fmu_preflight']}.py",
+        "flexarm_sha256": tree_sha256(package),
+        "flexarm_files": [f.relative_to(package).as_posix() for f in bundle_files(package)],
         "data_sha256": {f.relative_to(data_dir).as_posix(): hashlib.sha256(f.read_bytes()).hexdigest()
                         for f in bundle_files(data_dir)},
         "shim_sha256": {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in SHIM_SOURCES},
         "slew": _slew(),
     }, indent=1))
-    return [flexarm, manifest, *glue, *spec.extra_files]
+    glue = [renamed[f.stem] for f in modules if f != spec.script]
+    return Staged(renamed[spec.script.stem], [package, manifest, *glue, *[folder / f.name for f in others]], names)
 
 
 def build_fmu(spec: FmuSpec, out_dir: Path, peers: dict[str, dict] | None = None) -> Path:
@@ -286,15 +327,15 @@ def build_fmu(spec: FmuSpec, out_dir: Path, peers: dict[str, dict] | None = None
     final = out_dir / f"{spec.name}.fmu"
     with tempfile.TemporaryDirectory(prefix=f"build_{spec.name}_") as tmp:
         work = Path(tmp)
-        project_files = stage(spec, work / "stage")
+        staged = stage(spec, work / "stage")
         raw_fmu = work / "pythonfmu.fmu"
         fd, tmp_name = tempfile.mkstemp(dir=out_dir, prefix=f".{spec.name}-", suffix=".fmu")
         os.close(fd)
         tmp_fmu = Path(tmp_name)
         try:
-            with import_sandbox(_import_paths(spec)):
-                FmuBuilder.build_FMU(spec.script, dest=raw_fmu, project_files=project_files, **FMU_OPTIONS)
-            finish_fmu(raw_fmu, tmp_fmu, spec, peers, work)
+            with import_sandbox([staged.script.parent], private=set(staged.names.values())):
+                FmuBuilder.build_FMU(staged.script, dest=raw_fmu, project_files=staged.project_files, **FMU_OPTIONS)
+            finish_fmu(raw_fmu, tmp_fmu, spec, peers, work, preflight=f"{staged.names['flexarm_fmu_preflight']}.py")
             problems = validate_fmu(str(tmp_fmu))
             if problems:
                 raise BuildError(f"{spec.name}: fmpy.validate_fmu found {len(problems)} problem(s):\n  "
@@ -317,14 +358,18 @@ def _keep(name: str) -> bool:
     return True
 
 
-def finish_fmu(raw_fmu: Path, dest: Path, spec: FmuSpec, peers: dict[str, dict], work: Path) -> None:
-    """Turn pythonfmu's FMU into ours: the front end as the FMU's binary, pythonfmu's beside it, documentation."""
+def finish_fmu(raw_fmu: Path, dest: Path, spec: FmuSpec, peers: dict[str, dict], work: Path,
+               preflight: str = "flexarm_fmu_preflight.py") -> None:
+    """Turn pythonfmu's FMU into ours: the front end as the FMU's binary, pythonfmu's beside it, documentation.
+
+    `preflight`: the file name of the start-up check in ``resources`` that the front end runs.
+    """
     with zipfile.ZipFile(raw_fmu) as raw:
         md = ElementTree.fromstring(raw.read("modelDescription.xml"))
         cosim = md.find("CoSimulation")
         model_id, guid = cosim.get("modelIdentifier"), md.get("guid")
         inner = raw.read(f"binaries/linux64/{model_id}.so")
-        shim = compile_shim(guid, model_id, work / f"{model_id}.so").read_bytes()
+        shim = compile_shim(guid, model_id, work / f"{model_id}.so", preflight).read_bytes()
         page = render_documentation(spec.name, md, peers)
         with zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as out:
             def put(name: str, data: bytes, mode: int = 0o644) -> None:

@@ -15,13 +15,14 @@ import sys
 import tomllib
 from pathlib import Path
 
-from .config import SCENARIO_DIR, ScenarioError, list_scenarios, load_scenario
+from .config import MAX_CASES, MAX_SAMPLES, SCENARIO_DIR, ScenarioError, check_size, list_scenarios, load_scenario
 from .master import CoSimulationError
 from .outdir import OutputError, describe_os_error
 from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, check_kind, format_table, run_scenario
 
 EXIT_OK, EXIT_ERROR, EXIT_REFUSED, EXIT_OUTPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader left
+EXIT_STDOUT = 4  # the results were written, but standard output could not take the table (e.g. /dev/full)
 #: Default results folder: relative to the current directory, so it works with any install.
 DEFAULT_OUT = Path("results")
 
@@ -30,10 +31,43 @@ def _terminate(signum, frame):
     raise SystemExit(EXIT_TERMINATED)  # unwinds like Ctrl-C: temp files and unpacked FMUs are removed
 
 
+class StdoutUnwritable(Exception):
+    """Standard output refused what we printed (not a broken pipe): the results already written stay."""
+
+    def __init__(self, exc: OSError, written: list[Path]):
+        super().__init__(describe_os_error(exc))
+        self.written = written
+
+
+def _reserve_stdio() -> None:
+    """Closed standard streams (``>&-``, ``2>&-``) opened on /dev/null: so that no file we open later takes
+    descriptor 0, 1 or 2 (an FMU's printf would write into it), and ``sys.stdout``/``sys.stderr`` are never None."""
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            null = os.open(os.devnull, os.O_RDWR)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+    for name, mode in (("stdin", "r"), ("stdout", "w"), ("stderr", "w")):
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(os.devnull, mode))  # noqa: SIM115 - lives as long as the process
+
+
+def _err(text: str) -> None:
+    """A message on standard error; nothing if standard error cannot take it (``2>/dev/full``)."""
+    try:
+        print(text, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m scenarios", description="Run the paper's experiments on our FMUs.",
                                  epilog="Exit codes: 0 ok or unbounded, 1 FMU error in a case, 2 refused input, "
-                                        "3 results folder unusable, 130 interrupted (see docs/outcomes.md).")
+                                        "3 results folder unusable, 4 results written but standard output "
+                                        "unwritable, 130 interrupted (see docs/outcomes.md).")
     sub = ap.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list the shipped scenarios")
     run = sub.add_parser("run", help="run scenarios: shipped names (see list), all, or scenario files")
@@ -46,6 +80,9 @@ def main(argv=None) -> int:
     run.add_argument("--controller", help="controller FMU to use instead of the scenario's (name or .fmu path)")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
+    run.add_argument("--allow-large", action="store_true",
+                     help=f"run past the caps of {MAX_SAMPLES} communication steps per case and {MAX_CASES} cases "
+                          "per scenario (each case's record is kept in memory)")
     sweep = sub.add_parser("sweep", help="run a sweep / Monte Carlo on Dask: a name in scenarios/sweeps/ or a file")
     sweep.add_argument("sweep", help="a sweep name in scenarios/sweeps/ (robustness, schedule) or a sweep file")
     sweep.add_argument("--out", type=Path, default=DEFAULT_OUT / "sweeps",
@@ -69,25 +106,31 @@ def main(argv=None) -> int:
     page.add_argument("--check", action="store_true",
                       help="do not write: exit 1 with a diff if the committed files differ from a fresh run")
     page.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
+    _reserve_stdio()
     args = ap.parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
     try:
         return _dispatch(args)
     except KeyboardInterrupt:
-        print("interrupted: nothing of the interrupted run was recorded as a result", file=sys.stderr)
+        _err("interrupted: nothing of the interrupted run was recorded as a result")
         return EXIT_INTERRUPTED
     except (ScenarioError, CoSimulationError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        _err(f"error: {exc}")
         return EXIT_REFUSED
     except OutputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        _err(f"error: {exc}")
         return EXIT_OUTPUT
     except BrokenPipeError:  # the reader of our standard output went away (`... | head`): not a results error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit's flush
-        print("stopped: standard output was closed (broken pipe)", file=sys.stderr)
+        _err("stopped: standard output was closed (broken pipe)")
         return EXIT_BROKEN_PIPE
+    except StdoutUnwritable as exc:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit's flush
+        where = ", ".join(str(w) for w in exc.written) or "(none)"
+        _err(f"error: standard output: cannot print the table ({exc}); the results were written: {where}")
+        return EXIT_STDOUT
     except OSError as exc:
-        print(f"error: cannot write results: {describe_os_error(exc)}", file=sys.stderr)
+        _err(f"error: cannot write results: {describe_os_error(exc)}")
         return EXIT_OUTPUT
     finally:
         if previous is not None:
@@ -123,7 +166,7 @@ def _dispatch(args) -> int:
             paths = export_ssp(load_scenario(args.scenario), args.out, args.fmu_dir, cases=args.case, kind=args.kind,
                                native_fmu_dir=args.native_fmu_dir)
         except SSPExportError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            _err(f"error: {exc}")
             return EXIT_REFUSED
         for key, path in paths.items():
             print(f"{key}: {path}")
@@ -134,7 +177,7 @@ def _dispatch(args) -> int:
         try:
             return _results_page(results_page, args)
         except results_page.ResultsPageError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            _err(f"error: {exc}")
             return EXIT_ERROR
     if args.command == "list":
         for s in list_scenarios():
@@ -152,21 +195,34 @@ def _dispatch(args) -> int:
         return ilc.cli(args)
     names = [n for n in names if not ilc.is_ilc_scenario(n)]  # `all`: the single-run scenarios
     scenarios = [load_scenario(name) for name in names]  # every file refused before anything runs
+    for sc in scenarios:
+        sc.allow_large = args.allow_large
+        check_size(sc)  # the number of cases now; the steps per case once the trajectory is read (run_length)
     kinds = [check_kind(sc, args.kind, args.controller) for sc in scenarios]  # and every FMU without that kind
     paper = tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
     code = EXIT_OK
+    written: list[Path] = []
+    progress = not args.quiet
     for sc, kind in zip(scenarios, kinds):
-        results = run_scenario(sc, args.out, args.fmu_dir, args.controller, progress=not args.quiet,
+        results = run_scenario(sc, args.out, args.fmu_dir, args.controller, progress=progress,
                                plots=not args.no_plots, kind=kind, native_fmu_dir=args.native_fmu_dir)
-        print(f"\n== {sc.name}: {sc.description} [{kind} FMUs]")
-        print(format_table(results, paper.get(sc.paper_table) if sc.paper_table else None))
+        written.append(args.out / sc.name)
+        lines = [f"\n== {sc.name}: {sc.description} [{kind} FMUs]",
+                 format_table(results, paper.get(sc.paper_table) if sc.paper_table else None)]
         for r in results:
             if r.status != "ok":
-                print(f"   {r.key}: {r.status} ({r.message})")
+                lines.append(f"   {r.key}: {r.status} ({r.message})")
+            lines += [f"   {r.key}: warning: {w}" for w in r.warnings]
             if r.status == "error":
                 code = EXIT_ERROR
-        print("   wall time per case: " + ", ".join(f"{r.key} {r.wall_time_s:.2f} s" for r in results))
-        print(f"   results: {args.out / sc.name}")
+        lines.append("   wall time per case: " + ", ".join(f"{r.key} {r.wall_time_s:.2f} s" for r in results))
+        lines.append(f"   results: {args.out / sc.name}")
+        try:
+            print("\n".join(lines), flush=True)
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise StdoutUnwritable(exc, written) from exc
     return code
 
 

@@ -42,3 +42,39 @@ def table_metrics(tau, theta, omega, theta_desired, omega_desired) -> dict[str, 
         "rms_position_error": float(np.sqrt(np.mean(pos**2))),
         "rms_velocity_error": float(np.sqrt(np.mean(vel**2))),
     }
+
+
+#: A run ends with a warning when a joint's torque is at or beyond its motor's peak torque (the plant's
+#: ``motors.peak_torque_Nm``) on more than this fraction of its samples. The minimum-time feedforward rides
+#: ``torque_limit_fraction`` (80 %) of the peak, so a run tracking it never reaches the peak; a controller
+#: that clips (the LQG) or asks for more (the LQR, which does not clip) does.
+SATURATION_WARN_FRACTION = 0.02
+
+
+def saturation_warnings(tau, limits, fraction: float = SATURATION_WARN_FRACTION) -> list[str]:
+    """Warnings for joints whose torque is at or beyond its limit on more than `fraction` of the samples.
+
+    Parameters
+    ----------
+    tau : ndarray, shape (n, 2)
+        The torques applied to the plant, N·m.
+    limits : sequence of 2 floats
+        Each motor's peak torque, N·m.
+    fraction : float
+        The share of samples (0..1) above which a joint warns.
+
+    Returns
+    -------
+    list of str
+        One sentence per joint that saturates that often (empty: none).
+    """
+    tau = np.abs(np.asarray(tau, dtype=float))
+    limits = np.asarray(limits, dtype=float)
+    n = len(tau)
+    out = []
+    for j in range(tau.shape[1] if tau.ndim == 2 else 0):
+        k = int(np.count_nonzero(tau[:, j] >= limits[j] * (1.0 - 1e-9)))
+        if n and k / n > fraction:
+            out.append(f"torque saturation: tau{j + 1} at or beyond its motor's limit ({limits[j]:g} N·m) on {k} "
+                       f"of {n} samples ({100.0 * k / n:.1f} % > {100.0 * fraction:g} %): figures of a saturated loop")
+    return out

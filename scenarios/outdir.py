@@ -39,10 +39,20 @@ def describe_os_error(exc: OSError) -> str:
     return f"{where}: {exc.strerror or exc}" if where else str(exc.strerror or exc)
 
 
+def check_folder_name(name: str) -> str:
+    """`name` if it is one plain path component (the scenario and sweep loaders allow only identifiers; this
+    is the last line for any caller): no separator, NUL or leading dot, not ``..``; else OutputError."""
+    if (not isinstance(name, str) or not name or name.startswith(".") or "/" in name or "\\" in name
+            or any(ord(ch) < 32 for ch in name) or name in (".", "..")):
+        raise OutputError(f"output folder name {name!r}: must be one plain name (letters, digits, _, -; no '/', "
+                          f"'\\', NUL or leading '.'), so that nothing outside the results folder is written")
+    return name
+
+
 @contextmanager
 def folder_lock(out: Path, name: str):
     """Hold ``out/.<name>.lock`` for the block; :class:`FolderBusy` when another process holds it."""
-    path = out / f".{name}.lock"
+    path = out / f".{check_folder_name(name)}.lock"
     try:
         fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o666)
     except OSError as exc:
@@ -101,6 +111,7 @@ def run_folder(out_dir: Path, name: str, need_bytes: int = 0):
     On any exception (Ctrl-C included) the staging folder is removed and ``out_dir/<name>`` is untouched.
     """
     out = Path(out_dir)
+    check_folder_name(name)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -26,9 +26,9 @@ from flexarm.signals import names as signal_names
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
 from . import master
-from .config import KINDS, Scenario, ScenarioError
+from .config import KINDS, Scenario, ScenarioError, check_inputs_given, check_size
 from .fmu_files import NotAnFmuError, read_description
-from .metrics import METRICS, UNITS, table_metrics
+from .metrics import METRICS, UNITS, saturation_warnings, table_metrics
 from .outdir import check_writable, run_folder
 from .results import write_csv
 from .values import check_parameters
@@ -61,6 +61,8 @@ class CaseResult:
     wall_time_s: float
     series: dict[str, np.ndarray]
     outcome: master.Outcome = field(default_factory=lambda: master.Outcome("ok"))
+    #: What the run did not do well (e.g. torque saturation, :func:`scenarios.metrics.saturation_warnings`).
+    warnings: list[str] = field(default_factory=list)
 
 
 def _build_tool():
@@ -238,39 +240,35 @@ def desired_trajectory():
 
 
 def verify_data_chain() -> dict[str, str]:
-    """Check parameters -> trajectory -> gains through flexarm's verifying loaders; refuse a mismatch.
+    """Check every data file through flexarm's verifying loaders (:func:`flexarm.data_chain.verify_data_files`:
+    parameters, sensor settings, trajectory, gains, LQG designs and bank, every JSON's seal); refuse a mismatch.
 
-    The one function the runner and the sweep call before anything runs. The checks themselves live in
-    the loaders (``flexarm.trajectory.load_trajectory``: the trajectory against the parameter file it
-    records; ``flexarm.lqr.GainSchedule.load``: each gain file against its trajectory and parameters), so
-    there is one place for each fact.
+    The one function the runner and the sweep call before anything runs; the checks themselves live in
+    the loaders, so there is one place for each fact.
 
     Returns
     -------
     dict
-        File (relative to the repository) -> SHA-256, for the results' provenance.
+        Every .npz, .json and .toml of flexarm/data (relative to the repository) -> SHA-256, for the results'
+        provenance (``data_sha256``).
 
     Raises
     ------
     DataChainError
         The loader's message: both files and the command that regenerates them.
     """
-    from flexarm.lqr import DEFAULT_GAIN_DIR, GainError, GainSchedule
+    from flexarm.data_chain import DataChainError as FlexarmDataChainError
+    from flexarm.data_chain import verify_data_files
     from flexarm.trajectory import TrajectoryError
 
-    gain_files = sorted(DEFAULT_GAIN_DIR.glob("*.npz"))
     try:
-        desired_trajectory()
-        for npz in gain_files:
-            name, _, schedule = npz.stem.rpartition("_")
-            GainSchedule.load(name, schedule, directory=DEFAULT_GAIN_DIR)
-    except (TrajectoryError, GainError) as exc:
+        chain = verify_data_files(REPO)
+        desired_trajectory()  # the trajectory the run tracks, through the same loader
+    except FlexarmDataChainError as exc:
+        raise DataChainError(str(exc)) from exc
+    except TrajectoryError as exc:
         raise DataChainError(f"data chain: {exc}") from exc
-    except (OSError, ValueError, KeyError) as exc:  # a file the loaders cannot even parse
-        raise DataChainError(f"data chain: cannot read the trajectory {DEFAULT_TRAJECTORY_FILE} or the gains in "
-                             f"{DEFAULT_GAIN_DIR}: {type(exc).__name__}: {exc}") from exc
-    files = [DEFAULT_PARAMETER_FILE, DEFAULT_TRAJECTORY_FILE, *gain_files]
-    return {_relative(f): sha256_file(f) for f in files}
+    return chain
 
 
 def _relative(path: Path) -> str:
@@ -323,6 +321,9 @@ def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str
     paths = resolve_fmus(scenario, fmu_dir, controller, build, names, kind, native_fmu_dir)
     descriptions = read_descriptions(paths)
     connections = connect_by_name(paths, scenario.connections, descriptions)
+    check_inputs_given(scenario, {inst: [v.name for v in md.modelVariables if v.causality == "input"]
+                                  for inst, md in descriptions.items()},
+                       {(c.dst_fmu, c.dst_var) for c in connections})
     torque_edges = [c for c in connections if c.dst_var == "tau1"]
     if not torque_edges:
         raise ScenarioError("connections: nothing drives an input 'tau1' (the plant's torque)")
@@ -350,6 +351,9 @@ def simulate_case(setup: Setup, m: master.Master, parameters: dict[str, dict],
     desired = setup.desired
     if len(desired["theta"]) != len(theta):  # a master that reports other time points
         desired = desired_states(desired_trajectory(), out["time"])
+    from flexarm.parameters import load_parameters
+
+    out.setdefault("warnings", []).extend(saturation_warnings(tau, load_parameters().peak_torque))
     return out, table_metrics(tau, theta, omega, desired["theta"], desired["omega"])
 
 
@@ -412,12 +416,13 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     wall = time.perf_counter() - t0
                     series = {"time": out["time"], **out["signals"]}
                     by_key[case.key] = CaseResult(case.key, case.label, out["status"], out["message"], metrics,
-                                                  wall, series, out["outcome"])
+                                                  wall, series, out["outcome"], list(out.get("warnings", [])))
                     write_csv(folder / f"{case.key}.csv", series)
                     write_json(folder / f"{case.key}.json", {
                         "scenario": scenario.name, "scenario_file": str(scenario.path),
                         "scenario_sha256": scenario_sha, "case": case.key, "label": case.label,
                         "status": out["status"], "message": out["message"], "outcome": out["outcome"].as_dict(),
+                        "warnings": list(out.get("warnings", [])),
                         "metrics": metrics, "metric_units": dict(UNITS), "parameters": params,
                         "samples": setup.n_steps, "step_size_s": scenario.step_size, "algorithm": algorithm,
                         "fmus": {k: str(v) for k, v in setup.paths.items()}, "fmu_sha256": checksums,
@@ -442,10 +447,14 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
 
 
 def run_length(scenario: Scenario, traj) -> int:
-    """Communication steps of a run: the scenario's, or as many as cover the slew ("trajectory")."""
+    """Communication steps of a run: the scenario's, or as many as cover the slew ("trajectory"); ScenarioError
+    past :data:`scenarios.config.MAX_SAMPLES` unless the run allows it (:func:`scenarios.config.check_size`)."""
     if scenario.samples == "trajectory":
-        return math.ceil(traj.t_f / scenario.step_size - 1e-9)
-    return int(scenario.samples)
+        n = math.ceil(traj.t_f / scenario.step_size - 1e-9)
+    else:
+        n = int(scenario.samples)
+    check_size(scenario, n)
+    return n
 
 
 def start_parameters(traj) -> dict[str, float]:
@@ -496,10 +505,13 @@ def _bar(label: str):
         if pct != state["last"]:
             state["last"] = pct
             filled = pct // 4
-            sys.stderr.write(f"\r{label:28s} [{'#' * filled}{'.' * (25 - filled)}] {pct:3d}%")
-            if k == n:
-                sys.stderr.write("\n")
-            sys.stderr.flush()
+            try:  # a bar standard error cannot take (2>/dev/full) is no reason to stop a run
+                sys.stderr.write(f"\r{label:28s} [{'#' * filled}{'.' * (25 - filled)}] {pct:3d}%")
+                if k == n:
+                    sys.stderr.write("\n")
+                sys.stderr.flush()
+            except (OSError, ValueError):
+                pass
 
     return update
 

@@ -7,10 +7,15 @@
   ``ssd:Component`` per FMU instance of the case, ``source="resources/<instance>.fmu"``,
   with every input, output and parameter of the FMU as a typed ``ssd:Connector``
   (Reals with their unit, defined in ``ssd:Units``); ``ssd:Connections`` as the master wires them
-  (:func:`scenarios.runner.connect_by_name`, or the scenario's explicit list);
+  (:func:`scenarios.runner.connect_by_name`, or the scenario's explicit list), in evaluation order
+  (by the source's place in the scenario's ``order``, the torques last: a Gauss-Seidel master that
+  follows the SSD's connection order, as OMSimulator's does, adds no delay);
   ``ssd:DefaultExperiment`` from 0 to the scenario's run length (``samples`` ×
   ``step_size``), with the step in the Open Simulation Platform's annotation
-  ``<osp:FixedStepAlgorithm baseStepSize="0.001"/>`` that libcosim reads;
+  ``<osp:FixedStepAlgorithm baseStepSize="0.001"/>`` that libcosim reads, and on the system
+  OpenModelica's ``org.openmodelica`` annotation ``<oms:FixedStepMaster description="oms-ma"
+  stepSize="0.001"/>`` (OMSimulator builds no system without a master named on it); the SSD's
+  description names the stepping (Gauss-Seidel or Jacobi) the archive is meant for;
 * ``resources/<instance>.fmu``: **the case's own copy of each FMU**, whose
   default values are the case's parameter values: the ``start`` attributes of
   its modelDescription.xml are rewritten, and ``resources/flexarm_start_values.json``
@@ -23,6 +28,11 @@
 * ``resources/<instance>.ssv``: the same values as an SSP ParameterValues file,
   bound to the component with one ``ssd:ParameterBinding`` (for masters that
   apply bindings: libcosim applies it, with the same result).
+
+A predictive controller's ``loop_delay_samples`` (the LQG) is what the scenario's stepping puts in
+the loop, in all three places (start value, ``resources/flexarm_start_values.*``, ``.ssv``): 0 for
+a Gauss-Seidel scenario (``lqg``), 2n for a Jacobi one at n ms (``lqg_jacobi``: 2)
+(:func:`loop_delay_parameters`).
 
 A case that swaps an FMU (``fmus.controller = "controller_ff"``) simply has
 that FMU in its archive. Each archive is written to a temporary file beside
@@ -57,7 +67,10 @@ NS = {
     "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
     "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
     "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
+    "oms": "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd",
 }
+#: Annotation types: the Open Simulation Platform's (libcosim) and OpenModelica's (OMSimulator).
+OSP_ANNOTATION, OMS_ANNOTATION = "com.opensimulationplatform", "org.openmodelica"
 DEFAULT_SSD = "SystemStructure.ssd"
 #: In an FMU's resources: the case's start values (read by fmus/common/flexarm_fmu_base.py, START_VALUES).
 START_VALUES = "flexarm_start_values.json"
@@ -241,7 +254,8 @@ def system_structure_xml(scenario: Scenario, plan: CasePlan) -> bytes:
     mds = {inst: read_model_description(str(setup.paths[inst])) for inst in scenario.order}
     root = etree.Element(_q("ssd", "SystemStructureDescription"), nsmap=NS, version="1.0",
                          name=f"{scenario.name}_{plan.key}", generationTool="flexarm-fmi scenarios.ssp")
-    root.set("description", f"{scenario.description} -- case {plan.key}: {plan.label}".strip(" -"))
+    root.set("description", f"{scenario.description} -- case {plan.key}: {plan.label} -- for a {scenario.algorithm} "
+             f"master stepping {_fmt_real(scenario.step_size)} s".strip(" -"))
     system = etree.SubElement(root, _q("ssd", "System"), name=scenario.name)
     elements = etree.SubElement(system, _q("ssd", "Elements"))
     units = {}
@@ -266,9 +280,18 @@ def system_structure_xml(scenario: Scenario, plan: CasePlan) -> bytes:
         etree.SubElement(bindings, _q("ssd", "ParameterBinding"), type="application/x-ssp-parameter-set",
                          source=_ssv_path(inst))
     conns = etree.SubElement(system, _q("ssd", "Connections"))
-    for c in setup.connections:
+    # In evaluation order (by the source's place in the scenario's order: plant -> sensors -> controller ->
+    # plant): a Gauss-Seidel master that follows the SSD's connection order then puts no delay in the loop.
+    rank = {inst: i for i, inst in enumerate(scenario.order)}
+    for c in sorted(setup.connections, key=lambda c: rank.get(c.src_fmu, len(rank))):
         etree.SubElement(conns, _q("ssd", "Connection"), startElement=c.src_fmu, startConnector=c.src_var,
                          endElement=c.dst_fmu, endConnector=c.dst_var)
+    h = scenario.step_size
+    # OMSimulator builds a system only with a master named on it: its fixed-step master at the scenario's step.
+    oms = etree.SubElement(etree.SubElement(etree.SubElement(system, _q("ssd", "Annotations")), _q("ssc", "Annotation"),
+                                            type=OMS_ANNOTATION), _q("oms", "Annotations"))
+    etree.SubElement(etree.SubElement(oms, _q("oms", "SimulationInformation")), _q("oms", "FixedStepMaster"),
+                     description="oms-ma", stepSize=_fmt_real(h))
     if units:
         ue = etree.SubElement(root, _q("ssd", "Units"))
         for name, u in units.items():
@@ -283,11 +306,10 @@ def system_structure_xml(scenario: Scenario, plan: CasePlan) -> bytes:
                     base.set("factor", _fmt_real(bu.factor))
                 if bu.offset != 0.0:
                     base.set("offset", _fmt_real(bu.offset))
-    h = scenario.step_size
     exp = etree.SubElement(root, _q("ssd", "DefaultExperiment"), startTime="0.0",
                            stopTime=_fmt_real(round(setup.n_steps * h, 12)))
     ann = etree.SubElement(etree.SubElement(exp, _q("ssd", "Annotations")), _q("ssc", "Annotation"),
-                           type="com.opensimulationplatform")
+                           type=OSP_ANNOTATION)
     algo = etree.SubElement(ann, _q("osp", "Algorithm"))
     etree.SubElement(algo, _q("osp", "FixedStepAlgorithm"), baseStepSize=_fmt_real(h))
     return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
@@ -311,14 +333,25 @@ def export_ssp(scenario: Scenario, out_dir: str | Path = DEFAULT_SSP_DIR,
         for inst in scenario.order:
             path = Path(plan.setup.paths[inst])
             variables = {v.name: v for v in read_model_description(str(path)).modelVariables}
-            params = plan.parameters.get(inst, {})
-            if "loop_delay_samples" in variables:  # a predictive controller: set for the masters that read SSPs
-                params = with_loop_delay(params, "jacobi", _feedthrough_fmus(scenario), scenario.step_size)
+            params = loop_delay_parameters(scenario, plan.parameters.get(inst, {}), variables)
             values = typed_values(params, variables, f"case {plan.key}, {inst}")
             members[_fmu_path(inst)] = case_fmu(path, values)
             members[_ssv_path(inst)] = parameter_set_xml(plan.key, values, variables, plan.label)
         written[plan.key] = _write_zip(folder / f"{plan.key}.ssp", members)
     return written
+
+
+def loop_delay_parameters(scenario: Scenario, params: dict, variables: dict) -> dict:
+    """A controller's case parameters with the ``loop_delay_samples`` the scenario's master puts in the loop.
+
+    The archive is for a master that steps as the scenario says (``algorithm``, ``step_size_s``):
+    :func:`flexarm.lqg.required_loop_delay` for that stepping, 0 for Gauss-Seidel (``lqg``, as its
+    file says), 2n for Jacobi at n ms with the sensors FMU (``lqg_jacobi``: 2 at 1 ms). An FMU without
+    the parameter is unchanged.
+    """
+    if "loop_delay_samples" not in variables:
+        return params
+    return with_loop_delay(params, scenario.algorithm, _feedthrough_fmus(scenario), scenario.step_size)
 
 
 def _feedthrough_fmus(scenario: Scenario) -> int:

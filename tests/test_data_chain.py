@@ -20,11 +20,13 @@ from flexarm.trajectory import (
 
 @pytest.fixture()
 def copied_chain(tmp_path):
-    """The committed parameter file and trajectory copied side by side into a temporary folder."""
+    """The committed parameter file and trajectory (npz and its sealed JSON) copied side by side into a temporary
+    folder."""
     params = tmp_path / DEFAULT_PARAMETER_FILE.name
     shutil.copyfile(DEFAULT_PARAMETER_FILE, params)
     traj = tmp_path / DEFAULT_TRAJECTORY_FILE.name
     shutil.copyfile(DEFAULT_TRAJECTORY_FILE, traj)
+    shutil.copyfile(DEFAULT_TRAJECTORY_FILE.with_suffix(".json"), traj.with_suffix(".json"))
     return params, traj
 
 

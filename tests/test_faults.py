@@ -280,6 +280,7 @@ def test_two_connections_into_one_input_are_refused(tmp_path, capsys):
 
 
 def test_a_broken_trajectory_is_refused_through_the_loader(tmp_path, capsys, monkeypatch):
+    from flexarm.provenance import sha256_file, write_sealed_json
     from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
 
     with np.load(DEFAULT_TRAJECTORY_FILE) as d:
@@ -287,6 +288,8 @@ def test_a_broken_trajectory_is_refused_through_the_loader(tmp_path, capsys, mon
     arrays["tau1"], arrays["tau2"] = arrays["tau1"][:-100], arrays["tau2"][:-100]  # torques cut short
     bad = tmp_path / "trajectory.npz"
     np.savez(bad, **arrays)
+    meta = json.loads(DEFAULT_TRAJECTORY_FILE.with_suffix(".json").read_text())  # its side file records it
+    write_sealed_json(bad.with_suffix(".json"), {**meta, "npz_sha256": sha256_file(bad)})
     monkeypatch.setattr(runner, "desired_trajectory", lambda: load_trajectory(bad))
     assert main(["run", "table2", "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
     err = stderr_line(capsys)
@@ -308,14 +311,17 @@ def _has(module: str, name: str) -> bool:
 def test_a_trajectory_made_from_other_parameters_is_refused(tmp_path, capsys, monkeypatch):
     import shutil
 
+    import flexarm.trajectory.io
     from flexarm.parameters import DEFAULT_PARAMETER_FILE
     from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
 
     params, traj = tmp_path / DEFAULT_PARAMETER_FILE.name, tmp_path / DEFAULT_TRAJECTORY_FILE.name
     shutil.copyfile(DEFAULT_PARAMETER_FILE, params)
     shutil.copyfile(DEFAULT_TRAJECTORY_FILE, traj)
+    shutil.copyfile(DEFAULT_TRAJECTORY_FILE.with_suffix(".json"), traj.with_suffix(".json"))
     params.write_text(params.read_text().replace("\n", "\n# edited\n", 1))
     monkeypatch.setattr(runner, "desired_trajectory", lambda: load_trajectory(traj))
+    monkeypatch.setattr(flexarm.trajectory.io, "DEFAULT_TRAJECTORY_FILE", traj)
     assert main(["run", "table2", "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
     err = stderr_line(capsys)
     assert err.startswith("error: data chain:") and str(traj) in err and str(params) in err
@@ -327,12 +333,13 @@ def test_gains_made_from_another_trajectory_are_refused(tmp_path, capsys, monkey
     import shutil
 
     import flexarm.lqr
+    from flexarm.provenance import write_sealed_json
 
     gains = tmp_path / "gains"
     shutil.copytree(flexarm.lqr.DEFAULT_GAIN_DIR, gains)
     meta = json.loads((gains / "gamma0.1_200ms.json").read_text())
     meta["trajectory_sha256"] = "0" * 64  # as if the trajectory had changed since the design
-    (gains / "gamma0.1_200ms.json").write_text(json.dumps(meta))
+    write_sealed_json(gains / "gamma0.1_200ms.json", meta)  # sealed anew: only the recorded input is stale
     monkeypatch.setattr(flexarm.lqr, "DEFAULT_GAIN_DIR", gains)
     assert main(["run", "table2", "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
     err = stderr_line(capsys)

@@ -258,9 +258,10 @@ def test_fmu_alone_in_a_native_host_equals_fmpy(name, host, venv_site_packages, 
     # Isolation: the FMU's own flexarm, NumPy and SciPy from the venv, nothing else from outside.
     modules, paths = _imports(proc.stderr)
     own = (unpacked / "resources").resolve()
-    assert "flexarm" in modules and "numpy" in modules
+    package = json.loads((own / "flexarm_bundle.json").read_text())["package"]  # its private name
+    assert package in modules and "numpy" in modules and "flexarm" not in modules
     assert not {m for m in modules if m.split(".")[0] in ("numba", "fmpy", "pythonfmu_tests", "scenarios")}
-    flexarm_files = {p for p in paths if "/flexarm/" in p}
+    flexarm_files = {p for p in paths if f"/{package}/" in p}
     assert flexarm_files and all(Path(p).resolve().is_relative_to(own) for p in flexarm_files), flexarm_files
     stdlib = Path(os.__file__).resolve().parent
     allowed = (own, venv_site_packages.resolve(), stdlib)
@@ -332,18 +333,19 @@ def test_an_fmu_that_cannot_start_says_why_at_error_level(host, venv_site_packag
     unpacked = _alone(built_fmus()[name], tmp_path / "alone")
     libpython = _libpython()
     env = _native_env(libpython, python_home, venv_site_packages, tmp_path)
-    data = unpacked / "resources" / "flexarm" / "data"
+    package = json.loads((unpacked / "resources" / "flexarm_bundle.json").read_text())["package"]
+    data = unpacked / "resources" / package / "data"
     if damage == "runtime":
         env = _native_env(libpython, python_home, venv_site_packages, tmp_path, LD_PRELOAD=None,
                           FLEXARM_FMU_LIBPYTHON="/nonexistent/libpython.so")
         expected = ["/nonexistent/libpython.so", "LD_PRELOAD", "FLEXARM_FMU_LIBPYTHON"]
     elif damage == "missing":
         (data / "sandia_arm.toml").unlink()
-        expected = ["resources/flexarm/data/sandia_arm.toml is missing", "build_fmus.py"]
+        expected = [f"resources/{package}/data/sandia_arm.toml is missing", "build_fmus.py"]
     elif damage == "altered":
         path = data / "sandia_arm.toml"
         path.write_text(path.read_text() + "\n# edited\n")
-        expected = ["resources/flexarm/data/sandia_arm.toml differs", "flexarm_bundle.json", "build_fmus.py"]
+        expected = [f"resources/{package}/data/sandia_arm.toml differs", "flexarm_bundle.json", "build_fmus.py"]
     else:  # a gain file recording another trajectory than the one bundled, and a manifest that agrees with both
         gains = data / "gains" / "gamma0.1_200ms.json"
         meta = json.loads(gains.read_text())

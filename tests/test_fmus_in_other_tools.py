@@ -123,22 +123,27 @@ from fmpy import simulate_fmu
 paths = json.loads(sys.argv[1])
 assert "flexarm" not in sys.modules and "pythonfmu" not in sys.modules
 rows = {}
-for name in ("plant", "sensors", "controller", "controller_dlqr"):  # the plant's flexarm is imported first
+for name in ("plant", "sensors", "controller", "controller_dlqr"):  # the plant (lean) first
     result = simulate_fmu(paths[name], stop_time=0.05, output_interval=1e-3)
     rows[name] = len(result)
-import flexarm
-import pythonfmu.builder  # the host's pythonfmu, not an FMU's run-time copy
-print(json.dumps({"rows": rows, "flexarm": flexarm.__file__}))
+ours = sorted({n.split(".")[0] for n in sys.modules if "flexarm" in n.split(".")[0]})
+print(json.dumps({"rows": rows, "public": "flexarm" in sys.modules, "ours": ours}))
 """
 
 
-def test_fmus_loaded_into_one_fresh_process_share_modules_but_read_their_own_data(fmus, tmp_path):
-    """A process that loads the (lean) plant first, then the others: each finds its modules and its own data."""
+def test_fmus_loaded_into_one_fresh_process_each_use_their_own_modules(fmus, tmp_path):
+    """A process that loads the (lean) plant first, then the others: each FMU imports its own code, under names
+    private to its build (fmu_build/isolate.py), and nothing under the public name ``flexarm``."""
     import json
+    import os
 
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     out = subprocess.run([sys.executable, "-c", _FRESH, json.dumps({k: str(v) for k, v in fmus.items()})],
-                         capture_output=True, text=True, timeout=600, cwd=tmp_path)
+                         capture_output=True, text=True, timeout=600, cwd=tmp_path, env=env)
     assert out.returncode == 0, out.stderr[-3000:]
     result = json.loads(out.stdout.strip().splitlines()[-1])
     assert set(result["rows"].values()) == {51}
-    assert "/resources/flexarm/" in result["flexarm"]  # the first FMU's copy served every FMU
+    assert not result["public"]
+    packages = {n for n in result["ours"] if n.startswith("_flexarm_") and "_fmu_" not in n
+                and not n.startswith(("_flexarm_feedthrough", "_flexarm_controller_base"))}
+    assert len(packages) == 4, result["ours"]  # one private flexarm per FMU

@@ -1,5 +1,6 @@
 """The LQG's mathematics: Kalman gains, estimation-error covariance, delay predictor, anti-windup, files."""
 
+import json
 import shutil
 
 import numpy as np
@@ -17,6 +18,7 @@ from flexarm.lqg_design import (
 )
 from flexarm.lqr_design import scaling_transform
 from flexarm.model import N_STATE, N, joint_angles, joint_velocities, strain_gauge_angles
+from flexarm.provenance import write_sealed_json
 from flexarm.sensors import SensorSettings
 
 TIP_SIGMA = 0.9  # N, about the committed design's payload force
@@ -206,8 +208,8 @@ def test_committed_design_files_load_and_stale_ones_are_refused(tmp_path):
     assert d.K.shape[1:] == (4, 2, N_STATE) and d.M.shape[1:] == (N_STATE, 10)
     for stem in ("lqg_200ms.npz", "lqg_200ms.json"):
         shutil.copy(DEFAULT_LQG_DIR / stem, tmp_path / stem)
-    meta = (tmp_path / "lqg_200ms.json").read_text()
-    (tmp_path / "lqg_200ms.json").write_text(meta.replace(d.metadata["trajectory_sha256"], "0" * 64))
+    meta = json.loads((tmp_path / "lqg_200ms.json").read_text())
+    write_sealed_json(tmp_path / "lqg_200ms.json", {**meta, "trajectory_sha256": "0" * 64})  # only the input stale
     with pytest.raises(StaleDataError, match="trajectory file"):
         LqgDesign.load("200ms", tmp_path)
 

@@ -1,8 +1,11 @@
 """controller_lqg (Python and native) stepped at whole multiples of its 1 ms sample (issue 12: drop-in stepping).
 
-A step of n samples commits the sample of t (the one whose torques the master read) and runs the n - 1
-samples inside the step with the inputs held, so the FMU equals the library law stepped every 1 ms with each
-measurement held until the next communication point. Steps that are no whole multiple are refused.
+With loop_delay_samples = 0 (direct feedthrough) a step of n samples commits the sample of t from the inputs
+present at fmi2DoStep and runs the n - 1 samples inside the step with them held; with a loop delay d > 0 (no
+feedthrough) fmi2DoStep runs the n samples after t with the inputs present and holds the last one's torques,
+sample 0 coming from the trajectory alone and samples before d taking no measurement. Either way the FMU
+equals the library law stepped every 1 ms with each measurement held until the next communication point.
+Steps that are no whole multiple are refused.
 """
 
 from __future__ import annotations
@@ -37,25 +40,45 @@ def _ids(p: dict) -> str:
     return "-".join(f"{k}={v}" for k, v in p.items())
 
 
-def library_held(params: dict, steps: list[int]) -> np.ndarray:
+def library_law(params: dict):
+    """The flexarm law of an FMU parameter set."""
+    factory = bank_controller if params.get("estimator", 1) == 2 else lqg_controller
+    return factory(GAIN_SETS[params.get("gain_set", 2)], SCHEDULES[params.get("schedule_period", 0.2)],
+                   params.get("loop_delay_samples", 0), params.get("integral_action", False),
+                   (params.get("tau1_max", PEAK_TORQUE[0]), params.get("tau2_max", PEAK_TORQUE[1])))
+
+
+def library_held(params: dict, steps: list[int], inputs=None) -> np.ndarray:
     """flexarm.lqg stepped every 1 ms, the measurement of each communication point held until the next.
 
-    Returns the torques at the communication points (len(steps) + 1 rows); the inputs at the point of
-    sample s are ``lqg_inputs(s)``.
+    Returns the torques at the communication points (len(steps) + 1 rows); the inputs present at the point of
+    sample s are ``inputs(s)`` (default :func:`lqg_inputs`). Delay 0: the torques at s are sample s of the
+    inputs at s. Delay d > 0: sample 0 from the trajectory, and at a point s the samples s + 1 .. s + n from
+    the inputs at s, the last one's torques held; a sample before d takes the desired measurement of t = 0.
     """
-    factory = bank_controller if params.get("estimator", 1) == 2 else lqg_controller
-    law = factory(GAIN_SETS[params.get("gain_set", 2)], SCHEDULES[params.get("schedule_period", 0.2)],
-                  params.get("loop_delay_samples", 0), params.get("integral_action", False),
-                  (params.get("tau1_max", PEAK_TORQUE[0]), params.get("tau2_max", PEAK_TORQUE[1])))
-    state, s, rows = law.initial_state(), 0, []
-    for n in [*steps, 1]:
-        m = list(lqg_inputs(s).values())
-        for i in range(n):
-            tau, state = law.step(state, s + i, m)
-            if i == 0:
-                rows.append(tau)
+    inputs = inputs or lqg_inputs
+    law = library_law(params)
+    d, state = law.delay, law.initial_state()
+    if d == 0:
+        s, rows = 0, []
+        for n in [*steps, 1]:
+            m = list(inputs(s).values())
+            for i in range(n):
+                tau, state = law.step(state, s + i, m)
+                if i == 0:
+                    rows.append(tau)
+            s += n
+        return np.array(rows[:len(steps) + 1])
+    y0 = law.design.C @ law.z[0]
+    tau, state = law.step(state, 0, y0)
+    s, rows = 0, [tau]
+    for n in steps:
+        m = list(inputs(s).values())
+        for i in range(1, n + 1):
+            tau, state = law.step(state, s + i, y0 if s + i < d else m)
+        rows.append(tau)
         s += n
-    return np.array(rows[:len(steps) + 1])
+    return np.array(rows)
 
 
 def run_steps(s: Slave, steps: list[int], s0: int = 0) -> np.ndarray:
@@ -105,9 +128,11 @@ def test_python_lqg_with_variable_steps_is_the_library_law(tmp_path):
 
 
 @pytest.mark.parametrize("kind", ["python", "native"])
-def test_lqg_in_jacobi_stepping_at_4ms_holds_the_inputs_set_after_the_read(kind, tmp_path):
-    """Jacobi at 4 ms (read the torques, then set the inputs, then step): the sample of t is the one read (the
-    inputs of the previous point); the 3 samples inside the step hold the inputs set after the read."""
+def test_lqg_in_jacobi_stepping_at_4ms_uses_the_inputs_present_at_do_step(kind, tmp_path):
+    """Jacobi at 4 ms (read the torques, then set the inputs, then step), with inputs set in initialisation
+    mode and extra reads: the torques read at a point are those the previous fmi2DoStep computed from the
+    inputs present then (held over its 4 samples); what was set in initialisation and every read change
+    nothing."""
     fmu = (built_fmus() if kind == "python" else native_fmus())["controller_lqg"]
     params = CASES[1]
     n_points = 550
@@ -116,25 +141,19 @@ def test_lqg_in_jacobi_stepping_at_4ms_holds_the_inputs_set_after_the_read(kind,
     s.fmu.enterInitializationMode()
     s.set(**params)
     s.set_vector(MEASURED, list(lqg_inputs(0).values()))
+    s.get(["tau1", "tau2"])
     s.fmu.exitInitializationMode()
     got = []
     try:
         for k in range(n_points):
             got.append(s.get(["tau1", "tau2"]))
             s.set_vector(MEASURED, list(lqg_inputs(4 * k + 3).values()))
+            np.testing.assert_array_equal(s.get(["tau1", "tau2"]), got[-1])  # no feedthrough: reads see the same
             s.fmu.doStep(k * 4e-3, 4e-3)
     finally:
         s.close()
-    law = lqg_controller(GAIN_SETS[2], SCHEDULES[0.2], params["loop_delay_samples"], True,
-                         (params["tau1_max"], PEAK_TORQUE[1]))
-    state, read_inputs, ref = law.initial_state(), list(lqg_inputs(0).values()), []
-    for k in range(n_points):
-        tau, state = law.step(state, 4 * k, read_inputs)
-        ref.append(tau)
-        read_inputs = list(lqg_inputs(4 * k + 3).values())
-        for i in range(1, 4):
-            _, state = law.step(state, 4 * k + i, read_inputs)
-    got, ref = np.array(got), np.array(ref)
+    ref = library_held(params, [4] * (n_points - 1), lambda s: lqg_inputs(s + 3))
+    got = np.array(got)
     assert _agreement(got, ref) <= (0.0 if kind == "python" else 1e-10), np.abs(got - ref).max(axis=0)
 
 

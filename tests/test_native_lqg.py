@@ -82,17 +82,16 @@ def test_native_lqg_matches_python(params):
     assert np.abs(np.diff(got, axis=0)).max() > 0.01  # the filter and the feedback act
 
 
-def _jacobi_run(fmu, params: dict, n: int, late_inputs: bool, h: float = 1e-3) -> np.ndarray:
-    """A Jacobi master stepping h: read the torques, then set the inputs, then doStep (inputs set after the read).
+def _jacobi_run(fmu, params: dict, n: int, extra_reads: bool, h: float = 1e-3) -> np.ndarray:
+    """A Jacobi master stepping h: read the torques, then set the inputs, then doStep.
 
-    The torques are first read in initialisation mode (inputs of sample 5 set there), and the inputs are changed
-    before the first step without a read: the first sample committed is the one read. With `late_inputs` the
-    inputs are also changed once more after a second read and then set to other values without a read: the
-    sample the FMU commits must be the one whose torques were read last.
+    Inputs are set (and the torques read) in initialisation mode, and changed before the first step. With
+    `extra_reads` the torques are also read after every set, and every third point the inputs are set twice
+    with a read in between: only the inputs present at fmi2DoStep may count, and no read may change anything.
     """
     md = read_model_description(str(fmu))
     var = {v.name: v for v in md.modelVariables}
-    s = FMU2Slave(guid=md.guid, unzipDirectory=str(unpack_alone(fmu, fmu.parent / f"jacobi_{fmu.stem}")),
+    s = FMU2Slave(guid=md.guid, unzipDirectory=str(unpack_alone(fmu, fmu.parent / f"jacobi_{fmu.stem}_{extra_reads}")),
                   modelIdentifier=md.coSimulation.modelIdentifier, instanceName="jacobi")
     s.instantiate()
     s.setupExperiment(startTime=0.0)
@@ -103,17 +102,22 @@ def _jacobi_run(fmu, params: dict, n: int, late_inputs: bool, h: float = 1e-3) -
     taus = [var["tau1"].valueReference, var["tau2"].valueReference]
     meas = [var[m].valueReference for m in MEASURED]
     s.setReal(meas, list(lqg_inputs(5).values()))
-    rows = [s.getReal(taus)]
+    if extra_reads:
+        s.getReal(taus)
     s.exitInitializationMode()
-    s.setReal(meas, list(lqg_inputs(9).values()))  # never read: the sample of t = 0 is the one read above
+    rows = [s.getReal(taus)]
+    s.setReal(meas, list(lqg_inputs(9).values()))
     s.doStep(0.0, h)
     samples = int(round(h / 1e-3))  # 1 ms samples per step: the inputs follow the path at the step's samples
     for k in range(1, n):
         rows.append(s.getReal(taus))
+        if extra_reads and k % 3 == 0:
+            s.setReal(meas, list(lqg_inputs(samples * k + 7).values()))
+            s.getReal(taus)
         s.setReal(meas, list(lqg_inputs(samples * k - 1).values()))
-        if late_inputs and k % 3 == 0:
-            rows[-1] = s.getReal(taus)  # read again: these torques are the sample's
-            s.setReal(meas, list(lqg_inputs(samples * k + 7).values()))  # set, never read: not committed
+        if extra_reads:
+            s.getReal(taus)
+            s.getReal(taus)
         s.doStep(k * h, h)
     s.terminate()
     s.freeInstance()
@@ -122,24 +126,22 @@ def _jacobi_run(fmu, params: dict, n: int, late_inputs: bool, h: float = 1e-3) -
 
 @pytest.mark.parametrize("estimator", [1, 2])
 @pytest.mark.parametrize("h", [1e-3, 4e-3])
-@pytest.mark.parametrize("late_inputs", [False, True])
-def test_native_lqg_commits_what_the_master_read(tmp_path, late_inputs, h, estimator):
+def test_native_lqg_in_jacobi_stepping_ignores_reads(tmp_path, h, estimator):
     """Jacobi stepping (read, set, doStep) at 1 ms and 4 ms (the samples inside the step with the inputs
-    held): native and Python commit the same sample at every step, both estimators (the bank within 1e-9 of the
-    peak torque: see the module docstring)."""
+    held): native and Python compute the same torques, both estimators (the bank within 1e-9 of the peak
+    torque: see the module docstring), and extra reads, also between two sets, change nothing at all."""
     params = {"loop_delay_samples": 2, "integral_action": True, "estimator": estimator}
     fmus = {}
     for kind, fmu in (("python", built_fmus()["controller_lqg"]), ("native", native_fmus()["controller_lqg"])):
         fmus[kind] = tmp_path / kind / fmu.name
         fmus[kind].parent.mkdir()
         shutil.copy2(fmu, fmus[kind])
-    ref = _jacobi_run(fmus["python"], params, 600, late_inputs, h)
-    got = _jacobi_run(fmus["native"], params, 600, late_inputs, h)
+    ref = _jacobi_run(fmus["python"], params, 600, False, h)
+    got = _jacobi_run(fmus["native"], params, 600, False, h)
     # the bank's likelihoods on these off-model inputs: measured up to 5.9e-10 (committing another sample: ~1 N.m)
     assert _agreement(got, ref) <= (1e-10 if estimator == 1 else 1e-9)
-    if late_inputs:  # the uncommitted inputs changed nothing: the same torques as without them up to the reads
-        plain = _jacobi_run(fmus["native"], params, 600, False, h)
-        assert np.abs(plain - got).max() > 1e-6  # the second reads saw other inputs
+    for kind in fmus:
+        np.testing.assert_array_equal(_jacobi_run(fmus[kind], params, 600, True, h), ref if kind == "python" else got)
 
 
 def test_native_lqg_state_reset_and_errors(tmp_path):
@@ -397,11 +399,22 @@ def test_native_bank_matches_python_on_recorded_measurements(case):
     that is larger (the payload saturated: the law moves by up to 3e-9 under such noise, native - Python 2e-9;
     the other cases 1e-14 to 9e-11)."""
     payload, gain_set, delay, integral, tau1_max = case
-    received, torques, _ = recorded_loop(*case)
+    received, torques, law = recorded_loop(*case)
     params = _bank_params(gain_set, delay, integral, tau1_max)
-    _, ref = run_fmpy(built_fmus()["controller_lqg"], N_STEPS, recorded_inputs(received), params)
-    _, got = run_fmpy(native_fmus()["controller_lqg"], N_STEPS, recorded_inputs(received), params)
-    np.testing.assert_array_equal(ref[:N_STEPS], torques)  # the Python FMU is the library law
+    if delay:  # no feedthrough: sample k is computed at the step from k - 1 with the inputs present then, and a
+        # sample before the delay takes no measurement (the desired one of t = 0, as the FMU does)
+        received = received.copy()
+        received[:delay] = law.design.C @ law.z[0]
+        state, torques = law.initial_state(), []
+        for k in range(N_STEPS):
+            tau, state = law.step(state, k, received[k])
+            torques.append(tau)
+        fed = np.vstack([received[1:], received[-1:]])
+    else:
+        fed = received
+    _, ref = run_fmpy(built_fmus()["controller_lqg"], N_STEPS, recorded_inputs(fed), params)
+    _, got = run_fmpy(native_fmus()["controller_lqg"], N_STEPS, recorded_inputs(fed), params)
+    np.testing.assert_array_equal(ref[:N_STEPS], np.array(torques))  # the Python FMU is the library law
     bound = max(1e-9, 10 * rounding_spread(case, received))
     assert _agreement(got, ref) <= bound, (case, _agreement(got, ref), bound)
     saturated = (np.abs(ref[:, 0]) == tau1_max).sum()

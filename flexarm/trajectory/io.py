@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -22,7 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..parameters import DATA_DIR, DEFAULT_PARAMETER_FILE, N_ELEMENTS
-from ..provenance import jsonable, sha256_file, write_atomic
+from ..provenance import DataFileError, jsonable, read_sealed_json, sha256_file, write_atomic, write_sealed_json
 
 if TYPE_CHECKING:  # the optimiser's raw result; importing it would import CasADi
     from .problem import CollocationSolution
@@ -112,7 +114,7 @@ def save_trajectory(result: TrajectoryResult, path: str | os.PathLike = DEFAULT_
     arrays["metadata"] = np.array(text)
     write_atomic(path, lambda fh: np.savez_compressed(fh, **arrays))
     json_path = path.with_suffix(".json")
-    write_atomic(json_path, text)
+    write_sealed_json(json_path, {**result.metadata, "npz_file": path.name, "npz_sha256": sha256_file(path)})
     return json_path
 
 
@@ -162,6 +164,30 @@ def check_parameter_chain(metadata: dict, trajectory_path: str | os.PathLike,
     return parameter_file
 
 
+def check_npz_against_sidecar(path: str | os.PathLike, sidecar: str | os.PathLike) -> dict:
+    """Check a trajectory ``.npz`` against the SHA-256 its sealed ``.json`` side file records; return the JSON.
+
+    Raises
+    ------
+    StaleTrajectoryError
+        The side file is missing, edited or corrupt (its seal), records no SHA-256 of the npz, or the npz's bytes
+        differ from it; the message names the file and the regenerating command.
+    """
+    path, sidecar = Path(path), Path(sidecar)
+    try:
+        meta = read_sealed_json(sidecar, REGENERATE_COMMAND)
+    except DataFileError as exc:
+        raise StaleTrajectoryError(f"trajectory {path}: its provenance file {exc}") from exc
+    recorded = meta.get("npz_sha256", "")
+    actual = sha256_file(path) if path.exists() else "(missing)"
+    if actual != recorded:
+        raise StaleTrajectoryError(
+            f"trajectory {path}: its bytes differ from the SHA-256 recorded in {sidecar.name} (file "
+            f"{actual[:12]}..., recorded {recorded[:12] or '(none)'}...): edited or corrupt; regenerate it with "
+            f"`{REGENERATE_COMMAND}` (or restore it from git)")
+    return meta
+
+
 def load_trajectory(path: str | os.PathLike = DEFAULT_TRAJECTORY_FILE,
                     parameter_file: str | os.PathLike | None | bool = None) -> TrajectoryResult:
     """Read a file written by :func:`save_trajectory` and check it against its parameter file.
@@ -183,16 +209,23 @@ def load_trajectory(path: str | os.PathLike = DEFAULT_TRAJECTORY_FILE,
         The parameter file changed since the trajectory was made.
     """
     path = Path(path)
-    with np.load(path, allow_pickle=False) as data:
-        try:
-            t = data["t"]
-            tau = np.stack([data["tau1"], data["tau2"]], axis=1)
-            theta = np.stack([data[f"theta{i + 1}"] for i in range(N_ELEMENTS)], axis=1)
-            omega = np.stack([data[f"omega{i + 1}"] for i in range(N_ELEMENTS)], axis=1)
-            tip = np.stack([data["tip_x"], data["tip_y"]], axis=1)
-            meta = json.loads(str(data["metadata"])) if "metadata" in data else {}
-        except KeyError as exc:
-            raise TrajectoryError(f"{path}: missing array {exc}") from exc
+    sidecar = path.with_suffix(".json")
+    if parameter_file is not False or sidecar.exists():
+        check_npz_against_sidecar(path, sidecar)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            try:
+                t = data["t"]
+                tau = np.stack([data["tau1"], data["tau2"]], axis=1)
+                theta = np.stack([data[f"theta{i + 1}"] for i in range(N_ELEMENTS)], axis=1)
+                omega = np.stack([data[f"omega{i + 1}"] for i in range(N_ELEMENTS)], axis=1)
+                tip = np.stack([data["tip_x"], data["tip_y"]], axis=1)
+                meta = json.loads(str(data["metadata"])) if "metadata" in data else {}
+            except KeyError as exc:
+                raise TrajectoryError(f"{path}: missing array {exc}") from exc
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise TrajectoryError(f"{path}: cannot be read ({type(exc).__name__}: {exc}); regenerate it with "
+                              f"`{REGENERATE_COMMAND}`") from exc
     n = len(t)
     if any(len(a) != n for a in (tau, theta, omega, tip)) or n < 2:
         raise TrajectoryError(f"{path}: arrays of different lengths")

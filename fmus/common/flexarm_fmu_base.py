@@ -62,15 +62,12 @@ Loading several FMUs in one interpreter
 ---------------------------------------
 pythonfmu puts each FMU's ``resources`` folder at the front of ``sys.path``
 and imports the module named in ``resources/slavemodule.txt``; Python caches
-modules by name in ``sys.modules``. Each FMU's slave module therefore has a
-unique name (``flexarm_plant_fmu``, ...), whereas the bundled ``flexarm``
-package and this module keep their names: the first FMU loaded provides them
-to all later ones (or the host's own ``flexarm``, if it imported one).
-``build_fmus.py`` writes the SHA-256 of the bundled ``flexarm`` into
-``resources/flexarm_bundle.json``; on instantiation the base class hashes
-the ``flexarm`` actually imported, if it is not this FMU's copy, and logs a
-warning if it differs (FMUs built from different versions of the physics in
-one process).
+modules by name in ``sys.modules``. The build therefore gives every module an
+FMU bundles (its ``flexarm``, this glue, the slave) a name private to that FMU
+build (``fmu_build/isolate.py``: ``_flexarm_<fmu>_<digest>``, imports
+rewritten), recorded in ``resources/flexarm_bundle.json``: any number of FMUs,
+of any builds, in any load order, share one interpreter and each runs its own
+code on its own data.
 """
 
 from __future__ import annotations

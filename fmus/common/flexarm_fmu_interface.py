@@ -177,15 +177,20 @@ def variable_table(rows) -> tuple[Var, ...]:
 
 
 def own_data_dir(resources) -> str | None:
-    """An FMU's own ``resources/flexarm/data`` folder (as text), or None outside a built FMU.
+    """An FMU's own data folder (as text), or None outside a built FMU.
 
-    FMUs loaded into one interpreter share the ``flexarm`` package imported first (modules are
-    cached by name), so an FMU reads the data files it needs from its own folder, not from
-    ``flexarm.parameters.DATA_DIR``.
+    Inside a built FMU that is ``resources/<package>/data``, where ``<package>`` is the private name
+    of its bundled ``flexarm`` (``flexarm_bundle.json``, see fmu_build/isolate.py), the same folder
+    as ``flexarm.parameters.DATA_DIR`` of the FMU's own copy.
     """
     if not resources:
         return None
-    folder = Path(resources) / "flexarm" / "data"
+    manifest = Path(resources) / BUNDLE_MANIFEST
+    try:
+        package = json.loads(manifest.read_text()).get("package", "flexarm") if manifest.is_file() else "flexarm"
+    except (OSError, ValueError):
+        package = "flexarm"
+    folder = Path(resources) / package / "data"
     return str(folder) if folder.is_dir() else None
 
 

@@ -138,16 +138,18 @@ def bundle_problems(resources: Path) -> list[str]:
     if not manifest.is_file():
         return [f"{manifest} is missing: this FMU was not built by fmu_build, or its resources were "
                 f"altered; rebuild it ({REBUILD})"]
-    recorded = json.loads(manifest.read_text()).get("data_sha256", {})
+    info = json.loads(manifest.read_text())
+    recorded = info.get("data_sha256", {})
     problems = []
-    data_dir = resources / "flexarm" / "data"
+    package = info.get("package", "flexarm")  # the bundled flexarm's private name (fmu_build/isolate.py)
+    data_dir = resources / package / "data"
     for rel, sha in recorded.items():
         path = data_dir / rel
         if not path.is_file():
-            problems.append(f"resources/flexarm/data/{rel} is missing (resources/{BUNDLE_MANIFEST} lists it); "
+            problems.append(f"resources/{package}/data/{rel} is missing (resources/{BUNDLE_MANIFEST} lists it); "
                             f"copy the whole FMU again or rebuild it ({REBUILD})")
         elif sha256(path) != sha:
-            problems.append(f"resources/flexarm/data/{rel} differs from the file bundled at build time (SHA-256 "
+            problems.append(f"resources/{package}/data/{rel} differs from the file bundled at build time (SHA-256 "
                             f"{sha[:12]}... in resources/{BUNDLE_MANIFEST}); rebuild the FMU ({REBUILD}) after "
                             f"regenerating the data ({_regenerate(rel)})")
     if not problems:

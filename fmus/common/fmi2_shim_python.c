@@ -39,13 +39,17 @@ int ensure_python(Instance *s)
 
 /* -- Python before pythonfmu --------------------------------------------------------- */
 /* Runs with `resources` set; leaves `error` empty, or a traceback. */
-/* The start-up check lives in Python (resources/flexarm_fmu_preflight.py); this only runs it. */
+/* The start-up check lives in Python (the glue's flexarm_fmu_preflight.py, in resources under this FMU build's
+   private module name, see fmu_build/isolate.py); this only runs it. */
+#ifndef FLEXARM_PREFLIGHT_FILE
+#define FLEXARM_PREFLIGHT_FILE "flexarm_fmu_preflight.py"
+#endif
 static const char PREFLIGHT[] =
     "import os, runpy, traceback\n"
     "try:\n"
-    "    error = runpy.run_path(os.path.join(resources, 'flexarm_fmu_preflight.py'))['preflight'](resources)\n"
+    "    error = runpy.run_path(os.path.join(resources, '" FLEXARM_PREFLIGHT_FILE "'))['preflight'](resources)\n"
     "except BaseException:\n"
-    "    error = 'its start-up check (resources/flexarm_fmu_preflight.py) failed; rebuild the FMU "
+    "    error = 'its start-up check (resources/" FLEXARM_PREFLIGHT_FILE ") failed; rebuild the FMU "
     "(python build_fmus.py --force):\\n' + traceback.format_exc(limit=-2)\n";
 
 typedef struct {

@@ -8,7 +8,8 @@ differs is the ``<CoSimulation>`` element (model identifier ``<Python's>Native``
 no execution tool, ``<SourceFiles>``) and the GUID.
 
 Every FMU holds: ``binaries/{linux64,win64,darwin64}/`` (cross-compiled with
-Zig's C compiler, from the ``ziglang`` package: Linux against glibc 2.17),
+Zig's C compiler, from the ``ziglang`` package: Linux against glibc 2.17; darwin64 a
+universal binary with an x86_64 and an arm64 slice),
 ``sources/`` (every C file, listed in ``<SourceFiles>``, so any tool can
 compile it), ``resources/`` (constants as files; their SHA-256 is compiled in
 and checked by ``fmi2Instantiate``) and the model description.
@@ -44,7 +45,7 @@ NATIVE_DIR = Path(__file__).resolve().parent
 DEFAULT_OUT = ROOT / "build" / "fmus-native"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 COMMON_SOURCES = ("fmi2_glue.c", "fmi2_glue.h", "fmi2_glue_resources.c", "sha256.c", "sha256.h", "portable_math.c",
-                  "portable_math.h", "libm.h")
+                  "portable_math.h", "libm.h", "libm_link.c", "libm_link.h")
 #: musl's sin/cos kernels, copied from the ziglang package (MIT licence) so every platform computes the same bits.
 MUSL_SOURCES = ("__sin.c", "__cos.c", "__tan.c", "__rem_pio2.c", "__rem_pio2_large.c")
 
@@ -54,6 +55,13 @@ PLATFORMS = {
     "win64": ("x86_64-windows-gnu", ".dll"),
     "darwin64": ("x86_64-macos", ".dylib"),
 }
+#: Platforms whose binary is universal: one Mach-O slice per Zig target, joined by :func:`universal_macho`
+#: (FMI 2.0's darwin64 folder then serves Intel and Apple-silicon Macs alike).
+UNIVERSAL = {"darwin64": ("x86_64-macos", "aarch64-macos")}
+#: Mach-O: the 64-bit magic (little-endian file), the fat magic (big-endian), and the CPU types we build.
+MH_MAGIC_64, FAT_MAGIC = 0xFEEDFACF, 0xCAFEBABE
+CPU_TYPES = {0x01000007: "x86_64", 0x0100000C: "arm64"}
+_FAT_ALIGN = 14  # 2**14: the page size of arm64 macOS (and a multiple of x86_64's)
 
 
 class NativeBuildError(RuntimeError):
@@ -274,22 +282,68 @@ def _musl_dir() -> Path:
 
 
 def compile_binary(src_dir: Path, model_identifier: str, platform: str, out_dir: Path) -> Path:
-    """Compile every .c in `src_dir` into out_dir/binaries/<platform>/<model_identifier><suffix>."""
-    target, suffix = PLATFORMS[platform]
+    """Compile every .c in `src_dir` into out_dir/binaries/<platform>/<model_identifier><suffix>.
+
+    darwin64 is universal (:data:`UNIVERSAL`): an x86_64 and an arm64 slice in one Mach-O file.
+    """
+    main_target, suffix = PLATFORMS[platform]
     dest = out_dir / "binaries" / platform
     dest.mkdir(parents=True, exist_ok=True)
+    slices = []
     with tempfile.TemporaryDirectory(prefix="flexarm-zig-") as tmp:
-        lib = Path(tmp) / (model_identifier + suffix)
-        cmd = [*zig_command(), "-target", target, "-shared", "-O2", "-g0", "-s", "-ffp-contract=off",
-               "-fvisibility=hidden", "-std=c99",
-               "-I", str(src_dir), "-o", str(lib), *sorted(str(p) for p in src_dir.glob("*.c"))]
-        if platform != "win64":
-            cmd += ["-fPIC", "-lm"]
-        run = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp)
-        if run.returncode != 0 or not lib.is_file():
-            raise NativeBuildError(f"{model_identifier} for {platform}: {' '.join(cmd)}\n{run.stderr[-4000:]}")
-        shutil.copy2(lib, dest / lib.name)
-    return dest / lib.name
+        for target in UNIVERSAL.get(platform, (main_target,)):
+            lib = Path(tmp) / target / (model_identifier + suffix)
+            lib.parent.mkdir()
+            cmd = [*zig_command(), "-target", target, "-shared", "-O2", "-g0", "-s", "-ffp-contract=off",
+                   "-fvisibility=hidden", "-std=c99",
+                   "-I", str(src_dir), "-o", str(lib), *sorted(str(p) for p in src_dir.glob("*.c"))]
+            if platform != "win64":
+                cmd += ["-fPIC", "-lm"]
+            run = subprocess.run(cmd, capture_output=True, text=True, cwd=lib.parent)
+            if run.returncode != 0 or not lib.is_file():
+                raise NativeBuildError(f"{model_identifier} for {platform} ({target}): {' '.join(cmd)}\n"
+                                       f"{run.stderr[-4000:]}")
+            slices.append(lib.read_bytes())
+    out = dest / (model_identifier + suffix)
+    out.write_bytes(universal_macho(slices) if len(slices) > 1 else slices[0])
+    return out
+
+
+def macho_cpu(data: bytes) -> str:
+    """The CPU of a 64-bit Mach-O file (``x86_64`` or ``arm64``); NativeBuildError for anything else."""
+    import struct
+
+    if len(data) < 32 or struct.unpack_from("<I", data)[0] != MH_MAGIC_64:
+        raise NativeBuildError("not a 64-bit little-endian Mach-O file")
+    cpu = struct.unpack_from("<i", data, 4)[0]
+    if cpu not in CPU_TYPES:
+        raise NativeBuildError(f"Mach-O CPU type {cpu:#x} is not one of {sorted(CPU_TYPES.values())}")
+    return CPU_TYPES[cpu]
+
+
+def universal_macho(slices: list[bytes]) -> bytes:
+    """One universal ("fat") Mach-O file holding `slices` (64-bit Mach-O files, one per CPU), as ``lipo`` writes.
+
+    The fat header is big-endian: magic, the number of slices, then per slice its CPU type and subtype
+    (copied from the slice's own header), offset, size and alignment (2**14); each slice starts on a
+    2**14 boundary.
+    """
+    import struct
+
+    cpus = [macho_cpu(s) for s in slices]
+    if len(set(cpus)) != len(cpus):
+        raise NativeBuildError(f"universal binary: one slice per CPU, got {cpus}")
+    align = 1 << _FAT_ALIGN
+    header = struct.pack(">II", FAT_MAGIC, len(slices))
+    offset = -(-(8 + 20 * len(slices)) // align) * align
+    body, entries = b"", b""
+    for s in slices:
+        cputype, subtype = struct.unpack_from("<iI", s, 4)
+        entries += struct.pack(">iIIII", cputype, subtype, offset, len(s), _FAT_ALIGN)
+        pad = offset - (8 + 20 * len(slices)) - len(body)
+        body += b"\0" * pad + s
+        offset = -(-(offset + len(s)) // align) * align
+    return header + entries + body
 
 
 # -- one FMU --------------------------------------------------------------------------------------

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import copy
 import math
-from pathlib import Path
 
 import numpy as np
 from flexarm_feedthrough import FeedthroughSlave, whole_samples
@@ -44,10 +43,9 @@ from flexarm.sensors import MEASURED_SIGNALS, TRUE_SIGNALS, SensorBank, SensorSe
 
 pin_module_namespace(globals())  # pythonfmu 0.7.0 drops a reference per instantiation (see there)
 
-#: Default settings: the committed file flexarm/data/sensors_default.toml (this FMU's own copy when built:
-#: FMUs in one process share the flexarm package imported first, which need not carry it).
-_OWN_SETTINGS = Path(__file__).resolve().parent / "flexarm" / "data" / "sensors_default.toml"
-DEFAULTS = SensorSettings.from_toml(_OWN_SETTINGS if _OWN_SETTINGS.is_file() else None)
+#: Default settings: the committed file flexarm/data/sensors_default.toml (in a built FMU, its own copy:
+#: the FMU's flexarm is its own, under a private name, see fmu_build/isolate.py).
+DEFAULTS = SensorSettings.from_toml(None)
 #: The per-link tuple field, exposed as two scalar parameters.
 _GAUGE_FS = "strain_gauge_full_scale_curvature_per_m"
 _GAUGE_FS_NAMES = (f"{_GAUGE_FS}_link1", f"{_GAUGE_FS}_link2")

@@ -16,7 +16,7 @@ import numpy as np
 
 from flexarm.provenance import sha256_bytes
 
-from ..config import SCENARIO_DIR, Case, Scenario, ScenarioError, load_scenario
+from ..config import MAX_SAMPLES, NAME_FORM, NAME_PATTERN, SCENARIO_DIR, Case, Scenario, ScenarioError, load_scenario
 from ..values import is_int as _is_int
 from ..values import is_number as _is_number
 
@@ -156,6 +156,8 @@ def load_sweep(name_or_path: str | Path) -> Sweep:
         doc = tomllib.loads(raw.decode())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise SweepError(f"{p}: not valid TOML: {exc}") from exc
+    except RecursionError:
+        raise SweepError(f"{p}: not a sweep file: arrays or tables nested too deeply to read") from None
     unknown = sorted(set(doc) - _TOP_KEYS)
     _require(not unknown, p.name, f"top-level tables allowed: {sorted(_TOP_KEYS)}", unknown)
     sw = doc.get("sweep")
@@ -163,8 +165,8 @@ def load_sweep(name_or_path: str | Path) -> Sweep:
     unknown = sorted(set(sw) - _SWEEP_KEYS)
     _require(not unknown, f"{p.name}: [sweep]", f"keys allowed: {sorted(_SWEEP_KEYS)}", unknown)
     name = sw.get("name")
-    _require(isinstance(name, str) and name.isidentifier(), f"{p.name}: sweep.name",
-             "an identifier (letters, digits, _; it names the output folder)", name)
+    _require(isinstance(name, str) and NAME_PATTERN.fullmatch(name) is not None, f"{p.name}: sweep.name",
+             f"{NAME_FORM}; it names the output folder", name)
     _require(isinstance(sw.get("description", ""), str), f"{p.name}: sweep.description", "a string",
              sw.get("description"))
     scen = sw.get("scenario")
@@ -182,9 +184,10 @@ def load_sweep(name_or_path: str | Path) -> Sweep:
     case = scenario.cases[keys.index(case_key)]
     if "samples" in sw:
         samples = sw["samples"]
-        _require(samples == "trajectory" or (_is_int(samples) and 1 <= samples <= 10_000_000),
+        _require(samples == "trajectory" or (_is_int(samples) and 1 <= samples <= MAX_SAMPLES),
                  f"{p.name}: sweep.samples",
-                 "an integer in [1, 10000000] or \"trajectory\" (as long as the slew)", samples)
+                 f"an integer in [1, {MAX_SAMPLES}] or \"trajectory\" (as long as the slew; every point's record is "
+                 f"kept in memory, so a sweep stays under the cap of a scenario run)", samples)
         scenario = replace(scenario, samples=samples)
     axes_doc = doc.get("axes")
     instances = sorted(scenario.fmus)

@@ -11,6 +11,7 @@
 #include "fmi2_glue.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -19,8 +20,6 @@
 
 
 #define INSTANCE_MAGIC 0x464e5849u /* "FNXI" */
-#define STATE_MAGIC 0x464e5853u    /* "FNXS" */
-#define SERIAL_TAG "FNX1"
 
 /* -- the state machine: for each call, the states in which it is allowed ------------------ */
 enum { S_INSTANTIATED, S_INIT, S_STEP_COMPLETE, S_STEP_FAILED, S_TERMINATED, S_COUNT };
@@ -82,10 +81,103 @@ void glue_log(const Instance *inst, fmi2Status status, const char *fmt, ...)
     inst->logger(inst->env, inst->name, status, category_of(status), escaped);
 }
 
+/* -- live instances and FMU states --------------------------------------------------------------
+ * A handle given by the host is dereferenced only once it is found in these tables (one set per FMU binary,
+ * so another FMU's instance or state, or one already freed, is never read): a second fmi2FreeInstance, a freed
+ * or foreign FMUstate are refused without touching their memory. A spin lock guards the tables (instances may
+ * live in different threads); it is held only for a scan of a few pointers. */
+typedef struct {
+    void *handle;
+    const Instance *owner; /* states: the instance that made it (freed with it); instances: NULL */
+} Live;
+
+typedef struct {
+    Live *items;
+    size_t n, cap;
+} LiveTable;
+
+static LiveTable live_instances, live_states;
+
+#if defined(_MSC_VER)
+#include <windows.h>
+static volatile LONG registry_lock;
+static void registry_acquire(void)
+{
+    while (InterlockedExchange(&registry_lock, 1)) Sleep(0);
+}
+static void registry_release(void) { InterlockedExchange(&registry_lock, 0); }
+#else
+static char registry_lock;
+static void registry_acquire(void)
+{
+    while (__atomic_test_and_set(&registry_lock, __ATOMIC_ACQUIRE)) {
+    }
+}
+static void registry_release(void) { __atomic_clear(&registry_lock, __ATOMIC_RELEASE); }
+#endif
+
+static long live_find(const LiveTable *t, const void *handle)
+{
+    for (size_t i = 0; i < t->n; i++)
+        if (t->items[i].handle == handle) return (long)i;
+    return -1;
+}
+
+/* Add a handle; 0 on success, -1 out of memory. */
+static int live_add(LiveTable *t, void *handle, const Instance *owner)
+{
+    registry_acquire();
+    if (t->n == t->cap) {
+        size_t cap = t->cap ? 2 * t->cap : 16;
+        Live *items = realloc(t->items, cap * sizeof *items);
+        if (items == NULL) {
+            registry_release();
+            return -1;
+        }
+        t->items = items, t->cap = cap;
+    }
+    t->items[t->n++] = (Live){handle, owner};
+    registry_release();
+    return 0;
+}
+
+/* 1 if the handle was live (and is now removed), 0 if it was not. */
+static int live_remove(LiveTable *t, const void *handle)
+{
+    registry_acquire();
+    long i = live_find(t, handle);
+    if (i >= 0) t->items[i] = t->items[--t->n];
+    registry_release();
+    return i >= 0;
+}
+
+static int live_contains(const LiveTable *t, const void *handle)
+{
+    registry_acquire();
+    int found = live_find(t, handle) >= 0;
+    registry_release();
+    return found;
+}
+
+/* Remove every state made by `owner`; returns one of them (to be freed by the caller) or NULL when none is left. */
+static void *live_take_owned(LiveTable *t, const Instance *owner)
+{
+    void *handle = NULL;
+    registry_acquire();
+    for (size_t i = 0; i < t->n && handle == NULL; i++)
+        if (t->items[i].owner == owner) {
+            handle = t->items[i].handle;
+            t->items[i] = t->items[--t->n];
+        }
+    registry_release();
+    return handle;
+}
+
 static Instance *as_instance(fmi2Component c)
 {
+    if (c == NULL || !live_contains(&live_instances, c)) return NULL;
     Instance *inst = (Instance *)c;
-    return (inst != NULL && inst->magic == INSTANCE_MAGIC) ? inst : NULL;
+    return inst->magic == INSTANCE_MAGIC ? inst : NULL;
 }
 
 /* The instance if `call` is allowed in its state; otherwise log why (naming `fn`, or the call's name) and return
@@ -289,6 +381,10 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     }
     if (ok && glue_load_resources(inst, fmuResourceLocation) != 0) ok = 0;
     if (ok && glue_load_start_values(inst, fmuResourceLocation) != 0) ok = 0;
+    if (ok && live_add(&live_instances, inst, NULL) != 0) {
+        glue_log(inst, fmi2Error, "fmi2Instantiate: out of memory");
+        ok = 0;
+    }
     if (!ok) {
         free(inst->values), free(inst->invalid), free(inst->state), free(inst->starts), free(inst->name);
         free(inst->strings);
@@ -301,10 +397,15 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     return inst;
 }
 
+static void free_snapshot(void *snap);
+
+/* A second call with the same pointer (or any pointer that is no live instance of this FMU) does nothing: the
+   pointer is looked up, never read. States the instance made and the host did not free are freed with it. */
 void fmi2FreeInstance(fmi2Component c)
 {
-    Instance *inst = as_instance(c);
-    if (inst == NULL) return;
+    if (c == NULL || !live_remove(&live_instances, c)) return;
+    Instance *inst = (Instance *)c;
+    for (void *snap; (snap = live_take_owned(&live_states, inst)) != NULL;) free_snapshot(snap);
     if (MODEL_INFO.unload != NULL) MODEL_INFO.unload(inst);
     inst->magic = 0;
     free_strings(inst);
@@ -515,29 +616,78 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
     return fmi2OK;
 }
 
-/* -- FMU state ------------------------------------------------------------------------------ */
+/* -- FMU state ------------------------------------------------------------------------------ *
+ * A state is sealed: it carries the identity of this FMU's build (FNV-1a 64 of the model identifier and the
+ * GUID, which hashes the sources and resources), its size and an FNV-1a 64 checksum of its bytes; the
+ * serialised form adds a tag and a checksum of the whole. FNV-1a changes on any change of a single byte, so
+ * every corrupted bit is found. A handle is used only if it is in live_states (made by this binary, not freed).
+ */
 typedef struct {
-    unsigned magic;
-    int fmi_state, outputs_stale;
+    uint64_t identity; /* state_identity() of the FMU that made it */
+    uint64_t size;     /* bytes of the whole snapshot, snapshot_size() */
+    uint64_t checksum; /* FNV-1a 64 of identity, size and every byte after this field */
+    int32_t fmi_state, outputs_stale;
     double time;
     /* followed by values[n_vars], invalid[n_vars], state[state_size] */
 } Snapshot;
+
+#define SERIAL_TAG "FNXSTAT2"
+#define SERIAL_TAG_SIZE 8
+#define FNV_OFFSET 1469598103934665603ull
+
+static uint64_t fnv1a(uint64_t h, const void *data, size_t n)
+{
+    const unsigned char *p = data;
+    for (size_t i = 0; i < n; i++) h = (h ^ p[i]) * 1099511628211ull;
+    return h;
+}
+
+static uint64_t state_identity(void)
+{
+    uint64_t h = fnv1a(FNV_OFFSET, MODEL_INFO.model_identifier, strlen(MODEL_INFO.model_identifier) + 1);
+    h = fnv1a(h, MODEL_INFO.guid, strlen(MODEL_INFO.guid) + 1);
+    return h ? h : 1; /* 0 marks a freed snapshot */
+}
 
 static size_t snapshot_size(void)
 {
     return sizeof(Snapshot) + MODEL_INFO.n_vars * (sizeof(double) + 1) + MODEL_INFO.state_size;
 }
 
+static uint64_t snapshot_checksum(const Snapshot *snap, size_t size)
+{
+    const unsigned char *p = (const unsigned char *)snap;
+    uint64_t h = fnv1a(FNV_OFFSET, p, offsetof(Snapshot, checksum));
+    return fnv1a(h, p + offsetof(Snapshot, fmi_state), size - offsetof(Snapshot, fmi_state));
+}
+
 static void take_snapshot(const Instance *inst, Snapshot *snap)
 {
     unsigned char *p = (unsigned char *)(snap + 1);
-    snap->magic = STATE_MAGIC;
+    snap->identity = state_identity();
+    snap->size = snapshot_size();
     snap->fmi_state = inst->fmi_state;
     snap->outputs_stale = inst->outputs_stale;
     snap->time = inst->time;
     memcpy(p, inst->values, MODEL_INFO.n_vars * sizeof(double));
     memcpy(p + MODEL_INFO.n_vars * sizeof(double), inst->invalid, MODEL_INFO.n_vars);
     memcpy(p + MODEL_INFO.n_vars * (sizeof(double) + 1), inst->state, MODEL_INFO.state_size);
+    snap->checksum = snapshot_checksum(snap, snapshot_size());
+}
+
+/* NULL if `snap` (snapshot_size() readable bytes) is a sound state of this FMU's build; else what is wrong. */
+static const char *snapshot_problem(const Snapshot *snap)
+{
+    if (snap->identity != state_identity()) return "it is a state of another FMU or of another build of this one";
+    if (snap->size != snapshot_size()) return "its size does not match this FMU's states";
+    if (snap->checksum != snapshot_checksum(snap, snapshot_size())) return "its checksum does not match (corrupt)";
+    if (snap->fmi_state < 0 || snap->fmi_state >= S_COUNT || (snap->outputs_stale != 0 && snap->outputs_stale != 1) ||
+        !isfinite(snap->time))
+        return "its FMI state, flags or time are out of range";
+    const unsigned char *invalid = (const unsigned char *)(snap + 1) + MODEL_INFO.n_vars * sizeof(double);
+    for (size_t i = 0; i < MODEL_INFO.n_vars; i++)
+        if (invalid[i] > 1) return "its flags are out of range";
+    return NULL;
 }
 
 static void restore_snapshot(Instance *inst, const Snapshot *snap)
@@ -551,17 +701,47 @@ static void restore_snapshot(Instance *inst, const Snapshot *snap)
     memcpy(inst->state, p + MODEL_INFO.n_vars * (sizeof(double) + 1), MODEL_INFO.state_size);
 }
 
+static void free_snapshot(void *snap)
+{
+    ((Snapshot *)snap)->identity = 0;
+    free(snap);
+}
+
+/* The live state `handle` of this FMU, checked; NULL after logging why not (as `fn`). */
+static const Snapshot *sound_state(Instance *inst, const char *fn, fmi2FMUstate handle)
+{
+    if (handle == NULL || !live_contains(&live_states, handle)) {
+        glue_log(inst, fmi2Error, "%s: FMUstate %p is not a live state of %s (NULL, freed, or another FMU's); "
+                 "nothing changed", fn, handle, MODEL_INFO.model_identifier);
+        return NULL;
+    }
+    const Snapshot *snap = handle;
+    const char *problem = snapshot_problem(snap);
+    if (problem != NULL) {
+        glue_log(inst, fmi2Error, "%s: FMUstate refused: %s; nothing changed", fn, problem);
+        return NULL;
+    }
+    return snap;
+}
+
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
 {
     Instance *inst = admit(c, F_GET_STATE);
     if (inst == NULL) return fmi2Error;
-    if (FMUstate == NULL) {
-        glue_log(inst, fmi2Error, "fmi2GetFMUstate: FMUstate is NULL");
+    if (FMUstate == NULL || (*FMUstate != NULL && !live_contains(&live_states, *FMUstate))) {
+        glue_log(inst, fmi2Error, "fmi2GetFMUstate: FMUstate must point to NULL or to a live state of %s",
+                 MODEL_INFO.model_identifier);
         return fmi2Error;
     }
-    Snapshot *snap = (Snapshot *)*FMUstate;
-    if (snap == NULL || snap->magic != STATE_MAGIC) snap = malloc(snapshot_size());
-    if (snap == NULL) return fmi2Error;
+    Snapshot *snap = *FMUstate; /* overwritten in place, as FMI 2.0 allows */
+    if (snap == NULL) {
+        snap = malloc(snapshot_size());
+        if (snap == NULL || live_add(&live_states, snap, inst) != 0) {
+            free(snap);
+            glue_log(inst, fmi2Error, "fmi2GetFMUstate: out of memory");
+            return fmi2Error;
+        }
+    }
     take_snapshot(inst, snap);
     *FMUstate = snap;
     return fmi2OK;
@@ -571,11 +751,8 @@ fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate)
 {
     Instance *inst = admit(c, F_SET_STATE);
     if (inst == NULL) return fmi2Error;
-    const Snapshot *snap = (const Snapshot *)FMUstate;
-    if (snap == NULL || snap->magic != STATE_MAGIC) {
-        glue_log(inst, fmi2Error, "fmi2SetFMUstate: not a state of this FMU");
-        return fmi2Error;
-    }
+    const Snapshot *snap = sound_state(inst, "fmi2SetFMUstate", FMUstate);
+    if (snap == NULL) return fmi2Error;
     restore_snapshot(inst, snap);
     return fmi2OK;
 }
@@ -584,23 +761,30 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
 {
     Instance *inst = admit(c, F_GET_STATE);
     if (inst == NULL) return fmi2Error;
-    if (FMUstate != NULL && *FMUstate != NULL) {
-        ((Snapshot *)*FMUstate)->magic = 0;
-        free(*FMUstate);
-        *FMUstate = NULL;
+    if (FMUstate == NULL || *FMUstate == NULL) return fmi2OK; /* nothing to free */
+    if (!live_remove(&live_states, *FMUstate)) {
+        glue_log(inst, fmi2Error, "fmi2FreeFMUstate: FMUstate %p is not a live state of %s (freed twice, or "
+                 "another FMU's); nothing freed", *FMUstate, MODEL_INFO.model_identifier);
+        return fmi2Error;
     }
+    free_snapshot(*FMUstate);
+    *FMUstate = NULL;
     return fmi2OK;
 }
 
-/* Serialised: "FNX1", the model identifier (64 bytes), the size, then the snapshot. */
-#define SERIAL_HEADER (4 + 64 + 8)
+/* Serialised: SERIAL_TAG, the snapshot (with its identity, size and checksum), then FNV-1a 64 of all before. */
+#define SERIAL_SIZE() (SERIAL_TAG_SIZE + snapshot_size() + 8)
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size)
 {
-    (void)FMUstate;
     Instance *inst = admit(c, F_SERIALIZE);
-    if (inst == NULL || size == NULL) return fmi2Error;
-    *size = SERIAL_HEADER + snapshot_size();
+    if (inst == NULL) return fmi2Error;
+    if (size == NULL) {
+        glue_log(inst, fmi2Error, "fmi2SerializedFMUstateSize: size is NULL");
+        return fmi2Error;
+    }
+    if (sound_state(inst, "fmi2SerializedFMUstateSize", FMUstate) == NULL) return fmi2Error;
+    *size = SERIAL_SIZE();
     return fmi2OK;
 }
 
@@ -608,19 +792,18 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byt
 {
     Instance *inst = admit(c, F_SERIALIZE);
     if (inst == NULL) return fmi2Error;
-    const Snapshot *snap = (const Snapshot *)FMUstate;
-    if (snap == NULL || snap->magic != STATE_MAGIC || serializedState == NULL ||
-        size < SERIAL_HEADER + snapshot_size()) {
-        glue_log(inst, fmi2Error, "fmi2SerializeFMUstate: not a state of this FMU, or the buffer is too small "
-                 "(%zu bytes, need %zu)", size, SERIAL_HEADER + snapshot_size());
+    const Snapshot *snap = sound_state(inst, "fmi2SerializeFMUstate", FMUstate);
+    if (snap == NULL) return fmi2Error;
+    if (serializedState == NULL || size != SERIAL_SIZE()) {
+        glue_log(inst, fmi2Error, "fmi2SerializeFMUstate: the buffer must be %zu bytes (fmi2SerializedFMUstateSize), "
+                 "not %zu%s", SERIAL_SIZE(), size, serializedState == NULL ? " at NULL" : "");
         return fmi2Error;
     }
-    uint64_t n = snapshot_size();
-    memset(serializedState, 0, SERIAL_HEADER);
-    memcpy(serializedState, SERIAL_TAG, 4);
-    strncpy((char *)serializedState + 4, MODEL_INFO.model_identifier, 63);
-    memcpy(serializedState + 68, &n, 8);
-    memcpy(serializedState + SERIAL_HEADER, snap, n);
+    size_t n = snapshot_size();
+    memcpy(serializedState, SERIAL_TAG, SERIAL_TAG_SIZE);
+    memcpy(serializedState + SERIAL_TAG_SIZE, snap, n);
+    uint64_t sum = fnv1a(FNV_OFFSET, serializedState, SERIAL_TAG_SIZE + n);
+    memcpy(serializedState + SERIAL_TAG_SIZE + n, &sum, 8);
     return fmi2OK;
 }
 
@@ -629,20 +812,32 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
 {
     Instance *inst = admit(c, F_SERIALIZE);
     if (inst == NULL) return fmi2Error;
-    uint64_t n = 0;
-    if (serializedState != NULL && size >= SERIAL_HEADER) memcpy(&n, serializedState + 68, 8);
-    if (serializedState == NULL || FMUstate == NULL || size != SERIAL_HEADER + snapshot_size() ||
-        memcmp(serializedState, SERIAL_TAG, 4) != 0 ||
-        strncmp((const char *)serializedState + 4, MODEL_INFO.model_identifier, 63) != 0 || n != snapshot_size()) {
-        glue_log(inst, fmi2Error, "fmi2DeSerializeFMUstate: not a serialised state of %s (of this build)",
-                 MODEL_INFO.model_identifier);
+    if (serializedState == NULL || FMUstate == NULL) {
+        glue_log(inst, fmi2Error, "fmi2DeSerializeFMUstate: serializedState and FMUstate must not be NULL");
         return fmi2Error;
     }
-    Snapshot *snap = malloc(n);
-    if (snap == NULL) return fmi2Error;
-    memcpy(snap, serializedState + SERIAL_HEADER, n);
-    if (snap->magic != STATE_MAGIC) {
+    size_t n = snapshot_size();
+    const char *problem = NULL;
+    uint64_t sum = 0;
+    if (size != SERIAL_SIZE()) problem = "its length is not that of this FMU's states";
+    else if (memcmp(serializedState, SERIAL_TAG, SERIAL_TAG_SIZE) != 0) problem = "it does not start with " SERIAL_TAG;
+    else if (memcpy(&sum, serializedState + SERIAL_TAG_SIZE + n, 8),
+             sum != fnv1a(FNV_OFFSET, serializedState, SERIAL_TAG_SIZE + n))
+        problem = "its checksum does not match (corrupt)";
+    Snapshot *snap = NULL;
+    if (problem == NULL) {
+        snap = malloc(n);
+        if (snap == NULL) problem = "out of memory";
+        else {
+            memcpy(snap, serializedState + SERIAL_TAG_SIZE, n);
+            problem = snapshot_problem(snap);
+        }
+    }
+    if (problem == NULL && live_add(&live_states, snap, inst) != 0) problem = "out of memory";
+    if (problem != NULL) {
         free(snap);
+        glue_log(inst, fmi2Error, "fmi2DeSerializeFMUstate: %zu bytes refused as a state of %s (this build): %s",
+                 size, MODEL_INFO.model_identifier, problem);
         return fmi2Error;
     }
     *FMUstate = snap;
@@ -702,6 +897,9 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
     if (s <= fmi2Warning) {
         inst->time = currentCommunicationPoint + communicationStepSize;
         inst->outputs_stale = MODEL_INFO.sample != NULL;
+    } else if (s == fmi2Discard) { /* as the Python FMUs: the FMU stayed at t; fmi2Set* is refused until a state is
+                                      restored (fmi2SetFMUstate) or the FMU is reset or terminated */
+        inst->fmi_state = S_STEP_FAILED;
     }
     return s;
 }

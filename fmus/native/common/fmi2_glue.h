@@ -18,6 +18,7 @@
 #include <stddef.h>
 
 #include "fmi2Functions.h"
+#include "libm_link.h" /* libm's functions through libm_link.c: the sources build and load without libm */
 
 typedef enum { VT_REAL, VT_INTEGER, VT_BOOLEAN, VT_ENUMERATION, VT_STRING } VarType;
 typedef enum { CA_PARAMETER, CA_INPUT, CA_OUTPUT } Causality;
