@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 #: The catalogue file.
 SIGNAL_FILE = Path(__file__).resolve().parent / "data" / "signals.toml"
-FMUS = ("plant", "sensors", "controller")
+FMUS = ("plant", "sensors", "controller", "reference")
 CAUSALITIES = ("input", "output")
 
 

@@ -31,6 +31,10 @@ _USAGE = {
                    "[t<sub>k</sub>, t<sub>k</sub> + h). <code>controller_lqg</code> with "
                    "<code>loop_delay_samples</code> &gt; 0 has no direct feedthrough: <code>fmi2DoStep</code> "
                    "computes the torques from the inputs present and holds them until the next step."),
+    "reference": ("Communication steps of whole 1 ms samples (within 1e-9 s; a step of at most 1e-9 s does "
+                  "nothing); the slew starts at t = 0. No inputs: the outputs at t<sub>k</sub> are the trajectory's "
+                  "sample k = round(t<sub>k</sub> / 1 ms), the final state held after t<sub>f</sub>; wire them by "
+                  "name into a controller's inputs (docs/own-controller.md)."),
 }
 
 

@@ -86,5 +86,7 @@ FMUS: dict[str, FmuSpec] = {
         _controller("_fb", _CONTINUOUS_GAINS),
         _controller("_dlqr", _DISCRETE_GAINS),
         _controller("_lqg", _LQG_DESIGNS),
+        # The slew's reference signals for a user's controller (docs/own-controller.md).
+        FmuSpec("reference", SOURCES / "reference" / "flexarm_reference_fmu.py", data=(*_COMMON_DATA, *_TRAJECTORY)),
     )
 }

@@ -1,4 +1,5 @@
-"""Command line: ``python -m scenarios list | run NAME|PATH|all | sweep NAME|PATH | export-ssp NAME | results-page``.
+"""Command line: ``python -m scenarios list | run NAME|PATH|all [--case KEY] | sweep NAME|PATH | export-ssp NAME |
+results-page``.
 
 Exit codes (docs/outcomes.md): 0 every case or point finished, ok or unbounded (both are results);
 1 some case or point ended with an FMU error (recorded as such); 2 refused before anything ran (bad
@@ -15,7 +16,17 @@ import sys
 import tomllib
 from pathlib import Path
 
-from .config import MAX_CASES, MAX_SAMPLES, SCENARIO_DIR, ScenarioError, check_size, list_scenarios, load_scenario
+from .config import (
+    MAX_CASES,
+    MAX_SAMPLES,
+    SCENARIO_DIR,
+    ScenarioError,
+    check_size,
+    list_scenarios,
+    load_scenario,
+    parse_assignment,
+    select_cases,
+)
 from .master import CoSimulationError
 from .outdir import OutputError, describe_os_error
 from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, check_kind, format_table, run_scenario
@@ -77,7 +88,16 @@ def main(argv=None) -> int:
                           "a scenario writes OUT/<name>/, replacing an earlier run's folder when it completes")
     run.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
     _kind_options(run)
-    run.add_argument("--controller", help="controller FMU to use instead of the scenario's (name or .fmu path)")
+    run.add_argument("--controller", metavar="PATH_OR_NAME",
+                     help="controller FMU to use instead of the scenario's: one of this project's FMU names or a "
+                          ".fmu path (relative to the current directory); the scenario's controller parameters it "
+                          "does not have are left out (printed), inputs named like the reference FMU's outputs are "
+                          "fed by it (docs/own-controller.md)")
+    run.add_argument("--set", dest="sets", action="append", default=[], metavar="INSTANCE.VARIABLE=VALUE",
+                     help="set a parameter in every case, after the scenario's (e.g. controller.kp1=40, "
+                          "plant.payload_mass=0.275; typed by the FMU's model description; repeatable)")
+    run.add_argument("--case", dest="cases", action="append", default=[], metavar="KEY",
+                     help="run only this case of each scenario (repeatable; default: all)")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
     run.add_argument("--allow-large", action="store_true",
@@ -184,18 +204,30 @@ def _dispatch(args) -> int:
             print(f"{s.name:16s} {len(s.cases)} cases  {s.description}")
         return EXIT_OK
     names = [s.name for s in list_scenarios()] if args.scenarios == ["all"] else args.scenarios
-    scenarios = [load_scenario(name) for name in names]  # every file refused before anything runs
+    from . import ilc  # scenarios with an [ilc] table repeat a case and learn between trials (scenarios/ilc.py)
+
+    if args.scenarios != ["all"] and any(ilc.is_ilc_scenario(n) for n in names):
+        if len(names) != 1:
+            raise ScenarioError(f"run: an ILC scenario runs alone, got {names}")
+        for n in names:
+            ilc.load_ilc(n)
+        args.scenario_name = names[0]
+        return ilc.cli(args)
+    names = [n for n in names if not ilc.is_ilc_scenario(n)]  # `all`: the single-run scenarios
+    controller, overrides = _controller_arg(args.controller), _overrides(args.sets)
+    scenarios = [select_cases(load_scenario(name), args.cases) for name in names]  # all refused before any runs
     for sc in scenarios:
         sc.allow_large = args.allow_large
         check_size(sc)  # the number of cases now; the steps per case once the trajectory is read (run_length)
-    kinds = [check_kind(sc, args.kind, args.controller) for sc in scenarios]  # and every FMU without that kind
+    kinds = [check_kind(sc, args.kind, controller) for sc in scenarios]  # and every FMU without that kind
     paper = tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
     code = EXIT_OK
     written: list[Path] = []
     progress = not args.quiet
     for sc, kind in zip(scenarios, kinds):
-        results = run_scenario(sc, args.out, args.fmu_dir, args.controller, progress=progress,
-                               plots=not args.no_plots, kind=kind, native_fmu_dir=args.native_fmu_dir)
+        results = run_scenario(sc, args.out, args.fmu_dir, controller, progress=progress,
+                               plots=not args.no_plots, kind=kind, native_fmu_dir=args.native_fmu_dir,
+                               overrides=overrides)
         written.append(args.out / sc.name)
         lines = [f"\n== {sc.name}: {sc.description} [{kind} FMUs]",
                  format_table(results, paper.get(sc.paper_table) if sc.paper_table else None)]
@@ -214,6 +246,23 @@ def _dispatch(args) -> int:
         except OSError as exc:
             raise StdoutUnwritable(exc, written) from exc
     return code
+
+
+def _controller_arg(value: str | None) -> str | None:
+    """``--controller``: a project FMU name as it is; a .fmu path made absolute against the current directory
+    (a path in a scenario file's [fmus] resolves against the scenario file instead)."""
+    if value is None or not value.endswith(".fmu"):
+        return value
+    return str(Path(value).expanduser().resolve())
+
+
+def _overrides(sets: list[str]) -> dict[str, dict]:
+    """``--set`` arguments as {instance: {variable: value}} (:func:`scenarios.config.parse_assignment`)."""
+    out: dict[str, dict] = {}
+    for text in sets:
+        inst, var, value = parse_assignment(text)
+        out.setdefault(inst, {})[var] = value
+    return out
 
 
 def _results_page(results_page, args) -> int:

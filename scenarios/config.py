@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 SCENARIO_DIR = Path(__file__).resolve().parent
-_TOP_KEYS = {"scenario", "fmus", "connections", "parameters", "cases", "record"}
+_TOP_KEYS = {"scenario", "fmus", "connections", "parameters", "cases", "record", "ilc"}  # ilc: scenarios/ilc.py
 _SCENARIO_KEYS = {"name", "description", "paper_table", "step_size_s", "samples", "order", "trajectory", "algorithm",
                   "kind"}
 #: Master stepping algorithms a scenario may ask for (scenarios/master.py).
@@ -221,6 +221,43 @@ def load_scenario(path: str | Path) -> Scenario:
                     connections=connections, parameters=params, cases=cases, step_size=float(step),
                     samples=samples, paper_table=sc.get("paper_table"), record=record, algorithm=algorithm,
                     kind=kind)
+
+
+def select_cases(scenario: Scenario, keys: list[str] | None) -> Scenario:
+    """`scenario` with only the cases named in `keys` (in the file's order); all of them when `keys` is empty.
+
+    Raises
+    ------
+    ScenarioError
+        Naming a key the scenario does not have and listing its cases.
+    """
+    if not keys:
+        return scenario
+    have = [c.key for c in scenario.cases]
+    unknown = [k for k in keys if k not in have]
+    if unknown:
+        raise ScenarioError(f"--case: one of the cases of {scenario.name} ({', '.join(have)}), got {unknown[0]!r}")
+    from dataclasses import replace
+
+    return replace(scenario, cases=[c for c in scenario.cases if c.key in keys])
+
+
+def parse_assignment(text: str) -> tuple[str, str, object]:
+    """``instance.variable=value`` (the CLI's ``--set``) -> (instance, variable, value).
+
+    The value is read as a TOML value (``40``, ``0.5``, ``true``, ``"gamma1"``); anything TOML does not read
+    is taken as a string (``gamma1``). It is typed later by the FMU's model description
+    (:mod:`scenarios.values`), like a scenario file's values.
+    """
+    target, sep, raw = text.partition("=")
+    inst, dot, var = target.strip().partition(".")
+    if not sep or not dot or not inst or not var.isidentifier() or not inst.isidentifier():
+        raise ScenarioError(f"--set: instance.variable=value (e.g. controller.kp1=40), got {text!r}")
+    try:
+        value = tomllib.loads(f"v = {raw.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return inst, var, value
 
 
 def list_scenarios() -> list[Scenario]:

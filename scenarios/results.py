@@ -1,12 +1,30 @@
-"""Result files: time series as CSV (provenance and atomic writes: :mod:`flexarm.provenance`)."""
+"""Result files: time series as CSV (provenance and atomic writes: :mod:`flexarm.provenance`).
+
+A case's CSV (:func:`write_csv`) has one column per recorded signal (``<instance>.<variable>``: the plant's
+states and tip, the torques, every signal wired into the controller) and the columns of
+:func:`analysis_columns`: the reference of each sample (``ref.*``, what the reference FMU outputs), the arm's
+joint angles (``joint.*``) and the errors (``err.* = actual - reference``). The layout is documented by
+:func:`layout_table` (generated into docs/own-controller.md: ``python -m scenarios.results``).
+"""
 
 from __future__ import annotations
 
+import re
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from flexarm.provenance import write_atomic
+from flexarm.signals import signals
+
+#: The document whose generated table lists the CSV and trajectory.npz layouts.
+LAYOUT_DOC = Path(__file__).resolve().parent.parent / "docs" / "own-controller.md"
+_START = "<!-- generated from flexarm/data/signals.toml by `python -m scenarios.results`: result layout -->"
+_END = "<!-- end of generated result layout -->"
+#: Joint quantities of the arm (actual: ``joint.<name>``; reference: ``ref.<name>_ref``).
+JOINTS = (("q1", "rad", "joint-1 angle θ1"), ("q2", "rad", "joint-2 angle θ7 − θ6"),
+          ("qd1", "rad/s", "joint-1 rate ω1"), ("qd2", "rad/s", "joint-2 rate ω7 − ω6"))
 
 
 def write_csv(path: str | Path, columns: dict[str, np.ndarray]) -> None:
@@ -16,3 +34,101 @@ def write_csv(path: str | Path, columns: dict[str, np.ndarray]) -> None:
     lines = [",".join(names)]
     lines += [",".join(repr(float(x)) for x in row) for row in data]
     write_atomic(path, "\n".join(lines) + "\n")
+
+
+def analysis_columns(series: dict[str, np.ndarray], plant: str, reference) -> dict[str, np.ndarray]:
+    """The reference, joint and error columns of a case's CSV.
+
+    Parameters
+    ----------
+    series : dict
+        ``time`` (s, shape (m,)) and the recorded ``<plant>.theta1..11``, ``<plant>.omega1..11``,
+        ``<plant>.tip_x``, ``<plant>.tip_y``.
+    plant : str
+        The plant's instance name.
+    reference : flexarm.reference.ReferenceSignals
+        The reference (sample k = round(t / 1 ms), the final state held after t_f).
+
+    Returns
+    -------
+    dict
+        ``ref.<name>`` for every reference output; ``joint.q1, joint.q2, joint.qd1, joint.qd2`` of the plant's
+        state; ``err.theta1..11``, ``err.omega1..11``, ``err.q1, err.q2, err.qd1, err.qd2``,
+        ``err.tip_x``, ``err.tip_y`` = actual − reference. Each shape (m,).
+    """
+    from flexarm.model import joint_angles, joint_velocities
+    from flexarm.reference import REFERENCE_OUTPUTS
+
+    ref = np.array([reference.at_time(float(t)) for t in series["time"]])
+    out = {f"ref.{name}": ref[:, j] for j, name in enumerate(REFERENCE_OUTPUTS)}
+    theta = np.column_stack([series[f"{plant}.theta{i}"] for i in range(1, 12)])
+    omega = np.column_stack([series[f"{plant}.omega{i}"] for i in range(1, 12)])
+    q = np.array([joint_angles(th) for th in theta])
+    qd = np.array([joint_velocities(om) for om in omega])
+    joints = {"q1": q[:, 0], "q2": q[:, 1], "qd1": qd[:, 0], "qd2": qd[:, 1]}
+    out.update({f"joint.{name}": v for name, v in joints.items()})
+    for i in range(1, 12):
+        out[f"err.theta{i}"] = theta[:, i - 1] - out[f"ref.theta_ref{i}"]
+    for i in range(1, 12):
+        out[f"err.omega{i}"] = omega[:, i - 1] - out[f"ref.omega_ref{i}"]
+    for name, v in joints.items():
+        out[f"err.{name}"] = v - out[f"ref.{name}_ref"]
+    for axis in ("x", "y"):
+        out[f"err.tip_{axis}"] = series[f"{plant}.tip_{axis}"] - out[f"ref.tip_{axis}_ref"]
+    return out
+
+
+def _npz_of(name: str) -> str:
+    """Where a reference output comes from in flexarm/data/trajectory.npz (k = the sample, n = its last)."""
+    m = re.fullmatch(r"(theta|omega)_ref(\d+)", name)
+    if m:
+        return f"`{m[1]}[k, {int(m[2]) - 1}]`"
+    fixed = {"q1_ref": "`theta[k, 0]`", "q2_ref": "`theta[k, 6] - theta[k, 5]`", "qd1_ref": "`omega[k, 0]`",
+             "qd2_ref": "`omega[k, 6] - omega[k, 5]`", "tau1_ff": "`tau[k, 0]` (k < n), 0",
+             "tau2_ff": "`tau[k, 1]` (k < n), 0", "tip_x_ref": "`tip[k, 0]`", "tip_y_ref": "`tip[k, 1]`",
+             "progress": "`k / n`"}
+    return fixed.get(name, "")
+
+
+def layout_table() -> str:
+    """The markdown table of a case's CSV columns and, for the reference, the trajectory.npz entries."""
+    rows = ["| CSV column | unit | meaning | trajectory.npz (sample k = round(t / 1 ms), capped at n) |",
+            "|---|---|---|---|", "| `time` | s | communication point t_k | `t[k]` |"]
+    for s in signals("plant", "output", ("state", "tip")):
+        rows.append(f"| `plant.{s.name}` | {s.unit} | {s.description} (plant output) | |")
+    for s in signals("controller", "output"):
+        rows.append(f"| `controller.{s.name}` | {s.unit} | {s.description} (controller output) | |")
+    for s in signals("sensors", "output"):
+        rows.append(f"| `sensors.{s.name}` | {s.unit} | {s.description}: what the controller saw (when wired "
+                    "into it) | |")
+    rows.append("| `reference.<name>` | | a reference output wired into the controller (when it asks for it) | |")
+    for s in signals("reference", "output"):
+        rows.append(f"| `ref.{s.name}` | {s.unit} | {s.description} | {_npz_of(s.name)} |")
+    for name, unit, meaning in JOINTS:
+        rows.append(f"| `joint.{name}` | {unit} | the arm's {meaning} (from its state) | |")
+    for s in signals("plant", "output", ("state", "tip")):
+        ref = s.name.replace("theta", "theta_ref").replace("omega", "omega_ref") if "tip" not in s.name \
+            else f"{s.name}_ref"
+        rows.append(f"| `err.{s.name}` | {s.unit} | `plant.{s.name} - ref.{ref}` | |")
+    for name, unit, _ in JOINTS:
+        rows.append(f"| `err.{name}` | {unit} | `joint.{name} - ref.{name}_ref` | |")
+    return "\n".join(rows)
+
+
+def render_layout(text: str) -> str:
+    """`text` with its generated layout block replaced by :func:`layout_table`."""
+    block = re.compile(re.escape(_START) + r"\n.*?" + re.escape(_END), re.S)
+    if not block.search(text):
+        raise ValueError(f"no generated layout block ({_START}) in the text")
+    return block.sub(lambda m: f"{_START}\n{layout_table()}\n{_END}", text)
+
+
+def main() -> int:
+    """Rewrite the generated layout table of :data:`LAYOUT_DOC`."""
+    write_atomic(LAYOUT_DOC, render_layout(LAYOUT_DOC.read_text(encoding="utf-8")))
+    print(f"wrote {LAYOUT_DOC}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

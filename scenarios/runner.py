@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from flexarm.parameters import DEFAULT_PARAMETER_FILE
-from flexarm.provenance import git_commit, sha256_file, write_json
+from flexarm.provenance import git_commit, package_version, sha256_file, write_json
 from flexarm.signals import names as signal_names
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
@@ -30,7 +30,8 @@ from .config import KINDS, Scenario, ScenarioError, check_inputs_given, check_si
 from .fmu_files import NotAnFmuError, read_description
 from .metrics import METRICS, UNITS, saturation_warnings, table_metrics
 from .outdir import check_writable, run_folder
-from .results import write_csv
+from .results import analysis_columns, write_csv
+from .stability import loop_stability
 from .values import check_parameters
 
 REPO = Path(__file__).resolve().parent.parent
@@ -43,8 +44,8 @@ DEFAULT_NATIVE_FMU_DIR = Path(os.environ.get("FLEXARM_NATIVE_FMU_DIR", Path("bui
 N_EL = 11
 #: The plant's state outputs (theta1..11, omega1..11), from the signal catalogue.
 PLANT_STATE = list(signal_names("plant", "output", "state"))
-#: Bytes a case's CSV and JSON take per sample (about 50 columns of 20 characters), for the free-space check.
-BYTES_PER_SAMPLE = 1200
+#: Bytes a case's CSV and JSON take per sample (about 150 columns of 20 characters), for the free-space check.
+BYTES_PER_SAMPLE = 3000
 
 
 class DataChainError(ScenarioError):
@@ -61,8 +62,12 @@ class CaseResult:
     wall_time_s: float
     series: dict[str, np.ndarray]
     outcome: master.Outcome = field(default_factory=lambda: master.Outcome("ok"))
-    #: What the run did not do well (e.g. torque saturation, :func:`scenarios.metrics.saturation_warnings`).
+    #: What the run did not do well (e.g. torque saturation, :func:`scenarios.metrics.saturation_warnings`; an
+    #: unstable sampled loop the plant scheme cannot show, :func:`scenarios.stability.loop_stability`).
     warnings: list[str] = field(default_factory=list)
+    #: The linearised sampled loop's stability (:func:`scenarios.stability.loop_stability`; None when the check
+    #: does not apply).
+    loop_stability: dict | None = None
 
 
 def _build_tool():
@@ -292,6 +297,12 @@ class Setup:
     descriptions: dict = field(default_factory=dict, repr=False)
     #: The kind the names were resolved as ("python" or "native"; see :func:`resolve_fmus`).
     kind: str = "python"
+    #: Instance -> scenario parameters its (swapped-in) FMU does not have, left out (:func:`left_out_parameters`).
+    left_out: dict[str, list[str]] = field(default_factory=dict)
+    #: Instance -> inputs that nothing feeds, held at their declared start values (:func:`unfed_inputs`).
+    held_inputs: dict[str, list[str]] = field(default_factory=dict)
+    #: The outputs wired into the torques' source (what the controller saw), recorded after :attr:`record`.
+    seen: list[tuple[str, str]] = field(default_factory=list)
 
     def fmu_kinds(self) -> dict[str, str]:
         """Instance -> kind of the FMU file it runs, from its model description (:func:`fmu_kind`)."""
@@ -304,6 +315,8 @@ class Setup:
     def case_parameters(self, case_parameters: dict[str, dict], where: str = "") -> dict[str, dict]:
         """The case's parameters checked against the FMUs and converted (:func:`scenarios.values.check_parameters`),
         with the plant started on the trajectory unless the case says otherwise."""
+        case_parameters = {inst: {k: v for k, v in values.items() if k not in self.left_out.get(inst, ())}
+                           for inst, values in case_parameters.items()}
         params = check_parameters(where or f"{self.scenario.path.name}: parameters", self.descriptions,
                                   case_parameters)
         params[self.plant] = {**self.start, **params.get(self.plant, {})}
@@ -320,10 +333,14 @@ def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str
     kind = kind or scenario.kind
     paths = resolve_fmus(scenario, fmu_dir, controller, build, names, kind, native_fmu_dir)
     descriptions = read_descriptions(paths)
+    scenario, paths, descriptions = with_reference(scenario, paths, descriptions, fmu_dir, build, kind,
+                                                   native_fmu_dir)
     connections = connect_by_name(paths, scenario.connections, descriptions)
     check_inputs_given(scenario, {inst: [v.name for v in md.modelVariables if v.causality == "input"]
                                   for inst, md in descriptions.items()},
                        {(c.dst_fmu, c.dst_var) for c in connections})
+    held = unfed_inputs(descriptions, connections)
+    left_out = left_out_parameters(scenario, descriptions) if controller is not None else {}
     torque_edges = [c for c in connections if c.dst_var == "tau1"]
     if not torque_edges:
         raise ScenarioError("connections: nothing drives an input 'tau1' (the plant's torque)")
@@ -332,16 +349,93 @@ def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str
     record += [tuple(s.split(".", 1)) for s in scenario.record if tuple(s.split(".", 1)) not in record]
     traj = desired_trajectory()
     n = run_length(scenario, traj)
+    seen = [(c.src_fmu, c.src_var) for c in connections if c.dst_fmu == driver and (c.src_fmu, c.src_var) not in record]
     return Setup(scenario, paths, connections, plant, driver, record, n,
                  desired_states(traj, np.arange(n + 1) * scenario.step_size), start_parameters(traj),
-                 descriptions, kind)
+                 descriptions, kind, left_out, held, list(dict.fromkeys(seen)))
+
+
+#: The FMU name of the reference signals (fmus/reference/), added to a run whose controller asks for them.
+REFERENCE_FMU = "reference"
+
+
+def with_reference(scenario: Scenario, paths: dict[str, Path], descriptions: dict, fmu_dir: Path, build: bool,
+                   kind: str, native_fmu_dir: Path) -> tuple[Scenario, dict[str, Path], dict]:
+    """Add the reference FMU (instance ``reference``, first in the order) when an FMU has inputs of its names.
+
+    With connections by name, an input named like a reference output (``theta_ref1``, ``q1_ref``, ``tau1_ff``,
+    ..., the signal catalogue's fmu "reference") that no FMU of the scenario outputs is fed by the reference
+    FMU, of the run's kind. Returns the scenario (a copy with the instance when added), paths and descriptions.
+    """
+    from dataclasses import replace
+
+    if scenario.connections is not None or REFERENCE_FMU in paths:
+        return scenario, paths, descriptions
+    offered = set(signal_names("reference", "output"))
+    outputs = {v.name for md in descriptions.values() for v in md.modelVariables if v.causality == "output"}
+    wanted = sorted({v.name for md in descriptions.values() for v in md.modelVariables
+                     if v.causality == "input" and v.name in offered and v.name not in outputs})
+    if not wanted:
+        return scenario, paths, descriptions
+    names = {REFERENCE_FMU: REFERENCE_FMU}
+    extra = resolve_fmus(replace(scenario, fmus=names), fmu_dir, None, build, names, kind, native_fmu_dir)
+    paths = {REFERENCE_FMU: extra[REFERENCE_FMU], **paths}
+    descriptions = {REFERENCE_FMU: read_description(extra[REFERENCE_FMU]), **descriptions}
+    return replace(scenario, order=[REFERENCE_FMU, *scenario.order], fmus={REFERENCE_FMU: REFERENCE_FMU,
+                                                                          **scenario.fmus}), paths, descriptions
+
+
+def unfed_inputs(descriptions: dict, connections: list[master.Connection]) -> dict[str, list[str]]:
+    """Instance -> its inputs that no connection feeds and that declare a start value (held at it).
+
+    Raises
+    ------
+    ScenarioError
+        Naming an input that nothing feeds and that declares no start value (the FMU would run on an
+        undefined value).
+    """
+    fed = {(c.dst_fmu, c.dst_var) for c in connections}
+    held: dict[str, list[str]] = {}
+    for inst, md in descriptions.items():
+        for v in md.modelVariables:
+            if v.causality != "input" or (inst, v.name) in fed:
+                continue
+            if v.start in (None, ""):
+                raise ScenarioError(f"input {inst}.{v.name}: nothing feeds it (no output of that name in "
+                                    f"{sorted(descriptions)}) and the FMU declares no start value for it; "
+                                    "connect it ([connections] explicit) or give it a start value")
+            held.setdefault(inst, []).append(v.name)
+    return held
+
+
+def left_out_parameters(scenario: Scenario, descriptions: dict, instance: str = "controller") -> dict[str, list[str]]:
+    """{instance: names} of the scenario's parameters for `instance` that its FMU does not have.
+
+    Used when ``--controller`` swaps in another FMU: the scenario's settings of our controllers
+    (``gain_set``, ``schedule_period``, ...) mean nothing to it and are left out (the CLI prints them).
+    """
+    from .values import settable
+
+    if instance not in descriptions:
+        return {}
+    have = settable(descriptions[instance])
+    given = set(scenario.parameters.get(instance, {}))
+    for case in scenario.cases:
+        given |= set(case.parameters.get(instance, {}))
+    missing = sorted(given - set(have))
+    return {instance: missing} if missing else {}
+
+
+def check_overrides(setup: Setup, overrides: dict[str, dict]) -> dict[str, dict]:
+    """``--set`` values checked against the FMUs' model descriptions (:func:`scenarios.values.check_parameters`)."""
+    return check_parameters("--set", setup.descriptions, overrides)
 
 
 def simulate_case(setup: Setup, m: master.Master, parameters: dict[str, dict],
                   progress=None) -> tuple[dict, dict[str, float] | None]:
     """One run on a loaded master: the master's result and the table metrics (None unless the outcome is ok)."""
-    out = m.run(setup.case_parameters(parameters), setup.record, setup.n_steps, setup.scenario.step_size,
-                progress=progress)
+    out = m.run(setup.case_parameters(parameters), setup.record + setup.seen, setup.n_steps,
+                setup.scenario.step_size, progress=progress)
     if out["status"] != "ok":
         return out, None
     sig, p, d = out["signals"], setup.plant, setup.driver
@@ -373,7 +467,8 @@ def probe_cases(setup: Setup, m: master.Master, cases) -> None:
 
 def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
                  progress: bool = True, algorithm: str | None = None, plots: bool = False, kind: str | None = None,
-                 native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR) -> list[CaseResult]:
+                 native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR,
+                 overrides: dict[str, dict] | None = None) -> list[CaseResult]:
     """Check everything, then run every case; publish per-case CSV and JSON (and PNGs) in out_dir/<scenario>/.
 
     Cases with the same FMUs share one loaded master (reset between cases). ``algorithm`` None: the
@@ -382,23 +477,41 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     (:class:`ScenarioError`, :class:`scenarios.outdir.OutputError`) comes before the first case runs; on
     Ctrl-C (:class:`scenarios.master.RunInterrupted`) or a filesystem error nothing is published and the
     previous results stay as they were.
+
+    ``controller`` (a name or a .fmu path, see :func:`resolve_fmus`) replaces the scenario's controller: the
+    scenario's controller parameters it does not have are left out (one printed line names them), and it is
+    fed the reference FMU's outputs when it has inputs of their names (:func:`with_reference`).
+    ``overrides`` ({instance: {variable: value}}, the CLI's ``--set``) are checked against the FMUs' model
+    descriptions like scenario values and applied to every case after the scenario's own.
     """
     algorithm = algorithm or scenario.algorithm
+    if progress and (kind or scenario.kind) == "python":
+        _say_numba_compile()  # before the FMUs are built: a build's trace step compiles them too
+    scenario = with_overrides(scenario, overrides)
     chain = verify_data_chain()
     by_key: dict[str, CaseResult] = {}
     commit = git_commit()
     scenario_sha = sha256_file(scenario.path)
+    from flexarm.reference import ReferenceSignals
+
+    reference = ReferenceSignals(desired_trajectory())  # the CSV's ref.* columns (scenarios/results.py)
     with run_folder(out_dir, scenario.name) as folder:  # locked and writable before FMUs are built
         groups: dict[tuple, list] = {}
+        reported: list[str] = []
         for case in scenario.cases:
             groups.setdefault(tuple(sorted(case.fmus.items())) if case.fmus else (), []).append(case)
         setups = []
         for names, cases in groups.items():
             setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None, kind=kind,
                             native_fmu_dir=native_fmu_dir)
+            check_overrides(setup, overrides or {})
             for case in cases:
                 setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")
             setups.append((setup, cases))
+            for line in swap_report(setup):  # once per run, not once per FMU set
+                if line not in reported:
+                    reported.append(line)
+                    print(line)
         check_writable(folder, sum(BYTES_PER_SAMPLE * (s.n_steps + 1) * len(c) for s, c in setups))
         opened = []
         try:
@@ -415,23 +528,28 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     out, metrics = simulate_case(setup, m, case.parameters, progress=bar)
                     wall = time.perf_counter() - t0
                     series = {"time": out["time"], **out["signals"]}
+                    stab = loop_stability(setup.paths, setup.plant, setup.driver, params, scenario.step_size)
+                    notes = list(out.get("warnings", [])) + ([stab["note"]] if stab and stab["note"] else [])
+                    series.update(analysis_columns(series, setup.plant, reference))
                     by_key[case.key] = CaseResult(case.key, case.label, out["status"], out["message"], metrics,
-                                                  wall, series, out["outcome"], list(out.get("warnings", [])))
+                                                  wall, series, out["outcome"], notes, stab)
                     write_csv(folder / f"{case.key}.csv", series)
                     write_json(folder / f"{case.key}.json", {
                         "scenario": scenario.name, "scenario_file": str(scenario.path),
                         "scenario_sha256": scenario_sha, "case": case.key, "label": case.label,
                         "status": out["status"], "message": out["message"], "outcome": out["outcome"].as_dict(),
-                        "warnings": list(out.get("warnings", [])),
+                        "warnings": by_key[case.key].warnings,
                         "metrics": metrics, "metric_units": dict(UNITS), "parameters": params,
                         "samples": setup.n_steps, "step_size_s": scenario.step_size, "algorithm": algorithm,
                         "fmus": {k: str(v) for k, v in setup.paths.items()}, "fmu_sha256": checksums,
-                        "fmu_kind": setup.kind, "fmu_kinds": kinds,
-                        "commit": commit, "wall_time_s": wall, "steps_done": out["steps_done"],
+                        "fmu_kind": setup.kind, "fmu_kinds": kinds, "parameters_left_out": setup.left_out,
+                        "inputs_held_at_start": setup.held_inputs, "overrides": overrides or {},
+                        "commit": commit, "version": package_version(), "wall_time_s": wall,
+                        "steps_done": out["steps_done"],
                         "trajectory_sha256": chain[_relative(DEFAULT_TRAJECTORY_FILE)],
                         "parameter_file": _relative(DEFAULT_PARAMETER_FILE),
                         "parameter_file_sha256": chain[_relative(DEFAULT_PARAMETER_FILE)],
-                        "data_sha256": chain, "fmu_log_tail": out["log"][-20:],
+                        "data_sha256": chain, "fmu_log_tail": out["log"][-20:], "loop_stability": stab,
                     })
         finally:
             for m in opened:
@@ -444,6 +562,37 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
             setup = setups[0][0]
             plot_scenario(scenario.name, results, setup.desired, traj, setup.plant, setup.driver, folder)
     return results
+
+
+def with_overrides(scenario: Scenario, overrides: dict[str, dict] | None) -> Scenario:
+    """A copy of `scenario` whose every case has `overrides` ({instance: {variable: value}}) applied last."""
+    from dataclasses import replace
+
+    if not overrides:
+        return scenario
+    unknown = sorted(set(overrides) - set(scenario.fmus))
+    if unknown:
+        raise ScenarioError(f"--set {unknown[0]}.…: an FMU instance of scenario {scenario.name} "
+                            f"({', '.join(sorted(scenario.fmus))}), got {unknown[0]!r}")
+    cases = [replace(c, parameters={**c.parameters, **{inst: {**c.parameters.get(inst, {}), **values}
+                                                       for inst, values in overrides.items()}})
+             for c in scenario.cases]
+    return replace(scenario, cases=cases)
+
+
+def swap_report(setup: Setup) -> list[str]:
+    """Lines naming the scenario parameters a swapped-in FMU does not have (left out), the inputs held at their
+    start values, and what the reference FMU feeds."""
+    name, lines = setup.scenario.name, []
+    for inst, missing in setup.left_out.items():
+        lines.append(f"{name}: {inst} {setup.descriptions[inst].modelName} does not have the scenario's {inst} "
+                     f"parameter(s) {', '.join(missing)}: left out")
+    for inst, held in setup.held_inputs.items():
+        lines.append(f"{name}: {inst} input(s) {', '.join(held)} fed by nothing: held at their start values")
+    if REFERENCE_FMU in setup.paths:
+        fed = sorted({c.dst_fmu for c in setup.connections if c.src_fmu == REFERENCE_FMU})
+        lines.append(f"{name}: {', '.join(fed) or 'nothing'} fed by the reference FMU ({setup.paths[REFERENCE_FMU]})")
+    return lines
 
 
 def run_length(scenario: Scenario, traj) -> int:
@@ -496,22 +645,50 @@ def desired_states(traj, times, dt: float | None = None) -> dict[str, np.ndarray
     return {"theta": th, "omega": om}
 
 
-def _bar(label: str):
-    """A one-line text progress bar on stderr."""
+def numba_compiles() -> bool:
+    """Whether a Python plant FMU will compile Numba kernels: Numba importable and not switched off.
+
+    Each Python FMU runs its own private copy of ``flexarm`` from its unpacked folder (fmu_build.isolate), so
+    its first step in a freshly unpacked copy compiles the kernels and caches them in that folder.
+    """
+    import importlib.util
+
+    return not os.environ.get("FLEXARM_NO_NUMBA") and importlib.util.find_spec("numba") is not None
+
+
+def _say_numba_compile() -> None:
+    if numba_compiles():
+        try:
+            print("the Python plant FMU compiles its Numba kernels on its first step (about 20 s per freshly "
+                  "unpacked FMU; FLEXARM_NO_NUMBA=1 runs NumPy instead)", file=sys.stderr, flush=True)
+        except (OSError, ValueError):  # standard error unwritable: no reason to stop a run
+            pass
+
+
+def _bar(label: str, stream=None):
+    """Progress of one case on stderr: a redrawn bar on a terminal; otherwise (a log, a pipe) one line when
+    the case is under way (its first report), with no carriage-return frames."""
+    stream = sys.stderr if stream is None else stream
+    tty = hasattr(stream, "isatty") and stream.isatty()
     state = {"last": -1}
 
     def update(k: int, n: int) -> None:
         pct = int(100 * k / n)
-        if pct != state["last"]:
-            state["last"] = pct
+        if pct == state["last"]:
+            return
+        first, state["last"] = state["last"] == -1, pct
+        if tty:
             filled = pct // 4
-            try:  # a bar standard error cannot take (2>/dev/full) is no reason to stop a run
-                sys.stderr.write(f"\r{label:28s} [{'#' * filled}{'.' * (25 - filled)}] {pct:3d}%")
-                if k == n:
-                    sys.stderr.write("\n")
-                sys.stderr.flush()
-            except (OSError, ValueError):
-                pass
+            text = f"\r{label:28s} [{'#' * filled}{'.' * (25 - filled)}] {pct:3d}%" + ("\n" if k == n else "")
+        elif first:
+            text = f"{label:28s} running, {n} steps\n"
+        else:
+            return
+        try:  # a progress line standard error cannot take (2>/dev/full) is no reason to stop a run
+            stream.write(text)
+            stream.flush()
+        except (OSError, ValueError):
+            pass
 
     return update
 

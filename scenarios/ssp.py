@@ -251,7 +251,7 @@ def _fmu_path(instance: str) -> str:
 def system_structure_xml(scenario: Scenario, plan: CasePlan) -> bytes:
     """The SSD (SSP 1.0 SystemStructureDescription) of one case."""
     setup = plan.setup
-    mds = {inst: read_model_description(str(setup.paths[inst])) for inst in scenario.order}
+    mds = {inst: read_model_description(str(setup.paths[inst])) for inst in setup.scenario.order}
     root = etree.Element(_q("ssd", "SystemStructureDescription"), nsmap=NS, version="1.0",
                          name=f"{scenario.name}_{plan.key}", generationTool="flexarm-fmi scenarios.ssp")
     root.set("description", f"{scenario.description} -- case {plan.key}: {plan.label} -- for a {scenario.algorithm} "
@@ -259,7 +259,7 @@ def system_structure_xml(scenario: Scenario, plan: CasePlan) -> bytes:
     system = etree.SubElement(root, _q("ssd", "System"), name=scenario.name)
     elements = etree.SubElement(system, _q("ssd", "Elements"))
     units = {}
-    for inst in scenario.order:
+    for inst in setup.scenario.order:  # with a reference FMU the runner added
         md = mds[inst]
         for u in md.unitDefinitions:
             units.setdefault(u.name, u)
@@ -330,7 +330,7 @@ def export_ssp(scenario: Scenario, out_dir: str | Path = DEFAULT_SSP_DIR,
     written = {}
     for plan in plan_cases(scenario, Path(fmu_dir), build, cases, kind, Path(native_fmu_dir)):
         members: dict[str, bytes] = {DEFAULT_SSD: system_structure_xml(scenario, plan)}
-        for inst in scenario.order:
+        for inst in plan.setup.scenario.order:
             path = Path(plan.setup.paths[inst])
             variables = {v.name: v for v in read_model_description(str(path)).modelVariables}
             params = loop_delay_parameters(scenario, plan.parameters.get(inst, {}), variables)

@@ -44,7 +44,7 @@ def test_each_fmu_carries_only_what_it_needs(name):
         assert gains and all(g.startswith("dlqr-") for g in gains)
     else:  # the plant, the sensors and the feedforward need no gains
         assert gains == []
-    tracks = name.startswith("controller")
+    tracks = name.startswith("controller") or name == "reference"
     assert ("resources/flexarm/data/trajectory.npz" in members) == tracks
     mode = stat.S_IMODE(fmu.stat().st_mode)
     umask = os.umask(0)

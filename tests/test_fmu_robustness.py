@@ -20,7 +20,7 @@ import pytest
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions
-from fmu_harness import DT, ERROR, OK, SCENARIOS, Slave, built_fmus, drive, rss_mb
+from fmu_harness import DT, ERROR, OK, SCENARIOS, Slave, built_fmus, drive, rss_mb, third_party_pythonpath
 
 from fmu_build import FMUS
 from scenarios.master import logging_callbacks
@@ -44,7 +44,9 @@ def unzipped(fmus, tmp_path_factory) -> dict[str, str]:
 
 
 def _first(md, causality: str, type_: str | None = "Real"):
-    return next(v for v in md.modelVariables if v.causality == causality and (type_ is None or v.type == type_))
+    """The first variable of that causality (and type), or None (the reference FMU has no inputs or parameters)."""
+    return next((v for v in md.modelVariables if v.causality == causality and (type_ is None or v.type == type_)),
+                None)
 
 
 def _set_status(slave: Slave, var, value) -> int:
@@ -88,13 +90,15 @@ def test_wrong_state_calls_return_error_with_a_message(fmus, unzipped, name):
         refused("enterInitializationMode", call="fmi2EnterInitializationMode", state="stepComplete")
         refused("exitInitializationMode", call="fmi2ExitInitializationMode", state="stepComplete")
         # A fixed parameter after initialisation: the glue refuses it, naming the parameter.
-        n = len(s.messages)
-        assert _set_status(s, fixed, _start_value(fixed)) == ERROR
-        assert any(fixed.name in m and "fixed parameter" in m for _, m in s.messages[n:]), s.messages[n:]
+        if fixed is not None:
+            n = len(s.messages)
+            assert _set_status(s, fixed, _start_value(fixed)) == ERROR
+            assert any(fixed.name in m and "fixed parameter" in m for _, m in s.messages[n:]), s.messages[n:]
         s.step()
         s.fmu.terminate()
         refused("doStep", s.time, DT, call="fmi2DoStep", state="terminated")
-        refused("setReal", [_first(s.md, "input").valueReference], [0.0], call="fmi2SetReal", state="terminated")
+        if _first(s.md, "input") is not None:
+            refused("setReal", [_first(s.md, "input").valueReference], [0.0], call="fmi2SetReal", state="terminated")
         refused("terminate", call="fmi2Terminate", state="terminated")
         # None of that did any harm: reset and run.
         s.fmu.reset()
@@ -113,11 +117,12 @@ def test_non_finite_values_return_error_and_the_fmu_stays_usable(fmus, unzipped,
     try:
         s.fmu.setupExperiment(startTime=0.0)
         s.fmu.enterInitializationMode()
-        for bad in (math.nan, math.inf):  # a parameter: rejected, initialisation refused until it is valid
-            assert _set_status(s, real_param, bad) == ERROR
-            assert any(real_param.name in m and "finite" in m for m in s.errors()), s.messages
-        assert s.status("exitInitializationMode") == ERROR
-        s.set(**{real_param.name: _start_value(real_param)})
+        if real_param is not None:
+            for bad in (math.nan, math.inf):  # a parameter: rejected, initialisation refused until it is valid
+                assert _set_status(s, real_param, bad) == ERROR
+                assert any(real_param.name in m and "finite" in m for m in s.errors()), s.messages
+            assert s.status("exitInitializationMode") == ERROR
+            s.set(**{real_param.name: _start_value(real_param)})
         s.fmu.exitInitializationMode()
         before = drive(s, name, 0, 5)
         for var in inputs:
@@ -251,7 +256,8 @@ def test_reset_returns_to_the_initial_state(fmus, unzipped, name):
     """After a run with other parameters, reset + initialise + steps equals a fresh instance bit for bit."""
     params = SCENARIOS[name]["params"]
     other_params = {"plant": {"payload_mass": 1.0, "q2_0": 0.5},
-                    "sensors": {"noise_seed": 99, "strain_gauge_filter": True}}.get(name, {"schedule_period": 0.02})
+                    "sensors": {"noise_seed": 99, "strain_gauge_filter": True},
+                    "reference": {}}.get(name, {"schedule_period": 0.02})
     references = {}
     for label, p in (("default", {}), ("params", params)):
         fresh = Slave(fmus[name], unzipped[name], f"{name}_fresh", **p)
@@ -313,13 +319,12 @@ def test_fmpy_simulate_fmu_runs_fmus_again_in_one_process(fmus, tmp_path):
     """
     import json
     import os
-    import site
     import subprocess
 
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
     env["FLEXARM_NO_NUMBA"] = "1"
-    # -S: no site, so no .pth (the editable 'flexarm'); site-packages as plain PYTHONPATH entries
-    env["PYTHONPATH"] = os.pathsep.join(p for p in site.getsitepackages() if not Path(p).resolve().is_relative_to(ROOT))
+    # -S: no site, so no .pth (the editable 'flexarm'); this interpreter's import path minus the project
+    env["PYTHONPATH"] = third_party_pythonpath()
     proc = subprocess.run([sys.executable, "-S", "-s", "-c", _SIMULATE_TWICE, "[]",
                            json.dumps({k: str(v) for k, v in fmus.items()})],
                           env=env, capture_output=True, text=True, timeout=300, cwd=tmp_path)

@@ -46,7 +46,10 @@ def test_table2_native_equals_python(tmp_path):
         for name, ref in sig_py[key].items():
             got = np.asarray(sig_nat[key][name])
             ref = np.asarray(ref)
-            assert np.abs(got - ref).max() <= max(1e-10 * np.abs(ref).max(), 1e-12), (key, name)
+            # The accelerometers (recorded as what the controller saw, not used by its law) come from a linear
+            # solve per sample: native and Python differ by about 5e-9 of their peak there (measured).
+            rel = 1e-7 if name.startswith("sensors.acc") else 1e-10
+            assert np.abs(got - ref).max() <= max(rel * np.abs(ref).max(), 1e-12), (key, name)
     assert format_table(res_nat, None) == format_table(res_py, None)
     for r_py, r_nat in zip(res_py, res_nat):
         for m in METRICS:
@@ -58,9 +61,11 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
 
 
 def _table(stdout: str) -> str:
-    """The printed table of the (one) scenario: its lines after the "== name" header, up to the wall times."""
+    """The printed table of the (one) scenario: its lines after the "== name" header, up to the wall times (the
+    per-case warnings left out: table2's undamped loop is unstable, scenarios/stability.py)."""
     lines = stdout.split("\n== ", 1)[1].splitlines()[1:]
-    return "\n".join(ln for ln in lines if ln.strip() and not ln.lstrip().startswith(("wall time", "results:")))
+    return "\n".join(ln for ln in lines if ln.strip() and not ln.lstrip().startswith(("wall time", "results:"))
+                     and ": warning: " not in ln)
 
 
 def test_cli_runs_table2_native_with_the_python_sets_table(tmp_path):

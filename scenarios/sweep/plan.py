@@ -165,7 +165,7 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
 def _probe(sweep: Sweep, fs: FmuSet) -> None:
     """Initialise the base point on this FMU set and step once; a refusal is a :class:`SweepError`."""
     setup = prepare(sweep.scenario, names={k: str(v) for k, v in fs.paths.items()}, build=False)
-    with Master(setup.paths, sweep.scenario.order, setup.connections) as m:
+    with Master(setup.paths, setup.scenario.order, setup.connections) as m:  # with a reference FMU added
         outcome = m.probe(setup.case_parameters(sweep.case.parameters), sweep.scenario.step_size)
     if outcome.status == "error":
         raise SweepError(f"{sweep.path.name}: base point (case {sweep.case.key}, communication step "

@@ -1,0 +1,76 @@
+"""The reference signals a controller tracks, sampled as the project's controllers sample them (no FMI).
+
+What the reference FMU (``fmus/reference/``, native ``fmus/native/reference/``) outputs: at sample
+k = round(t / dt) (:meth:`flexarm.control.TrackingController.sample_index`, dt = 1 ms, the
+trajectory's sample time) the desired state z_d[k] (:meth:`~flexarm.control.TrackingController.desired_state`:
+the final state for k ≥ n), the joint references q_d = (θ1, θ7 − θ6) and q̇_d of it
+(:func:`flexarm.model.joint_angles`, the encoders' map), the feedforward torque of the sample
+(:meth:`~flexarm.control.TrackingController.feedforward`: τ[k] for k < n, 0 after), the desired tip and
+the progress k / n (1 from t_f on). n = t_f / dt is the number of torque steps of the slew.
+
+Column names and order: the catalogue's ``reference`` outputs (``flexarm/data/signals.toml``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .control import TrackingController
+from .model import N, joint_angles, joint_velocities
+from .signals import names
+
+#: The reference FMU's outputs, in order (signal catalogue, fmu "reference").
+REFERENCE_OUTPUTS = names("reference", "output")
+
+
+class ReferenceSignals:
+    """The reference outputs of every sample of a trajectory (computed once), looked up by time.
+
+    Parameters
+    ----------
+    trajectory : TrajectoryResult or path-like
+        The minimum-time slew (a path is read through :func:`flexarm.trajectory.load_trajectory`, which checks
+        the SHA-256 of the parameter file it records).
+
+    Attributes
+    ----------
+    table : ndarray, shape (n + 1, len(REFERENCE_OUTPUTS))
+        Row k: the outputs of sample k; row n (t = t_f) is held for every later sample.
+    dt : float
+        Sample time, s.
+    n_steps : int
+        n, the torque steps of the slew.
+    """
+
+    def __init__(self, trajectory):
+        law = TrackingController(trajectory, None, mode="ff", saturation=None)  # the controllers' sampling
+        self.dt, self.n_steps = law.dt, law.n_steps
+        self._law = law
+        tip = np.asarray(law.trajectory.tip, dtype=float)
+        rows = []
+        for k in range(self.n_steps + 1):
+            z = law.desired_state(k)
+            theta, omega = z[:N], z[N:]
+            q, qd, tau = joint_angles(theta), joint_velocities(omega), law.feedforward(k)
+            values = {**{f"theta_ref{i + 1}": theta[i] for i in range(N)},
+                      **{f"omega_ref{i + 1}": omega[i] for i in range(N)},
+                      "q1_ref": q[0], "q2_ref": q[1], "qd1_ref": qd[0], "qd2_ref": qd[1],
+                      "tau1_ff": tau[0], "tau2_ff": tau[1], "tip_x_ref": tip[k, 0], "tip_y_ref": tip[k, 1],
+                      "progress": k / self.n_steps}
+            rows.append([values[name] for name in REFERENCE_OUTPUTS])
+        self.table = np.array(rows, dtype=float)
+        self.table.setflags(write=False)
+
+    def sample_index(self, t: float) -> int:
+        """Sample k of time t, s (the nearest multiple of dt; as the controllers)."""
+        return self._law.sample_index(t)
+
+    def at(self, k: int) -> np.ndarray:
+        """The outputs of sample k ≥ 0, shape (len(REFERENCE_OUTPUTS),): row min(k, n) of :attr:`table`."""
+        if k < 0:
+            raise ValueError(f"k: sample index must be >= 0, got {k}")
+        return self.table[min(int(k), self.n_steps)]
+
+    def at_time(self, t: float) -> np.ndarray:
+        """The outputs at time t, s (:meth:`sample_index`, then :meth:`at`)."""
+        return self.at(self.sample_index(t))
