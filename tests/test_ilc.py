@@ -137,11 +137,15 @@ def test_learned_feedforward_file_round_trip_and_data_chain(tmp_path):
     plain = TrackingController(DEFAULT_TRAJECTORY_FILE, "gamma0.1")
     assert np.array_equal(ctrl.feedforward(7), plain.feedforward(7) + u[7])
     assert np.array_equal(ctrl.feedforward(300), plain.feedforward(300))
-    # another file's trajectory SHA-256: refused as stale
-    doc = json.loads((tmp_path / "learned.json").read_text())
-    doc["trajectory_sha256"] = "0" * 64
-    (tmp_path / "learned.json").write_text(json.dumps(doc))
+    # learnt on another trajectory: refused as stale, naming it
+    stale = ilc.write_learned_feedforward(tmp_path / "stale", u, 1e-3, dict(meta, trajectory_sha256="0" * 64))
     with pytest.raises(StaleDataError, match="trajectory"):
+        ilc.read_learned_feedforward(stale)
+    # an edited side file is refused too
+    doc = json.loads((tmp_path / "learned.json").read_text())
+    doc["trials"] = [0, 1, 2]
+    (tmp_path / "learned.json").write_text(json.dumps(doc))
+    with pytest.raises(StaleDataError):
         ilc.read_learned_feedforward(path)
 
 
@@ -187,11 +191,12 @@ def test_controller_fmus_add_the_learned_correction_python_and_native_alike(tmp_
     # the correction itself is applied identically: learned − unlearned agree where nothing saturates
     free = (np.abs(got) < [7.0, 2.25]).all(axis=1) & (np.abs(plain) < [7.0, 2.25]).all(axis=1)
     assert np.abs((native_got - native_plain)[free] - (got - plain)[free]).max() <= 1e-13
-    doc = json.loads((tmp_path / "u.json").read_text())
-    doc["parameter_sha256"] = "0" * 64
-    (tmp_path / "u.json").write_text(json.dumps(doc))
+    from flexarm.ilc import read_learned_feedforward
+
+    stale = ilc.write_learned_feedforward(tmp_path / "stale", u, 1e-3,
+                                          dict(read_learned_feedforward(path).metadata, parameter_sha256="0" * 64))
     for fmu in (py, native):
-        for bad in (path, tmp_path / "missing.npz"):
+        for bad in (stale, tmp_path / "missing.npz"):
             with pytest.raises(Exception):  # noqa: B017 - fmpy raises its own exception type for fmi2Error
                 _torques(fmu, 2, {"feedforward_correction_file": str(bad)})
 

@@ -47,6 +47,7 @@ from flexarm_feedthrough import FeedthroughSlave, whole_samples
 from flexarm_fmu_base import Var, own_data_dir, slew_experiment, variable_table
 
 from flexarm.control import PEAK_TORQUE, TrackingController
+from flexarm.ilc import read_learned_feedforward  # imported here, so the build bundles it (fmu_build traces imports)
 from flexarm.lqr import OMEGA7_CHOICES, canonical_name, default_trajectory_path
 from flexarm.signals import names, signals
 
@@ -136,11 +137,7 @@ def _tracking_controller(data: str | None, mode: str, name: str, schedule: str, 
 
         gains = GainSchedule.load(name, schedule, directory=None if data is None else Path(data) / "gains")
     trajectory = default_trajectory_path() if data is None else Path(data) / "trajectory.npz"
-    learned = None
-    if correction[0]:
-        from flexarm.ilc import read_learned_feedforward
-
-        learned = read_learned_feedforward(correction[0]).correction
+    learned = read_learned_feedforward(correction[0]).correction if correction[0] else None
     return TrackingController(trajectory, gains, mode=mode, saturation=(tau1_max, tau2_max), omega7=omega7,
                               feedforward_correction=learned)
 
