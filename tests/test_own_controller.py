@@ -11,10 +11,10 @@ from types import SimpleNamespace
 import fmpy
 import numpy as np
 import pytest
+from fmu_harness import built_fmus
 
 from flexarm.reference import REFERENCE_OUTPUTS, ReferenceSignals
 from flexarm.trajectory import load_trajectory
-from fmu_build import build_all
 from scenarios import runner
 from scenarios.__main__ import main
 from scenarios.config import ScenarioError, load_scenario, parse_assignment, select_cases
@@ -44,8 +44,8 @@ def _expected(traj, k: np.ndarray) -> dict[str, np.ndarray]:
 
 
 @pytest.fixture(scope="module")
-def reference_fmu(tmp_path_factory) -> Path:
-    return build_all(tmp_path_factory.mktemp("fmus"), only=["reference"], force=True)["reference"]
+def reference_fmu() -> Path:
+    return built_fmus()["reference"]  # the process's one build of every FMU (tests/fmu_harness.py)
 
 
 @pytest.fixture(scope="module")
