@@ -233,6 +233,10 @@ def main() -> None:
         t_c = plant_step_cost_in_c(native["plant"], tmp / "u3", torques, args.repeats)
         t_damped = plant_step_cost(native["plant"], tmp / "u1", torques, args.repeats, {"damping_ratio": 0.02})
         t_exp = plant_step_cost(native["plant"], tmp / "u1", torques[:500], args.repeats, {"integrator": 2})
+        t_gauss = plant_step_cost(native["plant"], tmp / "u1", torques[:500], args.repeats, {"integrator": 3})
+        t_gauss32 = plant_step_cost(native["plant"], tmp / "u1", torques[:100], args.repeats,
+                                    {"integrator": 3, "substeps": 32})
+        t_ref = plant_step_cost(native["plant"], tmp / "u1", torques[:100], args.repeats, {"integrator": 4})
         t_lib = library_step_cost(torques, args.repeats)
         t_py = plant_step_cost(python["plant"], tmp / "u2", torques[:300], 2)
         print(f"plant, per 1 ms step (2 substeps, torques set and every output read; best of {args.repeats}):")
@@ -241,6 +245,9 @@ def main() -> None:
         print(f"  native FMU, the same calls from C:   {t_c * 1e6:8.1f} us   (benchmarks/plant_step_timing.c)")
         print(f"  native, damping_ratio = 0.02:        {t_damped * 1e6:8.1f} us")
         print(f"  native, integrator = exponential:    {t_exp * 1e6:8.1f} us")
+        print(f"  native, integrator = gauss:          {t_gauss * 1e6:8.1f} us")
+        print(f"  native, gauss at 32 substeps per ms: {t_gauss32 * 1e6:8.1f} us")
+        print(f"  native, integrator = reference:      {t_ref * 1e6:8.1f} us   (RK4 at 2.5 us)")
         print(f"  library step (flexarm, Numba/NumPy): {t_lib * 1e6:8.1f} us")
         print(f"  Python FMU (pythonfmu), rodas4:      {t_py * 1e6:8.1f} us")
 

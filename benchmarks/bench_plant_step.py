@@ -4,10 +4,16 @@ Prints, for the Numba kernels (this process) and the NumPy-only path
 (a subprocess with FLEXARM_NO_NUMBA=1), the median cost per step in µs
 after a warm-up, and the real-time factor (1 ms divided by that cost):
 
-* library: ``flexarm.integrator.advance`` with the default substeps, for
-  each integration scheme (``rodas4``, ``exponential``);
+* library: ``flexarm.integrator.advance`` with the default substeps (2 per
+  ms), for each integration scheme (``rodas4``, ``exponential``, ``gauss``,
+  ``reference``), and Gauss at 4 and 32 substeps per ms (the settings
+  docs/model.md quotes for its energy and bracket-mode accuracy);
 * FMU: ``FMU2Slave.doStep`` plus ``getReal`` of all 40 outputs, the work a
-  master does per communication step, for each scheme (``integrator`` 1, 2).
+  master does per communication step, for each scheme (``integrator`` 1-4).
+
+The reference (RK4 at 2.5 µs) costs about a hundred times RODAS4: it is timed
+over fewer steps; the exponential scheme over at most 2.5 s of simulated time
+(it refuses to run past 3 s).
 
 Usage: ``python benchmarks/bench_plant_step.py`` (a few seconds, plus a
 one-off Numba compile of about 20 s if the cache is cold; builds
@@ -60,13 +66,24 @@ def measure(fmu_path: Path, n_lib: int, n_fmu: int) -> dict:
     out_vrs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
     unzipped = extract(str(fmu_path))
     result = {"backend": "Numba" if HAVE_NUMBA else "NumPy", "n_outputs": len(out_vrs)}
+    for integrator, substeps in (("gauss", 4), ("gauss", 32)):
+        z0 = state["z"].copy()
+
+        def lib_step_sub(integrator=integrator, substeps=substeps):
+            state["z"], _ = advance(model, state["z"], tau, DT, substeps, integrator)
+
+        n = max(20, n_lib // (4 * substeps))
+        result[f"library_us/{integrator} {substeps}/ms"] = _median_us(lib_step_sub, max(5, n // 10), n)
+        state["z"] = z0
     for code, integrator in enumerate(INTEGRATORS, start=1):
         z0 = state["z"].copy()
+        scale = {"reference": 100, "exponential": 2}.get(integrator, 1)
+        n_lib_s, n_fmu_s = max(20, n_lib // scale), max(20, min(n_fmu // scale, 2200))
 
         def lib_step(integrator=integrator):
             state["z"], _ = advance(model, state["z"], tau, DT, DEFAULT_SUBSTEPS, integrator)
 
-        result[f"library_us/{integrator}"] = _median_us(lib_step, max(50, n_lib // 10), n_lib)
+        result[f"library_us/{integrator}"] = _median_us(lib_step, max(5, n_lib_s // 10), n_lib_s)
         state["z"] = z0
         fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
                         instanceName=f"bench-{integrator}")
@@ -83,7 +100,7 @@ def measure(fmu_path: Path, n_lib: int, n_fmu: int) -> dict:
             fmu.getReal(out_vrs)
             clock["t"] += DT
 
-        result[f"fmu_us/{integrator}"] = _median_us(fmu_step, max(50, n_fmu // 10), n_fmu)
+        result[f"fmu_us/{integrator}"] = _median_us(fmu_step, max(5, n_fmu_s // 10), n_fmu_s)
         fmu.terminate()
         fmu.freeInstance()
     return result
@@ -91,7 +108,7 @@ def measure(fmu_path: Path, n_lib: int, n_fmu: int) -> dict:
 
 def _print(result: dict) -> None:
     for key in sorted(k for k in result if "/" in k):
-        kind, integrator = key.split("/")
+        kind, integrator = key.split("/", 1)
         label = ("library advance()" if kind == "library_us"
                  else f"FMU doStep + getReal({result['n_outputs']} outputs)") + f" [{integrator}]"
         us = result[key]

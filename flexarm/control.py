@@ -73,15 +73,19 @@ class TrackingController:
         None disables saturation.
     omega7 : {"tachometer", "rigid"}
         How the θ̇7 error is formed (module docstring).
+    feedforward_correction : array_like, shape (m, 2), optional
+        A learned correction (N·m, :mod:`flexarm.ilc`) added to the feedforward of samples 0..m−1
+        (also after the slew, where the trajectory's feedforward is zero); refused in mode ``"fb"``.
 
     Notes
     -----
     Sample k covers [k·dt, (k+1)·dt); the feedforward of sample k is the
-    trajectory's τ[k] for k < n_steps and zero afterwards.
+    trajectory's τ[k] for k < n_steps and zero afterwards (plus the correction's
+    row k for k < m).
     """
 
     def __init__(self, trajectory, schedule=None, mode: str = "ff+fb", saturation=PEAK_TORQUE,
-                 omega7: str = "tachometer"):
+                 omega7: str = "tachometer", feedforward_correction=None):
         if mode not in MODES:
             raise ControllerError(f"mode: {mode!r} is not one of {MODES}")
         if omega7 not in OMEGA7_CHOICES:
@@ -105,6 +109,15 @@ class TrackingController:
             self.saturation = sat
         self.dt = sample_time(self.trajectory)
         self.n_steps = self.trajectory.n_samples
+        self.correction = None
+        if feedforward_correction is not None:
+            if mode == "fb":
+                raise ControllerError("feedforward_correction: mode 'fb' has no feedforward to correct")
+            corr = np.array(feedforward_correction, dtype=float)
+            if corr.ndim != 2 or corr.shape[1] != 2 or not np.isfinite(corr).all():
+                raise ControllerError(f"feedforward_correction: finite values of shape (m, 2) N·m, got shape "
+                                      f"{corr.shape}")
+            self.correction = corr
         # Desired sensor values along the trajectory, precomputed once (like with like, see module doc).
         th_d, om_d = self.trajectory.theta, self.trajectory.omega
         self._q_d = np.array([joint_angles(th) for th in th_d])
@@ -139,12 +152,13 @@ class TrackingController:
         return self.z[self._clamped(k)].copy()
 
     def feedforward(self, k: int) -> np.ndarray:
-        """Feedforward torque of sample k, N·m, shape (2,): τ[k] during the slew, 0 after."""
+        """Feedforward torque of sample k, N·m, shape (2,): τ[k] during the slew, 0 after (plus the correction)."""
         if k < 0:
             raise ControllerError(f"k: sample index must be >= 0, got {k}")
-        if self.mode == "fb" or k >= self.n_steps:
-            return np.zeros(2)
-        return self.trajectory.tau[k].copy()
+        tau = np.zeros(2) if self.mode == "fb" or k >= self.n_steps else self.trajectory.tau[k].copy()
+        if self.correction is not None and k < len(self.correction):
+            tau += self.correction[k]
+        return tau
 
     def gain(self, k: int) -> np.ndarray:
         """Reduced gain in force at sample k, shape (2, 22) (zeros in mode ``"ff"``)."""

@@ -50,7 +50,6 @@ from pathlib import Path
 
 import numpy as np
 import scipy
-import scipy.linalg
 
 from .gain_schedule import (
     SCHEDULES,
@@ -166,6 +165,8 @@ def kalman_gain(Phi, C, W, V) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         Steady-state error covariances before and after the update.
     """
     Phi, C, W, V = (np.asarray(a, dtype=float) for a in (Phi, C, W, V))
+    import scipy.linalg  # here, not at import: a run that only reads designs needs no SciPy linalg
+
     P = scipy.linalg.solve_discrete_are(Phi.T, C.T, W, V)
     P = 0.5 * (P + P.T)
     M = np.linalg.solve(C @ P @ C.T + V, C @ P).T
@@ -175,6 +176,8 @@ def kalman_gain(Phi, C, W, V) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def dlqr(Phi, Gamma, Q, R) -> np.ndarray:
     """Discrete LQR gain K (u = −Kx), shape (m, n), from scipy's DARE."""
+    import scipy.linalg
+
     P = scipy.linalg.solve_discrete_are(Phi, Gamma, Q, R)
     return np.linalg.solve(R + Gamma.T @ P @ Gamma, Gamma.T @ P @ Phi)
 
@@ -249,6 +252,8 @@ def design_point(model: ArmModel, z_bar, tau_bar, V, tip_force_sigma: float, dt:
     C = measurement_matrix()
     Mt, Ppt, Pqt = kalman_gain(Phit, C @ T, Wt, V)
     Cq = C[0:2]
+    import scipy.linalg
+
     Ta = scipy.linalg.block_diag(T, np.eye(2))
     Phia = np.block([[Phit, np.zeros((N_STATE, 2))], [dt * Cq @ T, np.eye(2)]])
     Gama = np.vstack([Gamt, np.zeros((2, n_u))])

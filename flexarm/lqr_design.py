@@ -66,7 +66,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from .gain_sets import GainError
 from .model import N_STATE, ArmModel, N
@@ -159,6 +158,8 @@ def scaling_transform(model: ArmModel, z_bar, omega_floor: float = OMEGA_FLOOR) 
     a_th = model.jacobian(np.r_[theta, np.zeros(N)])[N:, :N]
     k_t = -mass @ a_th
     k_t = 0.5 * (k_t + k_t.T)
+    import scipy.linalg  # here, not at import: SciPy's linalg costs a run that only reads gains
+
     w2, vec = scipy.linalg.eigh(k_t, mass)
     scale = np.maximum(np.sqrt(np.maximum(w2, 0.0)), omega_floor)
     T = np.zeros((N_STATE, N_STATE))
@@ -218,6 +219,8 @@ def zoh(A, B, dt: float = DEFAULT_DT) -> tuple[np.ndarray, np.ndarray]:
     aug = np.zeros((n + m, n + m))
     aug[:n, :n] = A * dt
     aug[:n, n:] = B * dt
+    import scipy.linalg
+
     e = scipy.linalg.expm(aug)
     return e[:n, :n], e[:n, n:]
 
@@ -338,6 +341,8 @@ def _newton_refine(A, B, Q, R, At, Bt, Qt, Ti, P, K, Pt, iterations: int = 2):
     restores full accuracy. A step is kept only if it lowers the residual in
     the original coordinates.
     """
+    import scipy.linalg
+
     best = riccati_residual(A, B, Q, R, P)
     for _ in range(iterations):
         Kt = np.linalg.solve(R, Bt.T @ Pt)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _kernels as kern
 from .parameters import (
     JOINT2_PAIR,
     LINK1_TIP_ELEMENT,
@@ -28,6 +27,19 @@ from .parameters import (
 )
 from .signals import names as signal_names
 
+
+class _Kernels:
+    """:mod:`flexarm._kernels`, imported on first use: importing it loads (and may compile with) Numba, which
+    a process that only reads parameters, trajectories or gains (a run of the native FMUs) never needs."""
+
+    def __getattr__(self, name):
+        from . import _kernels
+
+        globals()["kern"] = _kernels
+        return getattr(_kernels, name)
+
+
+kern = _Kernels()
 N = N_ELEMENTS
 N_STATE = 2 * N_ELEMENTS
 #: The accelerometer-carrying link ends, in ascending order (chain_kinematics needs that).

@@ -22,16 +22,44 @@ import numpy as np
 SOURCE_ROOT = Path(__file__).resolve().parent.parent
 
 
+#: Written by setup.py into a built (non-editable) package: the commit it was built from.
+BUILD_COMMIT_FILE = Path(__file__).with_name("_build_commit.txt")
+
+
 def git_commit(root: str | Path = SOURCE_ROOT) -> str:
-    """The checkout's HEAD commit, with '+dirty' when tracked files differ ('unknown' outside git)."""
+    """The commit of this code: HEAD of its checkout, with '+dirty' when tracked files differ.
+
+    Asked of git only when `root` is the top of a git checkout (not a folder inside another repository,
+    e.g. a venv in a user's project). An installed package answers with the commit baked in at build time
+    (:data:`BUILD_COMMIT_FILE`, by setup.py); 'unknown' when neither is there.
+    """
+    root = Path(root).resolve()
     try:
+        top = subprocess.run(["git", "rev-parse", "--show-toplevel"], cwd=root, capture_output=True, text=True,
+                             check=True, timeout=10).stdout.strip()
+        if Path(top).resolve() != root:
+            raise subprocess.SubprocessError(f"{root} is inside the checkout {top}, not its top")
         head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
                               check=True, timeout=10).stdout.strip()
         dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
                                capture_output=True, text=True, check=True, timeout=10).stdout.strip()
     except (OSError, subprocess.SubprocessError):
+        if root == SOURCE_ROOT.resolve() and BUILD_COMMIT_FILE.is_file():
+            return BUILD_COMMIT_FILE.read_text().strip() or "unknown"
         return "unknown"
     return head + ("+dirty" if dirty else "")
+
+
+def package_version() -> str:
+    """The installed distribution's version (flexarm-fmi), else the source's ``flexarm.__version__``."""
+    import importlib.metadata
+
+    try:
+        return importlib.metadata.version("flexarm-fmi")
+    except importlib.metadata.PackageNotFoundError:
+        from . import __version__
+
+        return __version__
 
 
 def sha256_bytes(data: bytes) -> str:

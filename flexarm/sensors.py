@@ -61,7 +61,6 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-from scipy import signal
 
 from .model import ArmModel, joint_angles, joint_velocities, strain_gauge_angles
 from .parameters import DATA_DIR, N_ELEMENTS, STRAIN_GAUGE_ELEMENTS, ArmParameters
@@ -373,6 +372,8 @@ class _LowPassBank:
     def __init__(self, order: int, cutoff_hz: float, dt: float, n_channels: int):
         # butter(..., fs=) pre-warps the cut-off before the bilinear transform,
         # so the digital filter's −3 dB point is exactly cutoff_hz.
+        from scipy import signal  # here: scipy.signal costs about a second to import, and few users filter
+
         self.sos = signal.butter(order, cutoff_hz, btype="low", output="sos", fs=1.0 / dt)
         # Per-section state for a unit step in steady state; scaled by the
         # first sample to start without a transient.

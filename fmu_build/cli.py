@@ -44,7 +44,12 @@ def main(argv=None) -> int:
     try:
         if args.write_doc:
             from .interface_doc import write_interface_doc
+            from .registry import DOC_FILE
 
+            if not DOC_FILE.is_file():  # an installed package carries no docs/
+                raise BuildError(f"--write-doc regenerates docs/fmu-interface.md of a checkout, and there is none "
+                                 f"at {DOC_FILE} (an installed package, not a checkout): run it in a clone of "
+                                 "the repository")
             print(f"{write_interface_doc()}: regenerated")
             return 0
         return _build(args)

@@ -13,6 +13,7 @@ import os
 from pathlib import Path
 
 from .compile import BuildError
+from .progress import say
 from .registry import FLEXARM_DIR, SOURCES
 
 #: Environment variable naming the default output folder of the native kind.
@@ -66,6 +67,15 @@ def native_is_up_to_date(fmu: Path, python_fmu: Path) -> bool:
     return fmu.stat().st_mtime >= max(python_fmu.stat().st_mtime, _newest_source())
 
 
+def _zig_first_time() -> str:
+    """What a build adds when Zig's C libraries are not cached yet (its global cache is empty)."""
+    cache = Path(os.environ.get("ZIG_GLOBAL_CACHE_DIR") or Path(os.environ.get("XDG_CACHE_HOME") or
+                                                                 Path.home() / ".cache") / "zig")
+    if cache.is_dir() and any(cache.iterdir()):
+        return ""
+    return f", plus about 2.5 minutes once to build Zig's C libraries for the three targets (cached in {cache})"
+
+
 def build_native_all(python_fmus: dict[str, Path], out_dir: str | os.PathLike | None = None, only=None,
                      force: bool = False) -> dict[str, Path]:
     """Build the native twins of `python_fmus` into `out_dir`; return {name: path of the .fmu}.
@@ -105,8 +115,12 @@ def build_native_all(python_fmus: dict[str, Path], out_dir: str | os.PathLike | 
     if not stale:
         return result
     check_native_toolchain()
+    say(f"building native {', '.join(f'{n}.fmu' for n in stale)} into {out_dir} with Zig for linux64, win64 and "
+        f"darwin64: about 2-5 s each{_zig_first_time()}")
     try:
         result.update(build_native.build_native_fmus(out_dir, {n: Path(python_fmus[n]) for n in stale}, only=stale))
     except build_native.NativeBuildError as exc:
         raise BuildError(f"native build: {exc}") from exc
+    except ImportError as exc:  # the generators' CasADi (imported only for a build) missing: name the module
+        raise BuildError(f"the native build cannot import what it needs: {exc}") from exc
     return result

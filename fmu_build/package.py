@@ -49,6 +49,7 @@ from xml.etree import ElementTree
 from .compile import BuildError, c_compiler, check_platform, compile_shim
 from .docs import render_documentation
 from .isolate import build_digest, private_name, rewrite_tree
+from .progress import say
 from .registry import COMMON_DIR, DOC_FILE, FLEXARM_DIR, FMUS, SHIM_SOURCES, SOURCES, FmuSpec, default_out_dir
 
 #: The pythonfmu version whose internals the glue works around (fmus/common/flexarm_fmu_pythonfmu.py).
@@ -414,5 +415,7 @@ def build_all(out_dir: str | os.PathLike | None = None, only=None, force: bool =
             result[name] = target
             continue
         peers = interfaces() if peers is None else peers  # once per build, for the documentation
+        say(f"building {name}.fmu into {out_dir} (Python FMU: compile its C front end, trace and bundle its "
+            f"modules; about 10-20 s)")
         result[name] = build_fmu(spec, out_dir, peers)
     return result

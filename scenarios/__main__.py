@@ -1,4 +1,5 @@
-"""Command line: ``python -m scenarios list | run NAME|PATH|all | sweep NAME|PATH | export-ssp NAME | results-page``.
+"""Command line: ``python -m scenarios list | run NAME|PATH|all [--case KEY] | sweep NAME|PATH | export-ssp NAME |
+results-page``.
 
 Exit codes (docs/outcomes.md): 0 every case or point finished, ok or unbounded (both are results);
 1 some case or point ended with an FMU error (recorded as such); 2 refused before anything ran (bad
@@ -203,6 +204,16 @@ def _dispatch(args) -> int:
             print(f"{s.name:16s} {len(s.cases)} cases  {s.description}")
         return EXIT_OK
     names = [s.name for s in list_scenarios()] if args.scenarios == ["all"] else args.scenarios
+    from . import ilc  # scenarios with an [ilc] table repeat a case and learn between trials (scenarios/ilc.py)
+
+    if args.scenarios != ["all"] and any(ilc.is_ilc_scenario(n) for n in names):
+        if len(names) != 1:
+            raise ScenarioError(f"run: an ILC scenario runs alone, got {names}")
+        for n in names:
+            ilc.load_ilc(n)
+        args.scenario_name = names[0]
+        return ilc.cli(args)
+    names = [n for n in names if not ilc.is_ilc_scenario(n)]  # `all`: the single-run scenarios
     controller, overrides = _controller_arg(args.controller), _overrides(args.sets)
     scenarios = [select_cases(load_scenario(name), args.cases) for name in names]  # all refused before any runs
     for sc in scenarios:

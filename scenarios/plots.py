@@ -8,13 +8,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure  # not pyplot: no GUI backend, no global state, a faster import
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from flexarm.provenance import write_atomic
 
-from flexarm.provenance import write_atomic  # noqa: E402
+
+def _figure(nrows: int = 1, ncols: int = 1, **kwargs):
+    """(figure, axes) like ``pyplot.subplots``, on a figure of its own (drawn by Agg when saved)."""
+    figsize = kwargs.pop("figsize", None)
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols, **kwargs)
 
 
 def _legend(ax, **kwargs) -> None:
@@ -27,7 +31,6 @@ def _save(fig, path: Path) -> None:
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
     write_atomic(path, buf.getvalue())
 
 
@@ -37,7 +40,7 @@ def plot_scenario(name: str, results, desired: dict, traj, plant: str, driver: s
 
     limits = [float(x) for x in load_parameters().peak_torque]  # the parameter file's motors.peak_torque_Nm
     out = []
-    fig, ax = plt.subplots(figsize=(6, 6))
+    fig, ax = _figure(figsize=(6, 6))
     ax.plot(traj.tip[:, 0], traj.tip[:, 1], "k--", lw=2, label="desired (optimiser)")
     for r in results:
         if f"{plant}.tip_x" in r.series:
@@ -49,7 +52,7 @@ def plot_scenario(name: str, results, desired: dict, traj, plant: str, driver: s
     _save(fig, folder / "tip_path.png")
     out.append(folder / "tip_path.png")
 
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig, axes = _figure(2, 1, figsize=(8, 6), sharex=True)
     for j, ax in enumerate(axes):
         for r in results:
             ax.plot(r.series["time"], r.series[f"{driver}.tau{j + 1}"], lw=0.8, label=r.label)
@@ -64,7 +67,7 @@ def plot_scenario(name: str, results, desired: dict, traj, plant: str, driver: s
     _save(fig, folder / "torques.png")
     out.append(folder / "torques.png")
 
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig, axes = _figure(2, 1, figsize=(8, 6), sharex=True)
     for r in results:
         if r.status != "ok":
             continue
@@ -86,7 +89,7 @@ def plot_scenario(name: str, results, desired: dict, traj, plant: str, driver: s
 
 def _joints(name: str, results, traj, folder: Path) -> Path:
     """joints.png: q1, q2 of each case against the desired (the CSV's joint.* and ref.* columns), deg."""
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig, axes = _figure(2, 1, figsize=(8, 6), sharex=True)
     for j, ax in enumerate(axes, start=1):
         for r in results:
             if f"joint.q{j}" in r.series:
@@ -105,7 +108,7 @@ def _joints(name: str, results, traj, folder: Path) -> Path:
 
 def _tip_error(name: str, results, traj, folder: Path) -> Path:
     """tip_error.png: distance of the tip from the desired tip against time, mm, t_f marked (settling after it)."""
-    fig, ax = plt.subplots(figsize=(8, 4))
+    fig, ax = _figure(figsize=(8, 4))
     for r in results:
         if "err.tip_x" in r.series:
             ax.plot(r.series["time"], 1e3 * np.hypot(r.series["err.tip_x"], r.series["err.tip_y"]), lw=0.8,

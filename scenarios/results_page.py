@@ -1,9 +1,16 @@
-"""The generated results page: ``docs/results.md`` and the README's headline table, from fresh runs.
+"""The generated results page: ``docs/results.md`` and every generated block in README.md and docs/*.md.
 
 ``python -m scenarios results-page`` runs every scenario listed in :data:`PAGE_SCENARIOS` through the
-master and rewrites both files; ``--check`` runs them again and fails (exit 1, with a diff) when the
-committed text differs, so a figure in the documentation can never be older than the code. Figures are
-rounded to the digits the tables print, so the check compares results, not floating-point noise.
+master and rewrites the page and the blocks; ``--check`` runs them again, writes nothing, and fails (exit 1,
+with a diff) when the committed text differs, so a figure in the documentation can never be older than the
+code. Figures are rounded to the digits the tables print, so the check compares results, not floating-point
+noise.
+
+A generated block is any text between ``<!-- results-page:NAME begin ... -->`` and
+``<!-- results-page:NAME end -->`` in README.md or docs/*.md; :data:`BLOCKS` maps NAME to the function that
+writes it from the page's runs (register one with :func:`block`). A block whose text has several lines sits
+on lines of its own between the markers; a one-line block stays inline, so a figure inside a sentence can be
+generated too. A marker with a NAME that is not registered is refused.
 """
 
 from __future__ import annotations
@@ -12,9 +19,10 @@ import difflib
 import re
 import tempfile
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 
-from .config import SCENARIO_DIR, load_scenario
+from .config import SCENARIO_DIR, ScenarioError, list_scenarios, load_scenario
 from .metrics import METRICS, UNITS
 from .runner import DEFAULT_FMU_DIR, REPO, CaseResult, run_scenario, verify_data_chain
 
@@ -33,6 +41,19 @@ DIGITS = {"N·m": 3, "deg": 3, "deg/s": 2}
 
 class ResultsPageError(Exception):
     """A scenario of the page ended with an FMU error: nothing is written."""
+
+
+class NeedsCheckout(ScenarioError):
+    """The page and the documents live in a checkout; an installed package has none (refused at once)."""
+
+
+def require_checkout() -> None:
+    """Refuse at once (:class:`NeedsCheckout`) where README.md and docs/ are not beside the package."""
+    missing = [p for p in (README, RESULTS_PAGE) if not p.is_file()]
+    if missing:
+        raise NeedsCheckout(f"results-page compares (--check) or rewrites README.md and docs/*.md of a checkout of "
+                            f"flexarm-fmi, and {REPO} has no {missing[0].relative_to(REPO)} (an installed package, "
+                            "not a checkout): run it in a clone of the repository")
 
 
 def _fmt(value: float, unit: str) -> str:
@@ -189,28 +210,113 @@ def render(runs: dict[str, tuple], chain: dict[str, str], sections: tuple[str, .
     return page, block
 
 
-def splice_readme(readme_text: str, block: str) -> str:
-    """README text with the generated block between the markers (which must be there)."""
-    pattern = re.compile(re.escape(README_BEGIN) + r".*?" + re.escape(README_END), re.S)
-    if not pattern.search(readme_text):
+# ------------------------------------------------------------------------------------ generated blocks
+_MARKED = re.compile(r"<!-- results-page:([\w.-]+) begin[^>]*-->(.*?)<!-- results-page:\1 end -->", re.S)
+_BEGIN_ANY = re.compile(r"<!-- results-page:([\w.-]+) begin")
+
+
+class PageRuns(dict):
+    """The page's runs (name -> (scenario, results)) and, on request, more runs for the blocks (cached)."""
+
+    def __init__(self, runs: dict[str, tuple], fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False):
+        super().__init__(runs)
+        self.fmu_dir, self.progress = fmu_dir, progress
+        self._extra: dict[tuple, list[CaseResult]] = {}
+
+    def metrics(self, name: str, algorithm: str | None = None) -> dict[str, dict | None]:
+        """Case key -> metrics (None for a run that did not end ok) of scenario `name`, stepped by `algorithm`
+        (None: the scenario's own, from the page's runs)."""
+        results = self[name][1] if algorithm is None else self.run(name, algorithm)
+        return {r.key: r.metrics for r in results}
+
+    def run(self, name: str, algorithm: str) -> list[CaseResult]:
+        """Scenario `name` once more with another stepping `algorithm` (once per page)."""
+        if (name, algorithm) not in self._extra:
+            if self.progress:
+                print(f"results page: running {name} with {algorithm} stepping", flush=True)
+            with tempfile.TemporaryDirectory(prefix="flexarm-results-page-") as tmp:
+                results = run_scenario(load_scenario(name), Path(tmp), self.fmu_dir, progress=False,
+                                       algorithm=algorithm)
+            failed = [f"{r.key}: {r.message}" for r in results if r.status == "error"]
+            if failed:
+                raise ResultsPageError(f"results page: {name} ({algorithm}) had FMU errors: {'; '.join(failed)}")
+            self._extra[(name, algorithm)] = results
+        return self._extra[(name, algorithm)]
+
+
+#: Generated block name -> function of the page's runs (:class:`PageRuns`) returning its Markdown.
+BLOCKS: dict[str, Callable[[PageRuns], str]] = {}
+
+
+def block(name: str):
+    """Register the decorated function as the writer of block `name` (see the module's docstring)."""
+    def register(fn):
+        if name in BLOCKS:
+            raise ValueError(f"results-page block {name!r} is registered twice")
+        BLOCKS[name] = fn
+        return fn
+    return register
+
+
+def splice_blocks(text: str, blocks: dict[str, str], where: str = "text") -> str:
+    """`text` with every marked block replaced by ``blocks[name]``; a marker without a text in `blocks`, or a
+    begin marker without its end, is refused (:class:`ResultsPageError` naming it and `where`)."""
+    opened = _BEGIN_ANY.findall(text)
+    closed = [m.group(1) for m in _MARKED.finditer(text)]
+    if sorted(opened) != sorted(closed):
+        raise ResultsPageError(f"{where}: a results-page begin marker without its end marker "
+                               f"({sorted(set(opened) - set(closed)) or opened})")
+    unknown = sorted(set(closed) - set(blocks))
+    if unknown:
+        raise ResultsPageError(f"{where}: unknown generated block(s) {unknown}; known: {sorted(blocks)}")
+
+    def replace(m: re.Match) -> str:
+        body = blocks[m.group(1)]
+        begin = m.group(0)[:m.group(0).index("-->") + 3]
+        end = f"<!-- results-page:{m.group(1)} end -->"
+        return f"{begin}\n{body}\n{end}" if "\n" in body or m.group(2).startswith("\n") else f"{begin}{body}{end}"
+
+    return _MARKED.sub(replace, text)
+
+
+def splice_readme(readme_text: str, block_text: str) -> str:
+    """README text with the generated Table 2 block between its markers (which must be there)."""
+    if README_BEGIN not in readme_text or README_END not in readme_text:
         raise ValueError(f"README.md has no '{README_BEGIN}' ... '{README_END}' markers")
-    return pattern.sub(lambda _: f"{README_BEGIN}\n{block}\n{README_END}", readme_text)
+    return splice_blocks(readme_text, {"table2": block_text}, "README.md")
+
+
+def marked_pages() -> list[Path]:
+    """The documents that may hold generated blocks: README.md and docs/*.md (not the page itself)."""
+    return [README, *sorted(p for p in (REPO / "docs").glob("*.md") if p != RESULTS_PAGE)]
 
 
 def expected_files(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> dict[Path, str]:
-    """Path -> the text it must hold after a fresh run."""
+    """Path -> the text it must hold after a fresh run (the page, and every document with generated blocks)."""
+    require_checkout()
+    pages = {path: path.read_text(encoding="utf-8") for path in marked_pages()}
+    names = {name for text in pages.values() for name in _BEGIN_ANY.findall(text)}
+    unknown = sorted(names - set(BLOCKS))
+    if unknown:  # before minutes of runs
+        raise ResultsPageError(f"unknown generated block(s) {unknown} in README.md or docs/*.md; known: "
+                               f"{sorted(BLOCKS)} (scenarios/results_page.py)")
     chain = verify_data_chain()
-    runs = run_page_scenarios(fmu_dir, progress)
-    page, block = render(runs, chain, (lqg_comparison_section(runs), lqg_acceptance_section(runs, fmu_dir, progress),
-                                       lqg_tradeoff_section(progress)))
-    return {RESULTS_PAGE: page, README: splice_readme(README.read_text(), block)}
+    runs = PageRuns(run_page_scenarios(fmu_dir, progress), fmu_dir, progress)
+    page, _ = render(runs, chain, (lqg_comparison_section(runs), lqg_acceptance_section(runs, fmu_dir, progress),
+                                   lqg_tradeoff_section(progress)))
+    texts = {name: BLOCKS[name](runs) for name in sorted(names)}
+    files = {RESULTS_PAGE: page}
+    for path, text in pages.items():
+        if _BEGIN_ANY.search(text):
+            files[path] = splice_blocks(text, texts, str(path.relative_to(REPO)))
+    return files
 
 
 def check(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> list[str]:
-    """Unified diffs of every generated file that differs from a fresh run ([] when all match)."""
+    """Unified diffs of every generated file that differs from a fresh run ([] when all match); writes nothing."""
     diffs = []
     for path, text in expected_files(fmu_dir, progress).items():
-        old = path.read_text() if path.exists() else ""
+        old = path.read_text(encoding="utf-8") if path.exists() else ""
         if old != text:
             diffs.append("".join(difflib.unified_diff(old.splitlines(True), text.splitlines(True),
                                                       str(path), f"{path} (fresh run)")))
@@ -218,10 +324,152 @@ def check(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> list[str]:
 
 
 def write(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = True) -> list[Path]:
-    """Rewrite the generated files atomically; returns them."""
+    """Rewrite the generated files atomically (those whose text changed); returns every generated file."""
     from flexarm.provenance import write_atomic
 
     files = expected_files(fmu_dir, progress)
     for path, text in files.items():
-        write_atomic(path, text)
+        if not path.is_file() or path.read_text(encoding="utf-8") != text:
+            write_atomic(path, text)
     return list(files)
+
+
+# ------------------------------------------------------------------------------------------------ the blocks
+def _paper() -> dict:
+    return tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
+
+
+def _m(runs: PageRuns, name: str, case: str, metric: str, algorithm: str | None = None) -> float:
+    """One metric of one case; a case that did not end ok has no figure to publish (ResultsPageError)."""
+    metrics = runs.metrics(name, algorithm).get(case)
+    if metrics is None:
+        raise ResultsPageError(f"results page: {name} case {case} has no metrics (not ok), a block needs them")
+    return metrics[metric]
+
+
+@block("table2")
+def _table2_block(runs: PageRuns) -> str:
+    """README: Table 2, ours / the paper's."""
+    sc, results = runs["table2"]
+    return readme_table(results, _paper()[sc.paper_table])
+
+
+@block("scenario-list")
+def _scenario_list(runs: PageRuns) -> str:
+    """docs/scenarios.md: every shipped scenario (what ``python -m scenarios list`` prints)."""
+    lines = ["| scenario | cases | what it asks |", "|---|---|---|"]
+    for sc in list_scenarios():
+        keys = ", ".join(c.key for c in sc.cases)
+        lines.append(f"| `{sc.name}` | {len(sc.cases)}: {keys} | {sc.description} |")
+    return "\n".join(lines)
+
+
+def _f(x: float, digits: int = 3) -> str:
+    return f"{x:.{digits}f}"
+
+
+@block("findings")
+def _findings(runs: PageRuns) -> str:
+    """docs/scenarios.md: the paper's conclusions, the paper's figures beside ours (the verdicts are the tests')."""
+    paper = _paper()
+    idx = {m: i for i, m in enumerate(paper["metrics"])}
+
+    def pp(table, case, metric):
+        row = paper[table][case]
+        return None if isinstance(row, dict) else row[idx[metric]]
+
+    rms, peak_v, rms_v = "rms_position_error", "peak_velocity_error", "rms_velocity_error"
+    bounded = all(r.status == "ok" for r in runs["table1"][1])
+    noise_ratio = {t: _m(runs, t, "noise", rms) / _m(runs, t, "none", rms) for t in ("table1", "table2", "table3")}
+    taus = [(_m(runs, t, c, "peak_tau1"), _m(runs, t, c, "peak_tau2"))
+            for t in ("table1", "table2", "table3") for c in ("none", "noise", "tip", "tip_noise")]
+    paper_taus = [(pp(t, c, "peak_tau1"), pp(t, c, "peak_tau2")) for t in ("table1", "table2", "table3")
+                  for c in ("none", "noise", "tip", "tip_noise") if pp(t, c, "peak_tau1") is not None]
+
+    def span(values, digits):
+        return f"{min(values):.{digits}f}-{max(values):.{digits}f}"
+
+    ff = {c: _m(runs, "compare_ff_fb", c, rms) for c in ("ff", "fb", "both", "ff_tip", "fb_tip", "both_tip")}
+    sched = [_m(runs, "compare_schedule", c, rms) for c in ("s200ms_tip", "s20ms_tip", "single_tip")]
+    rows = [
+        ("γ = 1 is fragile under noise", "Table 1: noise cases unbounded",
+         f"{'all four bounded' if bounded else 'not all bounded'}; noise raises the rms position error "
+         f"{noise_ratio['table1']:.1f}× ({_f(_m(runs, 'table1', 'none', rms))} → "
+         f"{_f(_m(runs, 'table1', 'noise', rms))}°) at γ = 1, {noise_ratio['table2']:.1f}× at γ = 0.1, "
+         f"{noise_ratio['table3']:.1f}× at γ = 0"),
+        ("γ = 0.1 tolerates noise and payload", "all four cases bounded",
+         f"{'all bounded' if all(r.status == 'ok' for r in runs['table2'][1]) else 'not all bounded'}; "
+         f"noise: {_f(_m(runs, 'table2', 'noise', rms))}° rms; tip+noise "
+         f"{_f(_m(runs, 'table2', 'tip_noise', rms))}° vs tip {_f(_m(runs, 'table2', 'tip', rms))}°"),
+        ("the payload degrades velocity tracking far more than position",
+         f"tip: {pp('table2', 'tip', 'peak_position_error'):.1f}° peak position, "
+         f"{pp('table2', 'tip', peak_v):.1f} °/s peak velocity",
+         f"tip: {_m(runs, 'table2', 'tip', 'peak_position_error'):.2f}° peak, "
+         f"{_m(runs, 'table2', 'tip', peak_v):.1f} °/s peak velocity (γ = 0.1)"),
+        ("γ = 0 tracks the payload worst in velocity",
+         f"{pp('table3', 'tip', peak_v):.1f} vs {pp('table2', 'tip', peak_v):.1f} °/s peak",
+         f"{_m(runs, 'table3', 'tip', peak_v):.1f} vs {_m(runs, 'table2', 'tip', peak_v):.1f} °/s peak; "
+         f"{_m(runs, 'table3', 'tip', rms_v):.1f} vs {_m(runs, 'table2', 'tip', rms_v):.1f} °/s rms"),
+        ("feedforward + feedback beats either alone", "(experiments, ref. 11)",
+         f"rms position, no payload: ff {_f(ff['ff'])}°, fb {ff['fb']:.1f}°, both {_f(ff['both'])}°; with payload: "
+         f"ff {ff['ff_tip']:.1f}°, fb {ff['fb_tip']:.1f}°, both {_f(ff['both_tip'])}°"),
+        ("the schedule period makes little difference", "200 ms ≈ 20 ms ≈ one set",
+         "rms position with payload, 200 ms / 20 ms / one set: " + " / ".join(_f(x) for x in sched) + "°"),
+        ("peak torques within the motors' limits",
+         f"{span([a for a, _ in paper_taus], 2)} and {span([b for _, b in paper_taus], 2)} N·m",
+         f"{span([a for a, _ in taus], 2)} and {span([b for _, b in taus], 2)} N·m"),
+    ]
+    lines = ["| finding | the paper | ours (this commit's runs) |", "|---|---|---|"]
+    lines += [f"| {a} | {b} | {c} |" for a, b, c in rows]
+    return "\n".join(lines)
+
+
+@block("table2-gs-vs-jacobi")
+def _gs_vs_jacobi(runs: PageRuns) -> str:
+    """docs/masters-and-ssp.md: Table 2 stepped Gauss-Seidel (ours) and Jacobi (libcosim's way, bit for bit)."""
+    gs = runs.metrics("table2")
+    jac = runs.metrics("table2", "jacobi")
+    keys = list(gs)
+    lines = ["| | " + " | ".join(keys) + " |", "|---" * (len(keys) + 1) + "|"]
+    for m in METRICS:
+        cells = []
+        for k in keys:
+            a = "unbounded" if gs[k] is None else _fmt(gs[k][m], UNITS[m])
+            b = "unbounded" if jac[k] is None else _fmt(jac[k][m], UNITS[m])
+            cells.append(f"{a} / {b}")
+        lines.append(f"| {ROW_LABELS[m]}, {UNITS[m]} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+@block("schedule-rms-tip")
+def _schedule_rms_tip(runs: PageRuns) -> str:
+    """docs/sweeps.md (inline): rms position error with the payload for the three schedules."""
+    return " / ".join(_f(_m(runs, "compare_schedule", c, "rms_position_error"))
+                      for c in ("s200ms_tip", "s20ms_tip", "single_tip")) + "°"
+
+
+@block("table2-none-figures")
+def _table2_none_figures(runs: PageRuns) -> str:
+    """docs/fmus-in-other-tools.md (inline): the no-payload case's headline figures."""
+    rms, peak, tau1 = (_m(runs, "table2", "none", m) for m in ("rms_position_error", "peak_position_error",
+                                                                  "peak_tau1"))
+    return f"rms position error {rms:.4f}°, peak {peak:.4f}°, peak τ1 {tau1:.3f} N·m"
+
+
+def _slew_length() -> float:
+    from flexarm.trajectory import load_trajectory
+
+    return float(load_trajectory().t_f)
+
+
+@block("slew")
+def _slew(runs: PageRuns) -> str:
+    """(inline) The slew's length, from the committed trajectory (the FMUs' DefaultExperiment stopTime)."""
+    return f"{_slew_length():.3f} s"
+
+
+@block("slew-steps")
+def _slew_steps(runs: PageRuns) -> str:
+    """(inline) The 1 ms steps of a full run of Table 2 (the runner's run length)."""
+    sc, results = runs["table2"]
+    return f"{len(results[0].series['time']) - 1} steps of {sc.step_size * 1e3:g} ms"

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from flexarm.parameters import DEFAULT_PARAMETER_FILE
-from flexarm.provenance import git_commit, sha256_file, write_json
+from flexarm.provenance import git_commit, package_version, sha256_file, write_json
 from flexarm.signals import names as signal_names
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
@@ -31,6 +31,7 @@ from .fmu_files import NotAnFmuError, read_description
 from .metrics import METRICS, UNITS, saturation_warnings, table_metrics
 from .outdir import check_writable, run_folder
 from .results import analysis_columns, write_csv
+from .stability import loop_stability
 from .values import check_parameters
 
 REPO = Path(__file__).resolve().parent.parent
@@ -61,8 +62,12 @@ class CaseResult:
     wall_time_s: float
     series: dict[str, np.ndarray]
     outcome: master.Outcome = field(default_factory=lambda: master.Outcome("ok"))
-    #: What the run did not do well (e.g. torque saturation, :func:`scenarios.metrics.saturation_warnings`).
+    #: What the run did not do well (e.g. torque saturation, :func:`scenarios.metrics.saturation_warnings`; an
+    #: unstable sampled loop the plant scheme cannot show, :func:`scenarios.stability.loop_stability`).
     warnings: list[str] = field(default_factory=list)
+    #: The linearised sampled loop's stability (:func:`scenarios.stability.loop_stability`; None when the check
+    #: does not apply).
+    loop_stability: dict | None = None
 
 
 def _build_tool():
@@ -480,6 +485,8 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     descriptions like scenario values and applied to every case after the scenario's own.
     """
     algorithm = algorithm or scenario.algorithm
+    if progress and (kind or scenario.kind) == "python":
+        _say_numba_compile()  # before the FMUs are built: a build's trace step compiles them too
     scenario = with_overrides(scenario, overrides)
     chain = verify_data_chain()
     by_key: dict[str, CaseResult] = {}
@@ -521,25 +528,28 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     out, metrics = simulate_case(setup, m, case.parameters, progress=bar)
                     wall = time.perf_counter() - t0
                     series = {"time": out["time"], **out["signals"]}
+                    stab = loop_stability(setup.paths, setup.plant, setup.driver, params, scenario.step_size)
+                    notes = list(out.get("warnings", [])) + ([stab["note"]] if stab and stab["note"] else [])
                     series.update(analysis_columns(series, setup.plant, reference))
                     by_key[case.key] = CaseResult(case.key, case.label, out["status"], out["message"], metrics,
-                                                  wall, series, out["outcome"], list(out.get("warnings", [])))
+                                                  wall, series, out["outcome"], notes, stab)
                     write_csv(folder / f"{case.key}.csv", series)
                     write_json(folder / f"{case.key}.json", {
                         "scenario": scenario.name, "scenario_file": str(scenario.path),
                         "scenario_sha256": scenario_sha, "case": case.key, "label": case.label,
                         "status": out["status"], "message": out["message"], "outcome": out["outcome"].as_dict(),
-                        "warnings": list(out.get("warnings", [])),
+                        "warnings": by_key[case.key].warnings,
                         "metrics": metrics, "metric_units": dict(UNITS), "parameters": params,
                         "samples": setup.n_steps, "step_size_s": scenario.step_size, "algorithm": algorithm,
                         "fmus": {k: str(v) for k, v in setup.paths.items()}, "fmu_sha256": checksums,
                         "fmu_kind": setup.kind, "fmu_kinds": kinds, "parameters_left_out": setup.left_out,
                         "inputs_held_at_start": setup.held_inputs, "overrides": overrides or {},
-                        "commit": commit, "wall_time_s": wall, "steps_done": out["steps_done"],
+                        "commit": commit, "version": package_version(), "wall_time_s": wall,
+                        "steps_done": out["steps_done"],
                         "trajectory_sha256": chain[_relative(DEFAULT_TRAJECTORY_FILE)],
                         "parameter_file": _relative(DEFAULT_PARAMETER_FILE),
                         "parameter_file_sha256": chain[_relative(DEFAULT_PARAMETER_FILE)],
-                        "data_sha256": chain, "fmu_log_tail": out["log"][-20:],
+                        "data_sha256": chain, "fmu_log_tail": out["log"][-20:], "loop_stability": stab,
                     })
         finally:
             for m in opened:
@@ -635,22 +645,50 @@ def desired_states(traj, times, dt: float | None = None) -> dict[str, np.ndarray
     return {"theta": th, "omega": om}
 
 
-def _bar(label: str):
-    """A one-line text progress bar on stderr."""
+def numba_compiles() -> bool:
+    """Whether a Python plant FMU will compile Numba kernels: Numba importable and not switched off.
+
+    Each Python FMU runs its own private copy of ``flexarm`` from its unpacked folder (fmu_build.isolate), so
+    its first step in a freshly unpacked copy compiles the kernels and caches them in that folder.
+    """
+    import importlib.util
+
+    return not os.environ.get("FLEXARM_NO_NUMBA") and importlib.util.find_spec("numba") is not None
+
+
+def _say_numba_compile() -> None:
+    if numba_compiles():
+        try:
+            print("the Python plant FMU compiles its Numba kernels on its first step (about 20 s per freshly "
+                  "unpacked FMU; FLEXARM_NO_NUMBA=1 runs NumPy instead)", file=sys.stderr, flush=True)
+        except (OSError, ValueError):  # standard error unwritable: no reason to stop a run
+            pass
+
+
+def _bar(label: str, stream=None):
+    """Progress of one case on stderr: a redrawn bar on a terminal; otherwise (a log, a pipe) one line when
+    the case is under way (its first report), with no carriage-return frames."""
+    stream = sys.stderr if stream is None else stream
+    tty = hasattr(stream, "isatty") and stream.isatty()
     state = {"last": -1}
 
     def update(k: int, n: int) -> None:
         pct = int(100 * k / n)
-        if pct != state["last"]:
-            state["last"] = pct
+        if pct == state["last"]:
+            return
+        first, state["last"] = state["last"] == -1, pct
+        if tty:
             filled = pct // 4
-            try:  # a bar standard error cannot take (2>/dev/full) is no reason to stop a run
-                sys.stderr.write(f"\r{label:28s} [{'#' * filled}{'.' * (25 - filled)}] {pct:3d}%")
-                if k == n:
-                    sys.stderr.write("\n")
-                sys.stderr.flush()
-            except (OSError, ValueError):
-                pass
+            text = f"\r{label:28s} [{'#' * filled}{'.' * (25 - filled)}] {pct:3d}%" + ("\n" if k == n else "")
+        elif first:
+            text = f"{label:28s} running, {n} steps\n"
+        else:
+            return
+        try:  # a progress line standard error cannot take (2>/dev/full) is no reason to stop a run
+            stream.write(text)
+            stream.flush()
+        except (OSError, ValueError):
+            pass
 
     return update
 

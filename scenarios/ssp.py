@@ -282,7 +282,7 @@ def system_structure_xml(scenario: Scenario, plan: CasePlan) -> bytes:
     conns = etree.SubElement(system, _q("ssd", "Connections"))
     # In evaluation order (by the source's place in the scenario's order: plant -> sensors -> controller ->
     # plant): a Gauss-Seidel master that follows the SSD's connection order then puts no delay in the loop.
-    rank = {inst: i for i, inst in enumerate(scenario.order)}
+    rank = {inst: i for i, inst in enumerate(setup.scenario.order)}
     for c in sorted(setup.connections, key=lambda c: rank.get(c.src_fmu, len(rank))):
         etree.SubElement(conns, _q("ssd", "Connection"), startElement=c.src_fmu, startConnector=c.src_var,
                          endElement=c.dst_fmu, endConnector=c.dst_var)

@@ -93,6 +93,39 @@ class Slave:
         self.fmu.freeInstance()
 
 
+#: This project's own top-level packages: a child process that must take them from an FMU gets no path to them.
+_OWN_PACKAGES = ("flexarm", "scenarios", "fmu_build", "fmus")
+_ROOT = Path(__file__).resolve().parents[1]
+
+
+def third_party_pythonpath() -> str:
+    """A ``PYTHONPATH`` for a ``python -S -s`` child: this interpreter's import path without this project.
+
+    Every folder of the running interpreter's ``sys.path`` (site-packages, the user site, a venv's, a
+    conda prefix's, folders added by ``.pth`` files), wherever it lives, inside the checkout or not, minus
+    the folders from which this project's own source would import: the checkout, and any other folder
+    holding ``flexarm`` etc. as plain source (an editable install's path entry). A site-packages folder
+    stays even if a non-editable install put ``flexarm`` there, as fmpy and NumPy live beside it. With
+    ``-S`` no ``.pth`` file runs, so an editable install's import hook is not installed either.
+    """
+    import os
+    import sys
+
+    keep = []
+    for entry in sys.path:
+        if not entry or not Path(entry).is_dir():  # '' (the working folder), path-hook names, zips
+            continue
+        folder = Path(entry).resolve()
+        site_dir = folder.name in ("site-packages", "dist-packages")
+        own = (folder.is_relative_to(_ROOT)  # the checkout and its folders (tests/), but not a .venv inside it
+               or any((folder / name / "__init__.py").is_file() for name in _OWN_PACKAGES))
+        if own and not site_dir:
+            continue
+        if str(folder) not in keep:
+            keep.append(str(folder))
+    return os.pathsep.join(keep)
+
+
 def rss_mb() -> float:
     """Resident set size of this process in MB (VmRSS of /proc/self/status)."""
     text = Path("/proc/self/status").read_text()

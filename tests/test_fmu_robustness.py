@@ -20,7 +20,7 @@ import pytest
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions
-from fmu_harness import DT, ERROR, OK, SCENARIOS, Slave, built_fmus, drive, rss_mb
+from fmu_harness import DT, ERROR, OK, SCENARIOS, Slave, built_fmus, drive, rss_mb, third_party_pythonpath
 
 from fmu_build import FMUS
 from scenarios.master import logging_callbacks
@@ -319,13 +319,12 @@ def test_fmpy_simulate_fmu_runs_fmus_again_in_one_process(fmus, tmp_path):
     """
     import json
     import os
-    import site
     import subprocess
 
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
     env["FLEXARM_NO_NUMBA"] = "1"
-    # -S: no site, so no .pth (the editable 'flexarm'); site-packages as plain PYTHONPATH entries
-    env["PYTHONPATH"] = os.pathsep.join(p for p in site.getsitepackages() if not Path(p).resolve().is_relative_to(ROOT))
+    # -S: no site, so no .pth (the editable 'flexarm'); this interpreter's import path minus the project
+    env["PYTHONPATH"] = third_party_pythonpath()
     proc = subprocess.run([sys.executable, "-S", "-s", "-c", _SIMULATE_TWICE, "[]",
                            json.dumps({k: str(v) for k, v in fmus.items()})],
                           env=env, capture_output=True, text=True, timeout=300, cwd=tmp_path)

@@ -31,7 +31,6 @@ import json
 import os
 import re
 import shutil
-import site
 import subprocess
 import sys
 import sysconfig
@@ -42,7 +41,7 @@ import numpy as np
 import pytest
 import scipy
 from fmpy import read_model_description
-from fmu_harness import DT, SCENARIOS, built_fmus, choice
+from fmu_harness import DT, SCENARIOS, built_fmus, choice, third_party_pythonpath
 
 ROOT = Path(__file__).resolve().parents[1]
 HOST_SOURCE = ROOT / "tests" / "native_host" / "fmi2_host.c"
@@ -163,10 +162,16 @@ def _scenario_files(name: str, md, folder: Path) -> tuple[list[str], Path]:
     return sets, path
 
 
+#: Settings of the BLAS/LAPACK kernels (OPENBLAS_CORETYPE picks other kernels than autodetection, a few 1e-9
+#: apart): the native host keeps them, as the fmpy reference does, so both processes compute with the same ones.
+_BLAS_SETTINGS = ("OPENBLAS_", "OMP_", "MKL_", "GOTO_")
+
+
 def _native_env(libpython: Path, home: Path, site_packages: Path, folder: Path, **extra) -> dict[str, str]:
     env = {"PATH": "/usr/bin:/bin", "HOME": str(folder), "LANG": "C.UTF-8", "LD_PRELOAD": str(libpython),
            "PYTHONHOME": str(home), "PYTHONPATH": str(site_packages), "PYTHONNOUSERSITE": "1",
            "PYTHONDONTWRITEBYTECODE": "1"}
+    env.update({k: v for k, v in os.environ.items() if k.startswith(_BLAS_SETTINGS)})
     env.update(extra)
     return {k: v for k, v in env.items() if v is not None}
 
@@ -223,8 +228,8 @@ with open(args["out"], "w") as f:
 def _fmpy_reference(unpacked: Path, params: dict, inputs: Path, out: Path) -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
     env["FLEXARM_NO_NUMBA"] = "1"
-    # -S: no site, so no .pth (the editable 'flexarm'); site-packages as plain PYTHONPATH entries
-    env["PYTHONPATH"] = os.pathsep.join(p for p in site.getsitepackages() if not Path(p).resolve().is_relative_to(ROOT))
+    # -S: no site, so no .pth (the editable 'flexarm'); this interpreter's import path minus the project
+    env["PYTHONPATH"] = third_party_pythonpath()
     args = {"dir": str(unpacked), "params": params, "inputs": str(inputs), "steps": N_STEPS,
             "dt": DT, "out": str(out)}
     proc = subprocess.run([sys.executable, "-S", "-s", "-c", _FMPY_RUN, json.dumps(args)], cwd=unpacked.parent,

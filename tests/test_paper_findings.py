@@ -171,3 +171,53 @@ def test_gain_schedule_period_makes_little_difference(runs):
         vel = [rms_vel(runs[("compare_schedule", k + suffix)]) for k in ("s200ms", "s20ms", "single")]
         assert max(rms) / min(rms) < 1.25
         assert max(vel) / min(vel) < 1.25
+
+
+def test_findings_2_5_12_quote_the_reference_runs():
+    """The horizon figures of findings 2, 5 and 12 in docs/findings.md are those of the reference-plant runs in
+    docs/scheme-accuracy.json (its generated block is checked by tests/test_integrator.py): no hand-typed number
+    that a fresh run contradicts."""
+    import json
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    h = json.loads((root / "docs" / "scheme-accuracy.json").read_text())["horizons"]
+    doc = (root / "docs" / "findings.md").read_text()
+    rows = {n: next(line for line in doc.splitlines() if line.startswith(f"| {n} |")) for n in (2, 5, 12)}
+
+    def pv(key, t):
+        return h[key]["peak_velocity_error"][t]
+
+    quoted = {2: [f"{pv('gamma1|none', '2.058'):.0f} (no noise) / {pv('gamma1|noise', '2.058'):.0f} (noise)",
+                  f"{pv('gamma1|none', '5'):.0f} / {pv('gamma1|noise', '5'):.0f} deg/s by 5 s",
+                  f"{pv('gamma1|none', '10'):.0f} / {pv('gamma1|noise', '10'):.0f}"],
+              5: [f"{pv('gamma0.1|noise', '3'):.1f} deg/s up to 3 s", f"{pv('gamma0.1|noise', '5'):.0f} at 5 s",
+                  f"{pv('gamma0.1|noise', '7'):.0f} at 7 s", f"{pv('gamma0.1|noise', '10'):.0f} at 10 s"],
+              12: [f"from {h['eq32|tip|0.005']['settled_1mm_s']:.2f} s",
+                   f"{h['eq32|tip|0']['tip_error_mm']['10']:.1f} mm off at 10 s"]}
+    assert h["eq32|tip|0"]["settled_1mm_s"] is None and "never settles" in rows[12]
+    for n, texts in quoted.items():
+        for text in texts:
+            assert text in rows[n], (n, text, rows[n])
+    assert not re.search(r"\b1880\b|1\.2 1/s", doc)  # the exponential scheme's figures past 4 s are gone
+
+
+def test_a_run_whose_loop_is_unstable_says_so(tmp_path):
+    """γ = 1 undamped (linear growth +3.27 1/s at the bracket mode): under the default RODAS4 plant the run looks
+    quiet, so its results carry a warning naming the growth and the cure; under the reference plant the note says
+    the run shows it; γ = 0.1 with ζ = 0.005 is stable and gets no note (issue 24 item 5)."""
+    s = load_scenario("table1")
+    s.cases = [c for c in s.cases if c.key == "none"]
+    s.samples = 20
+    (r,) = run_scenario(s, tmp_path, progress=False)
+    stab = r.loop_stability
+    assert stab["growth_per_s"] == pytest.approx(3.27, abs=0.01)
+    assert "rodas4" in stab["note"] and "does not show" in stab["note"] and "reference" in stab["note"]
+    (r,) = run_scenario(with_plant(s, integrator="reference"), tmp_path, progress=False)
+    assert "shows that growth" in r.loop_stability["note"]
+    s2 = load_scenario("table2")
+    s2.cases = [c for c in s2.cases if c.key == "none"]
+    s2.samples = 20
+    (r,) = run_scenario(with_plant(s2, damping_ratio=0.005), tmp_path, progress=False)
+    assert r.loop_stability["growth_per_s"] < 0 and r.loop_stability["note"] == ""

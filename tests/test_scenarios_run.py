@@ -5,6 +5,7 @@ import pytest
 
 from flexarm import ArmModel, load_parameters
 from flexarm.control import TrackingController, simulate_closed_loop
+from flexarm.provenance import package_version
 from flexarm.trajectory import load_trajectory
 from scenarios.config import load_scenario
 from scenarios.runner import run_scenario
@@ -24,7 +25,8 @@ def test_results_written_with_provenance(table2_results):
     results, out = table2_results
     for r in results:
         meta = json.loads((out / "table2" / f"{r.key}.json").read_text())
-        assert meta["status"] == "ok" and len(meta["commit"]) >= 7
+        assert meta["status"] == "ok" and len(meta["commit"]) >= 7 and meta["commit"] != "unknown"
+        assert meta["version"] == package_version()
         assert set(meta["fmu_sha256"]) == {"plant", "sensors", "controller"}
         assert meta["parameter_file"].endswith("sandia_arm.toml") and len(meta["parameter_file_sha256"]) == 64
         assert (out / "table2" / f"{r.key}.csv").read_text().count("\n") == meta["samples"] + 2
@@ -119,3 +121,51 @@ def test_records_are_values_after_all_inputs_are_set(table2_setup):
     assert out["status"] == "ok"
     assert np.array_equal(sig["sensors.q1_m"], sig["plant.q1"])
     assert np.any(sig["sensors.eps3_m"] != 0.0)
+
+
+def test_case_option_selects_cases_and_refuses_an_unknown_key(capsys):
+    """`run NAME --case KEY` keeps those cases in the file's order; an unknown key is refused (exit 2), naming
+    the scenario's keys, before anything runs."""
+    from scenarios.__main__ import main, select_cases
+
+    sc = load_scenario("table2")
+    assert [c.key for c in select_cases(sc, ["tip", "none"]).cases] == ["none", "tip"]
+    assert select_cases(sc, None) is sc and len(sc.cases) == 4
+    assert main(["run", "table2", "--case", "none", "--case", "nope", "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert "--case: nope not a case of scenario table2 (allowed: none, noise, tip, tip_noise)" in err
+
+
+def test_progress_is_a_bar_on_a_terminal_and_one_line_in_a_log():
+    import io
+
+    from scenarios.runner import _bar
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    log, tty = io.StringIO(), Tty()
+    for stream in (log, tty):
+        update = _bar("table2:none", stream)
+        for k in range(0, 2059, 20):
+            update(k, 2058)
+        update(2058, 2058)
+    assert "\r" not in log.getvalue() and log.getvalue().count("\n") == 1
+    assert log.getvalue().startswith("table2:none") and log.getvalue().endswith("running, 2058 steps\n")
+    assert tty.getvalue().count("\r") > 50 and tty.getvalue().endswith("100%\n")
+
+
+def test_numba_notice_only_where_numba_compiles(monkeypatch, capsys):
+    """A run of Python FMUs says the plant will compile its kernels, unless Numba is off or missing."""
+    import importlib.util
+
+    from scenarios import runner
+
+    monkeypatch.delenv("FLEXARM_NO_NUMBA", raising=False)
+    runner._say_numba_compile()
+    err = capsys.readouterr().err
+    assert ("compiles its Numba kernels" in err) == (importlib.util.find_spec("numba") is not None)
+    monkeypatch.setenv("FLEXARM_NO_NUMBA", "1")
+    runner._say_numba_compile()
+    assert capsys.readouterr().err == "" and runner.numba_compiles() is False

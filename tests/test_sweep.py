@@ -75,8 +75,20 @@ def test_serial_table_and_provenance(small):
 
 
 def test_local_cluster_equals_serial_bit_for_bit(small, tmp_path):
+    """... and the cluster shuts down cleanly: no worker killed by its nanny, no warning."""
+    import logging
+
     path, serial, _ = small
-    res = run_sweep(path, tmp_path, workers=2, progress=False)
+    warnings = []
+    handler = logging.Handler(logging.WARNING)
+    handler.emit = lambda record: warnings.append(f"{record.name}: {record.getMessage()}")
+    logger = logging.getLogger("distributed")  # Dask's loggers do not propagate to the root logger
+    logger.addHandler(handler)
+    try:
+        res = run_sweep(path, tmp_path, workers=2, progress=False)
+    finally:
+        logger.removeHandler(handler)
+    assert not warnings, warnings
     assert res.ran == 16
     assert _same(res.tables[0]) == _same(serial.tables[0])
     assert {p.name for p in res.plots} == {"metrics_vs_payload_mass.png", "rms_spread_over_seeds.png"}

@@ -69,6 +69,8 @@ OMEGA7_ITEMS = (
     (2, "rigid", "from both tachometers, rigid-body (qd1 + qd2 errors)"),
 )
 DEFAULT_GAIN_SET = 2  # gamma0.1
+#: String parameter: a learned feedforward correction file (:func:`flexarm.ilc.write_learned_feedforward`).
+FEEDFORWARD_CORRECTION = "feedforward_correction_file"
 
 VARIABLES = variable_table([
     *[Var(s.name, "input", "continuous", s.unit, s.description, 0.0) for s in signals("controller", "input")],
@@ -86,6 +88,10 @@ VARIABLES = variable_table([
         "(qd1 + qd2 errors)", 1, 1, 2, type="Integer", choices=OMEGA7_ITEMS),
     *[Var(s.name, "output", "continuous", s.unit, s.description, depends_on=USED_INPUTS)
       for s in signals("controller", "output")],
+    # Last, so that the native twins (no Strings in their glue) leave it out without a gap in the references.
+    Var(FEEDFORWARD_CORRECTION, "parameter", "fixed", None,
+        "Learned feedforward correction: path of a flexarm.ilc design file (.npz with its .json); "
+        "empty: none", "", type="String"),
 ])
 
 
@@ -114,13 +120,15 @@ def schedule_label(period: float) -> str:
 
 @functools.lru_cache(maxsize=16)
 def _tracking_controller(data: str | None, mode: str, name: str, schedule: str, tau1_max: float, tau2_max: float,
-                         omega7: str) -> TrackingController:
+                         omega7: str, correction: tuple = ("", "")) -> TrackingController:
     """The control law of one configuration, built once per process (about 25 ms).
 
     Shared by the instances (and resets) with the same configuration and data folder: a
     TrackingController does not change after construction. `data` is this FMU's own
     ``resources/flexarm/data`` (FMUs in one process share the ``flexarm`` package imported first,
-    which need not carry this FMU's trajectory and gains), or None for the package's.
+    which need not carry this FMU's trajectory and gains), or None for the package's. `correction`: the
+    learned-feedforward file and its SHA-256 (part of the cache key: a file rewritten between runs is read anew),
+    ("", "") for none.
     """
     gains = None
     if mode != "ff":  # feedforward only needs no gains (the name is still checked by the caller)
@@ -128,7 +136,13 @@ def _tracking_controller(data: str | None, mode: str, name: str, schedule: str, 
 
         gains = GainSchedule.load(name, schedule, directory=None if data is None else Path(data) / "gains")
     trajectory = default_trajectory_path() if data is None else Path(data) / "trajectory.npz"
-    return TrackingController(trajectory, gains, mode=mode, saturation=(tau1_max, tau2_max), omega7=omega7)
+    learned = None
+    if correction[0]:
+        from flexarm.ilc import read_learned_feedforward
+
+        learned = read_learned_feedforward(correction[0]).correction
+    return TrackingController(trajectory, gains, mode=mode, saturation=(tau1_max, tau2_max), omega7=omega7,
+                              feedforward_correction=learned)
 
 
 class ControllerSlave(FeedthroughSlave):
@@ -158,15 +172,30 @@ class ControllerSlave(FeedthroughSlave):
         return (name, schedule_label(self.value("schedule_period")), self.value("tau1_max"),
                 self.value("tau2_max"), omega7)
 
+    def _correction(self) -> tuple[str, str]:
+        """The learned-feedforward file (absolute) and its SHA-256, ("", "") for none."""
+        path = self.value(FEEDFORWARD_CORRECTION)
+        if not path:
+            return ("", "")
+        from flexarm.provenance import sha256_file
+
+        if not Path(path).is_file():
+            raise ValueError(f"{FEEDFORWARD_CORRECTION}: no file {path!r}")
+        return (str(Path(path).resolve()), sha256_file(path))
+
+    def _law_key(self) -> tuple:
+        return (*self._config(), self._correction())
+
     def setup(self) -> None:
-        key = self._config()
+        key = self._law_key()
         if self.law is not None and key == self._key:
             return
         try:
             self.law = _tracking_controller(own_data_dir(self.resources), self.MODE, *key)
         except (ValueError, OSError) as exc:
             raise ValueError(f"gain_set = {self.value('gain_set')!r}, schedule_period = "
-                             f"{self.value('schedule_period')!r} s: {exc}") from None
+                             f"{self.value('schedule_period')!r} s, {FEEDFORWARD_CORRECTION} = "
+                             f"{self.value(FEEDFORWARD_CORRECTION)!r}: {exc}") from None
         self._key = key
 
     def evaluate(self) -> np.ndarray:
@@ -180,5 +209,5 @@ class ControllerSlave(FeedthroughSlave):
         return {}  # stateless: the torque is a function of the time and the inputs
 
     def set_sample_state(self, state: dict) -> None:
-        if self.law is None or self._key != self._config():
+        if self.law is None or self._key != self._law_key():
             self.setup()

@@ -44,7 +44,7 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from flexarm_controller_base import VARIABLES, ControllerSlave
+from flexarm_controller_base import FEEDFORWARD_CORRECTION, VARIABLES, ControllerSlave
 from flexarm_feedthrough import whole_samples
 from flexarm_fmu_base import Var, pin_module_namespace, variable_table
 
@@ -81,7 +81,7 @@ class FlexarmControllerLQG(ControllerSlave):
     """Feedforward + LQG (Kalman filter on the ten measurements, discrete LQR of the ``gain_set`` weights)."""
 
     VARIABLES = variable_table([
-        *VARIABLES,
+        *[v for v in VARIABLES if v.name != FEEDFORWARD_CORRECTION],  # the LQG law takes no learned correction
         Var("loop_delay_samples", "parameter", "fixed", None,
             "Samples between the plant state measured and the sample whose torques use it; the estimator "
             "predicts across them. 0: direct feedthrough (Gauss-Seidel master); d > 0: no direct feedthrough, "

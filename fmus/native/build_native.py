@@ -36,13 +36,11 @@ import zipfile
 from pathlib import Path
 
 import fmpy
-from fmpy.validation import validate_fmu
-
-from . import lqg_resources, physics_codegen
 
 ROOT = Path(__file__).resolve().parents[2]
 NATIVE_DIR = Path(__file__).resolve().parent
-DEFAULT_OUT = ROOT / "build" / "fmus-native"
+#: Under the current directory (as fmu_build's default): an installed package writes no FMU into site-packages.
+DEFAULT_OUT = Path("build") / "fmus-native"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 COMMON_SOURCES = ("fmi2_glue.c", "fmi2_glue.h", "fmi2_glue_resources.c", "sha256.c", "sha256.h", "portable_math.c",
                   "portable_math.h", "libm.h", "libm_link.c", "libm_link.h")
@@ -76,13 +74,22 @@ def _read_description(python_fmu: Path) -> bytes:
 
 #: The interface contract's enumerations (docs/fmu-interface.md) for the controllers' former String parameters:
 #: old name -> (new name, declared type, {value: item name}, start value, description).
-_STRING_TO_ENUMERATION = {
-    "gain_set": ("gain_set", "GainSet", physics_codegen.GAIN_SETS, 2,
-                 "LQR gain set (Q = diag(10 I, gamma I) weights or eq. 32); controller_dlqr uses its discrete-time "
-                 "design"),
-    "omega7": ("omega7_estimate", "Omega7Estimate", physics_codegen.OMEGA7_ESTIMATES, 1,
-               "How the theta7-rate error is formed: tachometer (qd2 error) or rigid (qd1 + qd2 errors)"),
-}
+#: (A function: physics_codegen, which needs CasADi and Numba, is imported only for a build, so that a run
+#: that only asks which FMUs have a native build, or whether they are up to date, starts fast.)
+def _string_to_enumeration() -> dict:
+    from . import physics_codegen
+
+    return {
+        "gain_set": ("gain_set", "GainSet", physics_codegen.GAIN_SETS, 2,
+                     "LQR gain set (Q = diag(10 I, gamma I) weights or eq. 32); controller_dlqr uses its "
+                     "discrete-time design"),
+        "omega7": ("omega7_estimate", "Omega7Estimate", physics_codegen.OMEGA7_ESTIMATES, 1,
+                   "How the theta7-rate error is formed: tachometer (qd2 error) or rigid (qd1 + qd2 errors)"),
+    }
+
+
+#: String parameters the native glue stores (start ""): the controllers' learned feedforward file (flexarm.ilc).
+NATIVE_STRINGS = ("feedforward_correction_file",)
 
 
 def interface_description(python_xml: bytes) -> bytes:
@@ -93,9 +100,10 @@ def interface_description(python_xml: bytes) -> bytes:
     2 gamma0.1, 3 gamma0, 4 eq32; start 2) and ``omega7_estimate`` of type ``Omega7Estimate`` (1 tachometer,
     2 rigid; start 1). A description that has them already is returned unchanged.
     """
+    string_to_enumeration = _string_to_enumeration()
     root = ET.fromstring(python_xml)
     variables = root.find("ModelVariables")
-    strings = [sv for sv in variables if next(iter(sv)).tag == "String"]
+    strings = [sv for sv in variables if next(iter(sv)).tag == "String" and sv.get("name") not in NATIVE_STRINGS]
     if not strings:
         return python_xml
     types = root.find("TypeDefinitions")
@@ -104,10 +112,10 @@ def interface_description(python_xml: bytes) -> bytes:
         after = [i for i, el in enumerate(root) if el.tag in ("ModelExchange", "CoSimulation", "UnitDefinitions")]
         root.insert(max(after) + 1 if after else 0, types)
     for sv in strings:
-        if sv.get("name") not in _STRING_TO_ENUMERATION:
+        if sv.get("name") not in string_to_enumeration:
             raise NativeBuildError(f"{sv.get('name')}: a String variable with no Enumeration in the interface "
                                    "contract (the native glue has no Strings)")
-        new, declared, items, start, description = _STRING_TO_ENUMERATION[sv.get("name")]
+        new, declared, items, start, description = string_to_enumeration[sv.get("name")]
         simple = ET.SubElement(types, "SimpleType", name=declared)
         enum = ET.SubElement(simple, "Enumeration")
         for value, item in items.items():
@@ -136,8 +144,11 @@ def _variables(root: ET.Element) -> list[dict]:
         if kind == "Boolean":
             lo, hi = 0, 1
         if kind == "String":
-            raise NativeBuildError(f"{sv.get('name')}: String variables are not supported by the native glue")
-        start = t.get("start", "0")
+            if sv.get("name") not in NATIVE_STRINGS or t.get("start", "") != "":
+                raise NativeBuildError(f"{sv.get('name')}: the native glue stores only the String parameters "
+                                       f"{list(NATIVE_STRINGS)}, with start \"\"")
+            lo = hi = None
+        start = t.get("start", "0") if kind != "String" else "0"
         if kind == "Boolean":
             start = "1" if start in ("true", "1") else "0"
         out.append({"name": sv.get("name"), "vr": int(sv.get("valueReference")), "type": kind,
@@ -178,7 +189,8 @@ extern const ResourceInfo MODEL_RESOURCES[];
 #endif
 """
     caus = {"parameter": "CA_PARAMETER", "input": "CA_INPUT", "output": "CA_OUTPUT"}
-    types = {"Real": "VT_REAL", "Integer": "VT_INTEGER", "Boolean": "VT_BOOLEAN", "Enumeration": "VT_ENUMERATION"}
+    types = {"Real": "VT_REAL", "Integer": "VT_INTEGER", "Boolean": "VT_BOOLEAN", "Enumeration": "VT_ENUMERATION",
+             "String": "VT_STRING"}
     rows = []
     for v in variables:
         if v["causality"] not in caus:
@@ -215,7 +227,7 @@ HANDLED_PARAMETERS = {
                 "accelerometer_noise_m_per_s2", "accelerometer_filter", "accelerometer_cutoff_hz",
                 "accelerometer_filter_order", "accelerometer_full_scale_m_per_s2", "adc_quantization", "adc_bits",
                 "sample_period"},
-    **{name: {"gain_set", "schedule_period", "tau1_max", "tau2_max", "omega7_estimate"}
+    **{name: {"gain_set", "schedule_period", "tau1_max", "tau2_max", "omega7_estimate", "feedforward_correction_file"}
        for name in ("controller", "controller_ff", "controller_fb", "controller_dlqr")},
     # omega7_estimate: accepted and not used, as by the Python FMU (the Kalman filter estimates every velocity)
     "controller_lqg": {"gain_set", "schedule_period", "tau1_max", "tau2_max", "omega7_estimate",
@@ -360,6 +372,8 @@ def write_reference_resource(path: Path) -> None:
     from flexarm.reference import REFERENCE_OUTPUTS, ReferenceSignals
     from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
 
+    from . import physics_codegen
+
     ref = ReferenceSignals(load_trajectory(DEFAULT_TRAJECTORY_FILE))
     entries = {"n_steps": [ref.n_steps], "dt": [ref.dt], "n_outputs": [len(REFERENCE_OUTPUTS)], "table": ref.table}
     physics_codegen.write_resource(
@@ -370,6 +384,8 @@ def write_reference_resource(path: Path) -> None:
 
 def _stage_sources(name: str, staging: Path, python_fmu: Path) -> tuple[str, str, list[str]]:
     """Write sources/ and resources/ of one FMU into `staging`; return (model identifier, GUID, source names)."""
+    from . import lqg_resources, physics_codegen  # CasADi, Numba, SciPy: only when a native FMU is built
+
     src, res = staging / "sources", staging / "resources"
     src.mkdir(parents=True)
     res.mkdir(parents=True)
@@ -395,9 +411,15 @@ def _stage_sources(name: str, staging: Path, python_fmu: Path) -> tuple[str, str
         write_reference_resource(res / "reference.txt")
     else:
         ff, fb, discrete = CONTROLLER_VARIANTS[name]
+        from flexarm.parameters import DEFAULT_PARAMETER_FILE
+        from flexarm.trajectory.io import DEFAULT_TRAJECTORY_FILE
+
+        # The data a learned feedforward file must have been learnt on (its .json records them; flexarm.ilc).
         (src / "controller_mode.h").write_text(
             f"/* GENERATED by fmus/native/build_native.py: the {name} variant. */\n"
-            f"#define CONTROLLER_FEEDFORWARD {ff}\n#define CONTROLLER_FEEDBACK {fb}\n")
+            f"#define CONTROLLER_FEEDFORWARD {ff}\n#define CONTROLLER_FEEDBACK {fb}\n"
+            f'#define TRAJECTORY_SHA256 "{hashlib.sha256(DEFAULT_TRAJECTORY_FILE.read_bytes()).hexdigest()}"\n'
+            f'#define PARAMETER_SHA256 "{hashlib.sha256(DEFAULT_PARAMETER_FILE.read_bytes()).hexdigest()}"\n')
         physics_codegen.write_trajectory_resource(res / physics_codegen.TRAJECTORY_RESOURCE)
         if fb:
             physics_codegen.write_gains_resource(res / physics_codegen.GAINS_RESOURCE, discrete)
@@ -442,6 +464,8 @@ def build_native_fmu(name: str, python_fmu: Path, out_dir: Path, platforms=tuple
                     info.external_attr = 0o644 << 16
                     info.compress_type = zipfile.ZIP_DEFLATED
                     z.writestr(info, p.read_bytes())
+        from fmpy.validation import validate_fmu
+
         problems = validate_fmu(str(tmp_fmu)) if "linux64" in platforms else []
         if problems:
             raise NativeBuildError(f"{name}: fmpy.validate_fmu found problems:\n" + "\n".join(problems))

@@ -12,8 +12,9 @@ Its inputs and outputs are the plant's rows of the signal catalogue
 (``flexarm/data/signals.toml``):
 
 * inputs ``tau1``, ``tau2`` (N·m), held constant over each step;
-* parameters ``payload_mass`` (kg), ``q1_0``, ``q2_0`` (rad), ``substeps``,
-  ``integrator`` (1 ``rodas4``, 2 ``exponential``) and ``damping_ratio``;
+* parameters ``payload_mass`` (kg), ``q1_0``, ``q2_0`` (rad), ``substeps``
+  (per millisecond of the step), ``integrator`` (1 ``rodas4``, 2 ``exponential``,
+  3 ``gauss``, 4 ``reference``) and ``damping_ratio``;
 * outputs at the communication point: element angles and rates, joint
   angles and rates, strain-gauge angles, tip position, link-tip
   accelerations and accelerometer signals.
@@ -27,18 +28,27 @@ A step whose integration leaves the finite numbers (absurd torques or step
 sizes) is discarded (``fmi2Discard``; the state stays at the communication
 point), as FMI intends for a step a smaller one may complete.
 
-Integration scheme (``integrator``) and the numerical damping it adds to an
-undamped mode (decay rate in 1/s at the default 2 substeps per 1 ms step;
-docs/model.md has the derivation and costs):
+``substeps`` counts substeps **per millisecond**: a communication step of
+h ms takes ceil(h · substeps) equal substeps, so the plant's accuracy does not
+depend on the master's step (a 10 ms step at the default 2 takes 20 substeps
+of 0.5 ms, as ten 1 ms steps would).
 
-* 1 ``rodas4`` (default): L-stable Rosenbrock, order 4. Adds 4.4e-11 1/s at
-  8 Hz and 1.1e-8 1/s at 20 Hz (nothing), but 1.56e3, 3.12e3 and 4.05e3 1/s
-  at the 5.7, 13.2 and 21.2 kHz bracket modes: they vanish within a few ms,
-  so a controller that destabilises a bracket mode looks stable.
+Integration scheme (``integrator``; docs/model.md has each scheme's measured
+accuracy against the reference, generated, and its cost):
+
+* 1 ``rodas4`` (default): L-stable Rosenbrock, order 4. Adds no damping to the
+  8 and 20 Hz link modes but 1.56e3, 3.12e3 and 4.05e3 1/s at the 5.7, 13.2
+  and 21.2 kHz bracket modes at 2 substeps per ms: they vanish within a few
+  ms, so a controller that destabilises a bracket mode looks stable.
 * 2 ``exponential``: exponential Rosenbrock-Euler, order 2, exact for the
-  linearised dynamics. Adds no damping to any mode (0 1/s at 8 Hz, 20 Hz and
-  the bracket modes) and does not shift their frequencies: use it to judge a
-  controller's stability. About 3x the cost of rodas4.
+  linearised dynamics, but its energy error grows without bound: it refuses to
+  step past t = 3 s (``flexarm.integrator.EXPONENTIAL_HORIZON_S``).
+* 3 ``gauss``: 2-stage Gauss-Legendre collocation, order 4, symmetric: no
+  numerical damping on any mode and a bounded energy error. It resolves the
+  bracket modes' frequencies (hence their sampled-loop stability) only with
+  fine substeps (about 32 per ms).
+* 4 ``reference``: classical RK4 at 200 · ``substeps`` steps per ms (2.5 µs
+  at the default): the converged solution, slow (for verification).
 
 ``damping_ratio`` (default 0, the paper's undamped model) gives every
 flexible mode the modal damping ratio ζ (built at q = (0, 90°)); typical
@@ -66,7 +76,14 @@ from flexarm_fmu_base import (
     variable_table,
 )
 
-from flexarm.integrator import DEFAULT_SUBSTEPS, INTEGRATORS, IntegrationError, advance
+from flexarm.integrator import (
+    DEFAULT_SUBSTEPS,
+    INTEGRATORS,
+    MAX_SUBSTEPS,
+    IntegrationError,
+    advance,
+    check_horizon,
+)
 from flexarm.model import (
     ArmModel,
     N,
@@ -97,11 +114,16 @@ VARIABLES = variable_table([
      "default: the trajectory's first sample", _SLEW["q1_0"], (-2 * math.pi, 2 * math.pi)),
     ("q2_0", "parameter", "fixed", "rad", "Initial joint-2 (elbow) angle, relative to link 1; "
      "default: the trajectory's first sample", _SLEW["q2_0"], (-math.pi, math.pi)),
-    ("substeps", "parameter", "fixed", "1", "Integrator substeps per communication step", int(DEFAULT_SUBSTEPS),
-     (1, 64)),
+    ("substeps", "parameter", "fixed", "1",
+     "Integrator substeps per millisecond of the communication step (a step of h ms takes ceil(h * substeps), so "
+     "the accuracy does not depend on the step size); the reference scheme takes 200 RK4 steps per substep",
+     int(DEFAULT_SUBSTEPS), (1, MAX_SUBSTEPS)),
     ("integrator", "parameter", "fixed", "1",
-     "Integration scheme: rodas4 is L-stable and damps the kHz bracket modes, exponential adds no numerical "
-     "damping; choices: 1 = rodas4, 2 = exponential", 1, (1, len(INTEGRATORS))),
+     "Integration scheme: rodas4 is L-stable and damps the kHz bracket modes; exponential adds no numerical "
+     "damping but refuses to run past 3 s (unbounded energy error); gauss (Gauss-Legendre, order 4) adds no "
+     "damping and keeps the energy error bounded (resolves the bracket modes from about 32 substeps); reference "
+     "is RK4 at 2.5 us (slow, for verification); choices: 1 = rodas4, 2 = exponential, 3 = gauss, 4 = reference",
+     1, (1, len(INTEGRATORS))),
     ("damping_ratio", "parameter", "fixed", "1",
      "Modal structural damping ratio of every flexible mode (0: the paper's undamped model)", 0.0, (0.0, 1.0)),
     *[_signal(s) for s in signals("plant", "output")],  # = flexarm.model.OBSERVABLE_NAMES
@@ -113,7 +135,7 @@ class FlexarmPlant(FlexarmSlave):
 
     State: z = (theta_1..theta_11 rad, omega_1..omega_11 rad/s), advanced by
     :func:`flexarm.integrator.advance` (the ``integrator`` scheme, ``substeps`` equal
-    substeps per communication step of whatever length the master asks).
+    substeps per millisecond of whatever step the master asks).
     """
 
     VARIABLES = VARIABLES
@@ -149,6 +171,8 @@ class FlexarmPlant(FlexarmSlave):
 
     def step(self, t: float, h: float) -> None:
         tau = self._torque()
+        # fmi2Error (not a discard: no smaller step helps), the message naming the scheme, the limit and the cure
+        check_horizon(self._integrator(), t + h - self.start_time)
         try:
             z, err = advance(self.model, self.z, tau, h, self.value("substeps"), self._integrator())
         except IntegrationError as exc:  # FMI's discard: not done, a smaller step (or more substeps) may do

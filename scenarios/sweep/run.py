@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from flexarm.provenance import git_commit, write_json
+from flexarm.provenance import git_commit, package_version, write_json
 
 from ..master import RunInterrupted
 from ..outdir import check_writable, folder_lock, remove_stale
@@ -20,7 +20,7 @@ from .journal import DONE, STATUSES, Journal, table_columns, table_rows, write_t
 from .plan import Plan, plan_sweep
 from .report import Progress, _short, format_summary, summary_plots
 from .spec import Sweep, SweepError, load_sweep
-from .worker import close_loaded, iter_dask, iter_serial, local_cluster
+from .worker import close_loaded, close_local_cluster, iter_dask, iter_serial, local_cluster
 
 #: Default results folder: relative to the current directory, so it works with any install.
 DEFAULT_OUT_DIR = Path("results") / "sweeps"
@@ -114,7 +114,8 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
             "scenario_content_sha256": plan.scenario_sha256, "base_case": sweep.case.key,
             "samples": sweep.scenario.samples,
             "axes": [{"field": a.field, "kind": a.kind, "values": a.values} for a in sweep.axes],
-            "points": len(plan.points), "commit": commit, "execution": mode, "data_sha256": chain,
+            "points": len(plan.points), "commit": commit, "version": package_version(), "execution": mode,
+            "data_sha256": chain,
             "fmu_kind": kind,
             "fmu_sets": [{"fmus": fs.names, "fmu_sha256": fs.sha256} for fs in plan.fmu_sets.values()],
             "started_at": _now(), "journal": "journal.jsonl", "columns": table_columns(plan),
@@ -146,15 +147,18 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
                 else:
                     from distributed import Client
 
+                    # Callbacks run last-registered first: free the FMUs (and their unpacked folders) on the
+                    # workers while the client is open, then close the client, then the local cluster, so
+                    # that each worker exits by itself (not killed by its nanny after a timeout).
                     if scheduler:
                         client = Client(scheduler)
+                        resources.callback(client.close)
                     else:
                         cluster = local_cluster(workers, allowed_failures)
-                        resources.callback(cluster.close)
+                        resources.callback(close_local_cluster, cluster)
                         client = Client(cluster)
-                        # free the FMUs (and their unpacked folders) before the workers stop
+                        resources.callback(client.close)
                         resources.callback(_quietly, client.run, close_loaded)
-                    resources.callback(client.close)
                     results = iter_dask(client, plan, todo)
                 resources.callback(journal.close)
                 try:

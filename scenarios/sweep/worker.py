@@ -197,6 +197,26 @@ def local_cluster(n_workers: int | None = None, allowed_failures: int = 1):
                             dashboard_address=None)
 
 
+#: Seconds a worker of our local cluster gets to exit by itself when the sweep ends (Dask's default, 4 s,
+#: is shorter than a busy machine takes to finalise a process that loaded NumPy, SciPy, Numba and the FMUs:
+#: its nanny then kills it with a warning).
+WORKER_EXIT_TIMEOUT_S = 30.0
+
+
+def close_local_cluster(cluster, timeout: float = WORKER_EXIT_TIMEOUT_S) -> None:
+    """Close a :func:`local_cluster`: each worker asked to exit and given `timeout` seconds, then the cluster."""
+    import asyncio
+
+    async def close_workers():
+        await asyncio.gather(*(w.close(timeout=timeout) for w in list(cluster.workers.values())),
+                             return_exceptions=True)
+
+    try:
+        cluster.sync(close_workers)
+    finally:
+        cluster.close()
+
+
 def iter_dask(client, plan: Plan, points: list[Point]) -> Iterator[dict]:
     """Submit `points` to a Dask cluster and yield their records as they complete.
 

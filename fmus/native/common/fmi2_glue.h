@@ -9,7 +9,8 @@
  * callbacks of ModelInfo; it never sees an FMI call directly.
  *
  * Values live in one double per variable (Integer, Enumeration and Boolean as
- * whole numbers), indexed by the variable's position in the table.
+ * whole numbers), indexed by the variable's position in the table; String
+ * parameters (start "") in a string per variable beside them (glue_string).
  */
 #ifndef FLEXARM_FMI2_GLUE_H
 #define FLEXARM_FMI2_GLUE_H
@@ -19,7 +20,7 @@
 #include "fmi2Functions.h"
 #include "libm_link.h" /* libm's functions through libm_link.c: the sources build and load without libm */
 
-typedef enum { VT_REAL, VT_INTEGER, VT_BOOLEAN, VT_ENUMERATION } VarType;
+typedef enum { VT_REAL, VT_INTEGER, VT_BOOLEAN, VT_ENUMERATION, VT_STRING } VarType;
 typedef enum { CA_PARAMETER, CA_INPUT, CA_OUTPUT } Causality;
 
 typedef struct {
@@ -75,6 +76,7 @@ typedef struct Instance {
     void *state;            /* model state, ModelInfo.state_size bytes */
     void *data;             /* model constants from the resources (not part of the FMU state) */
     double *starts;         /* start values: the table's, or a case's (glue_load_start_values) */
+    char **strings;         /* String parameters' values (NULL: "", the start of every String), one per variable */
 } Instance;
 
 extern const ModelInfo MODEL_INFO;
@@ -85,6 +87,9 @@ void glue_log(const Instance *inst, fmi2Status status, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)))
 #endif
     ;
+
+/* The value of String variable `index` ("" until set; fixed parameters: set before initialisation ends). */
+const char *glue_string(const Instance *inst, size_t index);
 
 /* Value of variable `index` (position in MODEL_INFO.vars). */
 #define VALUE(inst, index) ((inst)->values[(index)])

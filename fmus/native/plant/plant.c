@@ -7,8 +7,9 @@
  * S(θ, θ̇), the input forces B̄τ and the tangent matrices ∂(S − Mθ̈)/∂θ, ∂S/∂θ̇, all
  * from cos θ and sin θ (computed once per state here, shared by every use). This file
  * holds the numerical methods of flexarm._kernels (RODAS4 with the reduced stage system,
- * the exponential Rosenbrock-Euler step, the modal damping matrix; the same coefficients
- * and substeps), the sensor-point kinematics and the FMI mapping.
+ * the exponential Rosenbrock-Euler step, 2-stage Gauss-Legendre collocation with simplified
+ * Newton, the RK4 reference, the modal damping matrix; the same coefficients, tolerances and
+ * substeps per millisecond as flexarm.integrator), the sensor-point kinematics and the FMI mapping.
  * Arm constants come from resources/arm_parameters.txt (SHA-256 checked).
  */
 #include <math.h>
@@ -56,7 +57,11 @@ typedef struct {
     double z[NZ];
     double tau_held[2];
     double last_error;
+    double start_time; /* the run's start (s): the exponential scheme's horizon counts from it */
 } PlantState;
+
+/* flexarm.integrator.INTEGRATORS, the FMU's `integrator` values */
+enum { SCHEME_RODAS4 = 1, SCHEME_EXPONENTIAL = 2, SCHEME_GAUSS = 3, SCHEME_REFERENCE = 4 };
 
 /* -- the model at a state ------------------------------------------------------------------------ */
 static int evaluate(PlantData *d, const double *z, Eval *ev)
@@ -220,6 +225,114 @@ static int exponential_step(PlantData *d, const double *z, const Eval *ev0, cons
     return 0;
 }
 
+/* -- 2-stage Gauss-Legendre (flexarm._kernels.gauss_step) ---------------------------------------- */
+/* M K at the state of `ev` (packed lower triangle, column by column) */
+static void mass_times(const Eval *ev, const double *k, double *out)
+{
+    for (int i = 0; i < N; i++) out[i] = 0.0;
+    for (int j = 0, p = 0; j < N; j++)
+        for (int i = j; i < N; i++, p++) {
+            out[i] += ev->mass_packed[p] * k[j];
+            if (i != j) out[j] += ev->mass_packed[p] * k[i];
+        }
+}
+
+/* One step of size h from z (evaluation `ev0`); `ev` is workspace. -1 if the stage equations do not converge
+   or a matrix is singular. *iterations: the Newton iterations used. */
+static int gauss_step(PlantData *d, const double *z, const Eval *ev0, Eval *ev, const double *forces, double h,
+                      double *z_new, int *iterations)
+{
+    enum { M2 = 2 * N };
+    double acc[N], q[N * N], v[N * N], mass[N * N], w[M2 * M2], k[M2], g[M2], dk[M2], th[NZ], mk[N];
+    int piv[M2];
+    mass_full(ev0, mass);
+    acceleration(d, ev0, forces, acc);
+    tangents(d, ev0, z + N, acc, q, v);
+    for (int bi = 0; bi < 2; bi++)
+        for (int bj = 0; bj < 2; bj++) {
+            const double ca2 = h * h * GAUSS_A2[bi][bj], ca = h * GAUSS_A[bi][bj];
+            for (int i = 0; i < N; i++)
+                for (int j = 0; j < N; j++)
+                    w[(bi * N + i) * M2 + bj * N + j] =
+                        (bi == bj ? mass[i * N + j] : 0.0) - ca2 * q[i + j * N] - ca * v[i + j * N];
+        }
+    if (lu_factor(w, piv, M2) != 0) return -1;
+    double scale = 1.0, amax = 0.0, wmax = 0.0;
+    for (int i = 0; i < N; i++) {
+        amax = fmax(amax, fabs(acc[i]));
+        wmax = fmax(wmax, fabs(z[N + i]));
+        k[i] = k[N + i] = acc[i];
+    }
+    scale += amax + wmax / h;
+    double last = HUGE_VAL;
+    int converged = 0;
+    *iterations = 0;
+    for (int it = 0; it < GAUSS_MAX_ITER; it++) {
+        *iterations = it + 1;
+        for (int s = 0; s < 2; s++) {
+            for (int i = 0; i < N; i++) {
+                th[i] = z[i] + h * GAUSS_C[s] * z[N + i] + h * h * (GAUSS_A2[s][0] * k[i] + GAUSS_A2[s][1] * k[N + i]);
+                th[N + i] = z[N + i] + h * (GAUSS_A[s][0] * k[i] + GAUSS_A[s][1] * k[N + i]);
+            }
+            if (evaluate(d, th, ev) != 0) return -1;
+            mass_times(ev, k + s * N, mk);
+            for (int i = 0; i < N; i++) g[s * N + i] = mk[i] - (ev->force[i] + forces[i]);
+        }
+        lu_solve(w, piv, g, dk, M2);
+        double step = 0.0;
+        for (int i = 0; i < M2; i++) {
+            k[i] -= dk[i];
+            step = fmax(step, fabs(dk[i]));
+        }
+        if (!isfinite(step)) break;
+        if (step <= GAUSS_TOL * scale) {
+            converged = 1;
+            break;
+        }
+        if (it >= 2 && step >= 0.5 * last) { /* no longer contracting: the round-off floor, or too long a step */
+            converged = step <= GAUSS_FLOOR * scale;
+            break;
+        }
+        last = step;
+    }
+    if (!converged) return -1;
+    const double b1 = 0.5 * (1.0 - GAUSS_C[0]), b2 = 0.5 * (1.0 - GAUSS_C[1]);
+    for (int i = 0; i < N; i++) {
+        z_new[i] = z[i] + h * z[N + i] + h * h * (b1 * k[i] + b2 * k[N + i]);
+        z_new[N + i] = z[N + i] + 0.5 * h * (k[i] + k[N + i]);
+    }
+    return 0;
+}
+
+/* -- the RK4 reference (flexarm._kernels.advance_rk4) ------------------------------------------------ */
+static int derivative(PlantData *d, const double *z, Eval *ev, const double *forces, double *out)
+{
+    if (evaluate(d, z, ev) != 0) return -1;
+    memcpy(out, z + N, N * sizeof *out);
+    acceleration(d, ev, forces, out + N);
+    return 0;
+}
+
+/* `steps` RK4 steps of size h from z into z_new (in place allowed). -1 if the mass matrix fails. */
+static int rk4_steps(PlantData *d, const double *z, Eval *ev, const double *forces, double h, int steps,
+                     double *z_new)
+{
+    double y[NZ], u[NZ], k1[NZ], k2[NZ], k3[NZ], k4[NZ];
+    memcpy(y, z, sizeof y);
+    for (int n = 0; n < steps; n++) {
+        if (derivative(d, y, ev, forces, k1) != 0) return -1;
+        for (int i = 0; i < NZ; i++) u[i] = y[i] + 0.5 * h * k1[i];
+        if (derivative(d, u, ev, forces, k2) != 0) return -1;
+        for (int i = 0; i < NZ; i++) u[i] = y[i] + 0.5 * h * k2[i];
+        if (derivative(d, u, ev, forces, k3) != 0) return -1;
+        for (int i = 0; i < NZ; i++) u[i] = y[i] + h * k3[i];
+        if (derivative(d, u, ev, forces, k4) != 0) return -1;
+        for (int i = 0; i < NZ; i++) y[i] = y[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+    }
+    memcpy(z_new, y, sizeof y);
+    return 0;
+}
+
 /* -- modal damping (flexarm.model.modal_damping_matrix) -------------------------------------------- */
 /* C_d = M Φ diag(2ζω_k) Φᵀ M over the flexible modes at the damping configuration, Φ mass-normalised:
    with M = L Lᵀ and the symmetric eigenproblem of L⁻¹ K_t L⁻ᵀ = Y Λ Yᵀ, M Φ = L Y. */
@@ -369,14 +482,22 @@ static double damping_ratio(const Instance *inst)
 #endif
 }
 
-static int exponential_scheme(const Instance *inst)
+static int scheme(const Instance *inst)
 {
-#ifdef HAS_VAR_integrator /* the Python plant's choice: 1 rodas4, 2 exponential */
-    return VALUE(inst, IDX_integrator) == 2;
+#ifdef HAS_VAR_integrator /* the Python plant's choice: 1 rodas4, 2 exponential, 3 gauss, 4 reference */
+    return (int)VALUE(inst, IDX_integrator);
 #else
     (void)inst;
-    return 0;
+    return SCHEME_RODAS4;
 #endif
+}
+
+/* flexarm.integrator.substep_count: ceil(h [ms] * substeps per ms), at least 1 (RK4 steps for the reference) */
+static long substep_count(double h, int substeps, int which)
+{
+    const double per_ms = (double)substeps * (which == SCHEME_REFERENCE ? PLANT_REFERENCE_STEPS_PER_SUBSTEP : 1);
+    const double n = ceil(h / 1e-3 * per_ms - 1e-6);
+    return n < 1.0 ? 1 : (n > 1e9 ? 1000000000L : (long)n);
 }
 
 static fmi2Status plant_initialize(Instance *inst)
@@ -401,6 +522,7 @@ static fmi2Status plant_initialize(Instance *inst)
     memcpy(st->z, z, sizeof z);
     memcpy(st->tau_held, tau, sizeof tau);
     st->last_error = 0.0;
+    st->start_time = inst->time;
     return fmi2OK;
 }
 
@@ -409,7 +531,16 @@ static fmi2Status plant_do_step(Instance *inst, double t, double h)
     PlantState *st = inst->state;
     PlantData *d = inst->data;
     const double tau[2] = {VALUE(inst, IDX_tau1), VALUE(inst, IDX_tau2)};
-    const int substeps = (int)VALUE(inst, IDX_substeps), exponential = exponential_scheme(inst);
+    const int substeps = (int)VALUE(inst, IDX_substeps), which = scheme(inst);
+    if (which == SCHEME_EXPONENTIAL && t + h - st->start_time > PLANT_EXPONENTIAL_HORIZON_S + 1e-9) {
+        /* flexarm.integrator.check_horizon */
+        glue_log(inst, fmi2Error, "fmi2DoStep: integrator: exponential is only correct up to t = %g s (its energy "
+                 "error grows without bound: +56 %% on the gamma = 1 loop at 5 s), asked for t = %.6g s; use gauss "
+                 "(no numerical damping, bounded energy error) or reference (RK4 at 2.5 us) for longer runs",
+                 PLANT_EXPONENTIAL_HORIZON_S, t + h - st->start_time);
+        return fmi2Error;
+    }
+    const long count = substep_count(h, substeps, which);
     double z[NZ], z_new[NZ], forces[N], err = 0.0;
     Eval ev_a, ev_b, *at_z = &ev_a, *work = &ev_b;
     /* a restored FMU state of another instance may carry another payload or damping */
@@ -418,20 +549,31 @@ static fmi2Status plant_do_step(Instance *inst, double t, double h)
     if (ok && d->cache_valid && memcmp(d->cache_z, z, sizeof z) == 0) at_z = &d->cache;
     else ok = ok && evaluate(d, z, at_z) == 0;
     input_forces(d, tau, forces);
-    const double hs = h / substeps;
-    for (int k = 0; k < substeps && ok; k++) {
-        double e = 0.0;
-        ok = (exponential ? exponential_step(d, z, at_z, forces, hs, z_new)
-                          : rodas4_step(d, z, at_z, work, forces, hs, z_new, &e)) == 0;
+    const double hs = h / (double)count;
+    if (ok && which == SCHEME_REFERENCE) { /* RK4 needs no evaluation carried between steps */
+        ok = rk4_steps(d, z, work, forces, hs, (int)count, z_new) == 0;
         for (int i = 0; i < NZ && ok; i++) ok = isfinite(z_new[i]);
-        err = fmax(err, e);
         memcpy(z, z_new, sizeof z);
-        if (at_z == &d->cache) at_z = &ev_a;
-        ok = ok && evaluate(d, z, at_z) == 0; /* the next substep's start, or the outputs' state */
+        at_z = &ev_a;
+        ok = ok && evaluate(d, z, at_z) == 0;
+    } else {
+        for (long k = 0; k < count && ok; k++) {
+            double e = 0.0;
+            int iterations = 0;
+            if (which == SCHEME_EXPONENTIAL) ok = exponential_step(d, z, at_z, forces, hs, z_new) == 0;
+            else if (which == SCHEME_GAUSS) ok = gauss_step(d, z, at_z, work, forces, hs, z_new, &iterations) == 0;
+            else ok = rodas4_step(d, z, at_z, work, forces, hs, z_new, &e) == 0;
+            for (int i = 0; i < NZ && ok; i++) ok = isfinite(z_new[i]);
+            err = fmax(err, e);
+            memcpy(z, z_new, sizeof z);
+            if (at_z == &d->cache) at_z = &ev_a;
+            ok = ok && evaluate(d, z, at_z) == 0; /* the next substep's start, or the outputs' state */
+        }
     }
     if (!ok) { /* a failed step changes nothing */
-        glue_log(inst, fmi2Discard, "fmi2DoStep: state became non-finite (tau1 = %.17g N.m, tau2 = %.17g N.m, "
-                 "h = %.17g s, t = %.17g s, substeps = %d); the state stays at t", tau[0], tau[1], h, t, substeps);
+        glue_log(inst, fmi2Discard, "fmi2DoStep: state became non-finite or the stage equations did not converge "
+                 "(tau1 = %.17g N.m, tau2 = %.17g N.m, h = %.17g s, t = %.17g s, substeps = %d per ms); the state "
+                 "stays at t", tau[0], tau[1], h, t, substeps);
         return fmi2Discard;
     }
     outputs(d, inst, z, at_z, tau);

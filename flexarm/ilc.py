@@ -1,0 +1,538 @@
+"""Iterative learning control (ILC) of the slew: norm-optimal learning of a feedforward correction, no FMI.
+
+A robot that repeats the same slew can learn the torque its model gets wrong (the paper's closing
+remark). After trial j the measured tracking errors e_j correct the feedforward for trial j + 1::
+
+    u_(j+1) = Q( u_j + L e_j ),   then clipped so that τ_ff + u stays within the motors' peak torques
+
+* u (shape (N, 2), N·m): the correction added to the trajectory's feedforward torques, sample k held
+  over [k·dt, (k+1)·dt) (:class:`flexarm.control.TrackingController`, ``feedforward_correction``).
+* e_j (shape (N, 11), rad): the *measured* tracking error at samples k = 1..N, formed as the controller
+  forms its own: the 11 angles reconstructed from the encoders and strain gauges (eqs. 21-31) minus the
+  same map of the desired state (:func:`measured_errors`). Noisy, 1 ms samples; never the true states.
+* L: the norm-optimal update of Amann, Owens and Rogers (1996) on the lifted model G of the closed loop
+  (below): Δu = L e = argmin_Δu ‖e − G Δu‖²_Qe + ‖Δu‖²_Ru, i.e. L = (GᵀQeG + Ru)⁻¹GᵀQe, with
+  Qe = ``error_weight``·I11 (rad⁻²) and Ru = ``input_weight``·I2 ((N·m)⁻²). On the exact model the error
+  then falls monotonically: ‖e_(j+1)‖_Qe ≤ ‖e_j‖_Qe. The ratio input/error weight sets how fast it learns
+  (and how much of the measurement noise it lets in); :data:`ERROR_WEIGHT` and :data:`INPUT_WEIGHT`.
+* Q: a zero-phase low-pass (Butterworth of order :data:`Q_FILTER_ORDER`, cut-off
+  :data:`Q_FILTER_CUTOFF_HZ`, applied forwards and backwards: ``scipy.signal.filtfilt``, odd padding).
+  It keeps the learning out of the link modes above the cut-off, where the lifted model is least
+  accurate (payload, nonlinearity) and where the sensors' noise would be learnt. Its price: the error
+  converges to the part of the error that needs torque above the cut-off, not to zero.
+
+The lifted model
+----------------
+The closed loop of feedforward + the γ = 0.1 scheduled LQR, linearised along the trajectory: at each
+sample k the zero-order-hold model (Φ_k, Γ_k) of the arm linearised about (z_d, τ_ff) at the operating
+point in force (every 20 ms, eqs. 11-14, :func:`flexarm.lqr_design.discretize`; the arm with the payload
+the robot is known to carry, ``payload_mass``, see :func:`closed_loop_model`), closed by the
+controller's gain as implemented (:func:`flexarm.lqr_design.effective_gain`: reduced gain times the
+sensor map; saturation ignored)::
+
+    δx_(k+1) = (Φ_k − Γ_k K_k C) δx_k + Γ_k Δu_k,    δy_k = E δx_k   (E: the 11 reconstructed angles)
+
+G maps Δu_0..Δu_(N−1) to δy_1..δy_N. Dense, G would be 11N × 2N: for N = 3058 (the slew and 1 s
+after it) 33 638 × 6 116 doubles = 1.6 GB, and GᵀG alone ≈ 2.5e11 flops per design. So L e is
+computed without G: the update is a finite-horizon LQ tracking problem on the LTV model, solved by
+a backward Riccati sweep (gains computed once per design: N steps of 22 × 22 products, well under a
+second) and, per trial, one backward adjoint sweep and one forward sweep (O(N·22²)). The dense form is
+kept for small horizons (:meth:`NormOptimalIlc.dense_operator`), where the tests check that both agree
+and that the learning operator Q(I − LG) has spectral radius < 1.
+
+Design files
+------------
+:func:`write_learned_feedforward` writes the learned correction as a design-file pair
+(``<stem>.npz`` + ``.json``, :func:`flexarm.gain_schedule.write_design_files`) with its provenance:
+the trajectory and parameter files with their SHA-256, the gain set and schedule, the ILC weights and
+Q-filter, the trials it came from (scenario, payload, seeds, per-trial errors). The controller FMUs take
+such a file through their ``feedforward_correction_file`` parameter; :func:`read_learned_feedforward`
+reads it and checks the data chain.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import scipy.signal
+
+from .gain_schedule import (
+    GainSchedule,
+    as_trajectory,
+    desired_states,
+    read_design_files,
+    relative_path,
+    sample_time,
+    schedule_index,
+    write_design_files,
+)
+from .gain_sets import GainError
+from .lqr_design import effective_gain, measurement_map
+from .model import N_STATE, N
+from .provenance import git_commit
+
+#: Error weight Qe = ERROR_WEIGHT · I11 on the 11 reconstructed angle errors, rad⁻².
+ERROR_WEIGHT = 1.0
+#: Input weight Ru = INPUT_WEIGHT · I2 on the correction's change per trial, (N·m)⁻².
+INPUT_WEIGHT = 1e-6
+#: Q-filter: Butterworth order (applied forwards and backwards: twice this order, zero phase).
+Q_FILTER_ORDER = 2
+#: Q-filter cut-off, Hz (the −3 dB point of one pass; the link modes start at about 8 Hz).
+Q_FILTER_CUTOFF_HZ = 25.0
+#: Spacing of the linearisation points of the lifted model (:data:`flexarm.gain_schedule.SCHEDULES`).
+MODEL_SCHEDULE = "20ms"
+#: Modes above this frequency are left out of the lifted model (the bracket modes), Hz.
+MODE_CUTOFF_HZ = 1000.0
+FILE_FORMAT = "flexarm-learned-feedforward/1"
+
+
+class IlcError(ValueError):
+    """An ILC setting, measurement or learned-feedforward file is invalid."""
+
+
+@dataclass
+class LtvModel:
+    """The closed loop linearised along the trajectory, one model per 1 ms sample.
+
+    Attributes
+    ----------
+    A : ndarray, shape (N, 22, 22)
+        Closed-loop transition Φ_k − Γ_k K_k C of sample k.
+    B : ndarray, shape (N, 22, 2)
+        Input matrix Γ_k of the correction Δu_k (N·m).
+    C : ndarray, shape (11, 22)
+        Output map: the 11 reconstructed angles (rad) of the state deviation.
+    dt : float
+        Sample time, s.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    dt: float
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.A)
+
+    def simulate(self, du) -> np.ndarray:
+        """Outputs δy_1..δy_N, shape (N, 11), of an input sequence Δu_0..Δu_(N−1), shape (N, 2), from δx_0 = 0."""
+        du = np.asarray(du, dtype=float)
+        x = np.zeros(N_STATE)
+        y = np.empty((self.n_samples, len(self.C)))
+        for k in range(self.n_samples):
+            x = self.A[k] @ x + self.B[k] @ du[k]
+            y[k] = self.C @ x
+        return y
+
+
+def closed_loop_model(n_samples: int, gain_set: str = "gamma0.1", schedule: str = "200ms",
+                      payload_mass: float = 0.0, model_schedule: str = MODEL_SCHEDULE, trajectory=None) -> LtvModel:
+    """The lifted model's per-sample matrices (module docstring).
+
+    Parameters
+    ----------
+    n_samples : int
+        Horizon N in 1 ms samples (may extend past the slew: the last operating point holds).
+    gain_set, schedule : str
+        The controller's gain schedule (:meth:`flexarm.gain_schedule.GainSchedule.load`).
+    payload_mass : float
+        Tip payload of the arm the model is linearised for, kg (the learning's model; the controller's gains
+        stay those of the unloaded arm).
+    model_schedule : str
+        Spacing of the linearisation points (:data:`flexarm.gain_schedule.SCHEDULES`; ``20ms``: every 20 ms).
+    trajectory : TrajectoryResult or path-like, optional
+        Default the committed trajectory.
+    """
+    from .gain_schedule import operating_times
+    from .model import ArmModel
+    from .parameters import load_parameters
+    from .trajectory.io import DEFAULT_TRAJECTORY_FILE
+
+    n_samples = int(n_samples)
+    if n_samples < 1:
+        raise IlcError(f"n_samples: at least 1 sample, got {n_samples}")
+    traj = as_trajectory(DEFAULT_TRAJECTORY_FILE if trajectory is None else trajectory)
+    dt = sample_time(traj)
+    gains = GainSchedule.load(gain_set, schedule)
+    arm = ArmModel(load_parameters(payload_mass=payload_mass))
+    times = operating_times(traj.t_f, model_schedule, dt)
+    z = desired_states(traj)
+    idx = np.round(times / dt).astype(int)
+    models = [truncated_physical_model(arm, z[k], traj.tau[k], dt) for k in idx]
+    k_eff = effective_gain(gains.gains)  # (n_sets, 2, 22) on the true state
+    t = np.arange(n_samples) * dt
+    gi = np.array([gains.index_at(tk) for tk in t])
+    mi = np.array([schedule_index(times, tk) for tk in t])
+    closed = np.array([[phi - gam @ k for k in k_eff] for phi, gam in models])
+    gamma = np.array([gam for _, gam in models])
+    return LtvModel(A=closed[mi, gi], B=gamma[mi], C=measurement_map()[:N].copy(), dt=dt)
+
+
+def truncated_physical_model(arm, z_bar, tau_bar, dt: float, cutoff_hz: float = MODE_CUTOFF_HZ):
+    """ZOH model (Φ, Γ), shapes (22, 22), (22, 2), of the linearisation with the modes above ``cutoff_hz``
+    removed (the bracket modes, 5.6-21 kHz: above the sampling rate, and damped by the plant's L-stable
+    integrator, so an exact ZOH model of them mispredicts the plant), in physical coordinates.
+
+    In the modal coordinates of :func:`flexarm.lqr_design.scaling_transform` (x = T x̃) the kept modes are
+    sampled exactly (:func:`flexarm.lqr_design.zoh`) and mapped back: Φ = T_r Φ̃_r T⁻¹_r, Γ = T_r Γ̃_r (the
+    removed modes' coordinates are projected out). Physical coordinates keep consecutive operating points,
+    whose modal bases differ, consistent.
+    """
+    import scipy.linalg
+
+    from .lqr_design import scaling_transform, zoh
+
+    A, B = arm.linearize(z_bar, tau_bar)
+    T = scaling_transform(arm, z_bar)
+    Ti = np.linalg.inv(T)
+    theta = np.asarray(z_bar, dtype=float)[:N]
+    mass = arm.mass_matrix(theta)
+    k_t = -mass @ arm.jacobian(np.r_[theta, np.zeros(N)])[N:, :N]
+    w2 = scipy.linalg.eigh(0.5 * (k_t + k_t.T), mass, eigvals_only=True)
+    modes = np.flatnonzero(np.sqrt(np.maximum(w2, 0.0)) < 2 * np.pi * cutoff_hz)
+    keep = np.r_[modes, N + modes]
+    phi_r, gam_r = zoh((Ti @ A @ T)[np.ix_(keep, keep)], (Ti @ B)[keep], dt)
+    return T[:, keep] @ phi_r @ Ti[keep], T[:, keep] @ gam_r
+
+
+def q_filter(u, dt: float, cutoff_hz: float = Q_FILTER_CUTOFF_HZ, order: int = Q_FILTER_ORDER) -> np.ndarray:
+    """Zero-phase low-pass of each column of `u` (shape (n, m)): Butterworth, forwards and backwards.
+
+    ``cutoff_hz`` ≤ 0 or None: no filter (the identity).
+    """
+    u = np.asarray(u, dtype=float)
+    if cutoff_hz is None or cutoff_hz <= 0:
+        return u.copy()
+    nyquist = 0.5 / dt
+    if not cutoff_hz < nyquist:
+        raise IlcError(f"q_filter_cutoff_hz: must be below the Nyquist frequency {nyquist:g} Hz, got {cutoff_hz!r}")
+    b, a = scipy.signal.butter(int(order), cutoff_hz / nyquist)
+    if len(u) <= 3 * max(len(a), len(b)):
+        raise IlcError(f"q_filter: {len(u)} samples are too few for the order-{order} filter")
+    return scipy.signal.filtfilt(b, a, u, axis=0, padtype="odd")
+
+
+def q_filter_matrix(n: int, dt: float, cutoff_hz: float = Q_FILTER_CUTOFF_HZ,
+                    order: int = Q_FILTER_ORDER) -> np.ndarray:
+    """The Q-filter as a dense (n, n) matrix on one channel (column j: the filter applied to unit vector j)."""
+    return q_filter(np.eye(n), dt, cutoff_hz, order)
+
+
+class NormOptimalIlc:
+    """Norm-optimal ILC on an :class:`LtvModel`, without dense matrices (module docstring).
+
+    Parameters
+    ----------
+    model : LtvModel
+    error_weight : float
+        Qe = error_weight · I (rad⁻²).
+    input_weight : float
+        Ru = input_weight · I2 ((N·m)⁻²), > 0.
+    q_cutoff_hz : float or None
+        Q-filter cut-off (None or 0: no Q-filter).
+    q_order : int
+        Q-filter order per pass.
+    """
+
+    def __init__(self, model: LtvModel, error_weight: float = ERROR_WEIGHT, input_weight: float = INPUT_WEIGHT,
+                 q_cutoff_hz: float | None = Q_FILTER_CUTOFF_HZ, q_order: int = Q_FILTER_ORDER,
+                 leak_weight: float = 0.0, time_weight=None, learning_gain: float = 1.0):
+        if not (np.isfinite(error_weight) and error_weight > 0):
+            raise IlcError(f"error_weight: a finite weight > 0 rad^-2, got {error_weight!r}")
+        if not (np.isfinite(input_weight) and input_weight > 0):
+            raise IlcError(f"input_weight: a finite weight > 0 (N m)^-2, got {input_weight!r}")
+        if not (np.isfinite(leak_weight) and leak_weight >= 0):
+            raise IlcError(f"leak_weight: a finite weight >= 0 (N m)^-2, got {leak_weight!r}")
+        self.model = model
+        self.error_weight, self.input_weight = float(error_weight), float(input_weight)
+        self.leak_weight = float(leak_weight)
+        if not (np.isfinite(learning_gain) and 0 < learning_gain < 2):
+            raise IlcError(f"learning_gain: a step factor in (0, 2), got {learning_gain!r}")
+        #: β: the update takes β Δu (β = 1: the norm-optimal step; the fixed point does not depend on β).
+        self.learning_gain = float(learning_gain)
+        w = np.ones(model.n_samples) if time_weight is None else np.asarray(time_weight, dtype=float)
+        if w.shape != (model.n_samples,) or not np.isfinite(w).all() or w.min() < 0:
+            raise IlcError(f"time_weight: {model.n_samples} finite weights >= 0 (samples 1..N), got shape {w.shape}")
+        #: Per-sample factor of the error weight (sample k + 1 of the errors).
+        self.time_weight = w
+        self.q_cutoff_hz, self.q_order = q_cutoff_hz, int(q_order)
+        self._riccati()
+
+    def _riccati(self) -> None:
+        """Backward Riccati sweep of the LQ tracking problem: the feedback K_k, M_k⁻¹Γ_kᵀ and (A−BK)ᵀ per sample."""
+        m = self.model
+        n = m.n_samples
+        CtQC = self.error_weight * m.C.T @ m.C  # times time_weight[k − 1] for the error of sample k
+        w = self.time_weight
+        R = (self.input_weight + self.leak_weight) * np.eye(2)
+        self._K = np.empty((n, 2, N_STATE))
+        self._G = np.empty((n, 2, N_STATE))
+        self._Minv = np.empty((n, 2, 2))
+        self._Acl_T = np.empty((n, N_STATE, N_STATE))
+        P = w[n - 1] * CtQC  # cost-to-go of δx_N
+        for k in range(n - 1, -1, -1):
+            A, B = m.A[k], m.B[k]
+            PB = P @ B
+            M = R + B.T @ PB
+            K = np.linalg.solve(M, PB.T @ A)
+            self._K[k] = K
+            self._G[k] = np.linalg.solve(M, B.T)
+            self._Minv[k] = np.linalg.inv(M)
+            acl = A - B @ K
+            self._Acl_T[k] = acl.T
+            # the output cost of δx_k (k ≥ 1) plus the cost-to-go through sample k
+            P = (w[k - 1] * CtQC if k > 0 else 0.0) + A.T @ P @ acl
+            P = 0.5 * (P + P.T)
+
+    def step(self, error, correction=None) -> np.ndarray:
+        """The norm-optimal change Δu of the correction, shape (N, 2), for the errors e_1..e_N, shape (N, 11).
+
+        Minimises ‖e − GΔu‖²_Qe + r‖Δu‖² + s‖u + Δu‖² (r = ``input_weight``, s = ``leak_weight``, u =
+        `correction`, default zero): Δu = (GᵀQeG + (r + s)I)⁻¹(GᵀQe e − s u); with s = 0 this is L e.
+        """
+        m = self.model
+        e = np.asarray(error, dtype=float)
+        h = None
+        if self.leak_weight and correction is not None:
+            h = self.leak_weight * np.asarray(correction, dtype=float)
+        if e.shape != (m.n_samples, len(m.C)):
+            raise IlcError(f"error: expected shape ({m.n_samples}, {len(m.C)}) (samples 1..N, rad), got {e.shape}")
+        if not np.isfinite(e).all():
+            raise IlcError("error: contains non-finite values")
+        n = m.n_samples
+        s = np.zeros((n + 1, N_STATE))  # adjoint s_k: V_k(x) = xᵀP_k x − 2 s_kᵀ x + c
+        qc = self.error_weight * m.C.T
+        # with the leak term 2hᵀΔu_k per sample: s_k = CᵀQe_k + (A−BK)ᵀs_(k+1) + K_kᵀh_k,
+        # Δu_k = −K_k x_k + M_k⁻¹(Γ_kᵀ s_(k+1) − h_k)
+        we = e * self.time_weight[:, None]
+        s[n] = qc @ we[n - 1]
+        for k in range(n - 1, 0, -1):
+            s[k] = qc @ we[k - 1] + self._Acl_T[k] @ s[k + 1]
+            if h is not None:
+                s[k] += self._K[k].T @ h[k]
+        du = np.empty((n, 2))
+        x = np.zeros(N_STATE)
+        for k in range(n):
+            du[k] = -self._K[k] @ x + self._G[k] @ s[k + 1]
+            if h is not None:
+                du[k] -= self._Minv[k] @ h[k]
+            x = m.A[k] @ x + m.B[k] @ du[k]
+        return du
+
+    def update(self, correction, error, feedforward=None, limits=None) -> np.ndarray:
+        """The next trial's correction: Q(u + L e), clipped so that feedforward + correction stays in the limits.
+
+        Parameters
+        ----------
+        correction : array_like, shape (N, 2)
+            This trial's correction u_j, N·m.
+        error : array_like, shape (N, 11)
+            Its measured errors e_1..e_N, rad (:func:`measured_errors`).
+        feedforward : array_like, shape (N, 2), optional
+            The trajectory's feedforward over the horizon (zero after the slew), N·m; with `limits`.
+        limits : (float, float), optional
+            |τ1|, |τ2| limits, N·m: the correction is clipped to [−limit − τ_ff, limit − τ_ff].
+
+        Returns
+        -------
+        ndarray, shape (N, 2)
+        """
+        u = np.asarray(correction, dtype=float)
+        if u.shape != (self.model.n_samples, 2):
+            raise IlcError(f"correction: expected shape ({self.model.n_samples}, 2) N·m, got {u.shape}")
+        nxt = q_filter(u + self.learning_gain * self.step(error, u), self.model.dt, self.q_cutoff_hz, self.q_order)
+        if limits is not None:
+            lim = np.asarray(limits, dtype=float)
+            ff = np.zeros_like(nxt) if feedforward is None else np.asarray(feedforward, dtype=float)
+            nxt = np.clip(nxt, -lim - ff, lim - ff)
+        return nxt
+
+    # -- dense forms, for small horizons (tests, analysis) -------------------------
+    def lifted_matrix(self) -> np.ndarray:
+        """G, shape (11N, 2N): δy_1..δy_N (sample-major) from Δu_0..Δu_(N−1) (sample-major). Small N only."""
+        m = self.model
+        n, ny = m.n_samples, len(m.C)
+        G = np.zeros((n * ny, n * 2))
+        for j in range(n):  # response to unit inputs at sample j
+            X = m.B[j].copy()  # (22, 2): state at j + 1
+            for k in range(j, n):
+                G[k * ny:(k + 1) * ny, j * 2:(j + 1) * 2] = m.C @ X
+                if k + 1 < n:
+                    X = m.A[k + 1] @ X
+        return G
+
+    def dense_operator(self) -> tuple[np.ndarray, np.ndarray]:
+        """(L, T): the dense learning gain L = (GᵀQeG + (r + s)I)⁻¹GᵀQe, shape (2N, 11N), and the learning operator
+        on the correction, T = Q(I − L G − s H⁻¹), shape (2N, 2N), H = GᵀQeG + (r + s)I: on a plant equal to the
+        model, e_j = e_0 − G u_j and u_(j+1) = T u_j + Q L e_0."""
+        G = self.lifted_matrix()
+        n = self.model.n_samples
+        Wq = self.error_weight * np.repeat(self.time_weight, len(self.model.C))
+        H = (G.T * Wq) @ G + (self.input_weight + self.leak_weight) * np.eye(2 * n)
+        L = np.linalg.solve(H, G.T * Wq)
+        Qm = q_filter_matrix(n, self.model.dt, self.q_cutoff_hz, self.q_order) if self.q_cutoff_hz else np.eye(n)
+        Q2 = np.kron(Qm, np.eye(2))  # sample-major: the same filter on each channel
+        return L, Q2 @ (np.eye(2 * n) - L @ G - self.leak_weight * np.linalg.inv(H))
+
+
+# -- measurements -------------------------------------------------------------------
+def measured_angles(q, strain) -> np.ndarray:
+    """The 11 reconstructed angles (eqs. 21-31), shape (n, 11), from encoder angles (n, 2) and gauge angles (n, 6)."""
+    from .model import reconstruct_angles
+
+    q, strain = np.asarray(q, dtype=float), np.asarray(strain, dtype=float)
+    basis = np.array([reconstruct_angles(e[:2], e[2:]) for e in np.eye(8)])  # linear map, (8, 11)
+    return np.hstack([q, strain]) @ basis
+
+
+def desired_angles(trajectory, n_samples: int) -> np.ndarray:
+    """The reconstruction of the desired state at samples 0..n_samples, shape (n_samples + 1, 11): the final state
+    after the slew (as the controller compares)."""
+    traj = as_trajectory(trajectory)
+    z = desired_states(traj)
+    idx = np.minimum(np.arange(n_samples + 1), traj.n_samples)
+    return z[idx] @ measurement_map()[:N].T
+
+
+def measured_errors(q, strain, trajectory) -> np.ndarray:
+    """The learning's error e = desired − measured reconstructed angles at samples 1..N, shape (N, 11), rad.
+
+    Parameters
+    ----------
+    q : array_like, shape (N + 1, 2)
+        Encoder angles q1, q2 at samples 0..N (the sensors' ``q1_m``, ``q2_m``), rad.
+    strain : array_like, shape (N + 1, 6)
+        Strain-gauge angles (``eps1_m`` .. ``eps6_m``), rad.
+    trajectory : TrajectoryResult or path-like
+    """
+    y = measured_angles(q, strain)
+    if not np.isfinite(y).all():
+        raise IlcError("measurements: contain non-finite values (an unbounded or failed trial teaches nothing)")
+    return (desired_angles(trajectory, len(y) - 1) - y)[1:]
+
+
+def feedforward_over(trajectory, n_samples: int) -> np.ndarray:
+    """The trajectory's feedforward over n_samples samples (zero after the slew), shape (n_samples, 2), N·m."""
+    traj = as_trajectory(trajectory)
+    out = np.zeros((n_samples, 2))
+    m = min(n_samples, traj.n_samples)
+    out[:m] = traj.tau[:m]
+    return out
+
+
+# -- design files -----------------------------------------------------------------------
+@dataclass
+class LearnedFeedforward:
+    """A learned feedforward correction with its provenance.
+
+    Attributes
+    ----------
+    correction : ndarray, shape (n, 2)
+        Added to the feedforward torque of samples 0..n−1 (N·m); zero after.
+    dt : float
+        Sample time, s.
+    metadata : dict
+        Provenance (trajectory, parameters, gains, ILC weights, trials).
+    """
+
+    correction: np.ndarray
+    dt: float
+    metadata: dict = field(default_factory=dict)
+
+
+def write_learned_feedforward(stem, correction, dt: float, metadata: dict) -> Path:
+    """Write ``<stem>.npz`` (``correction`` (n, 2) N·m, ``dt`` s) and ``<stem>.json`` (provenance) atomically.
+
+    `metadata` should carry ``trajectory_file``/``trajectory_sha256`` and ``parameter_file``/``parameter_sha256``
+    (checked when read), the gain set, the ILC weights and the trials; the format, commit and time are added.
+    """
+    u = np.asarray(correction, dtype=float)
+    if u.ndim != 2 or u.shape[1] != 2 or len(u) < 1 or not np.isfinite(u).all():
+        raise IlcError(f"correction: expected finite values of shape (n, 2) N·m, got shape {u.shape}")
+    meta = dict(metadata, format=FILE_FORMAT, samples=len(u), sample_time_s=float(dt),
+                description="feedforward correction learned by norm-optimal ILC (flexarm.ilc); added to the "
+                            "trajectory's feedforward torque of sample k (N.m) for k < samples",
+                commit=metadata.get("commit") or git_commit(),
+                created_utc=_dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"))
+    for key in ("trajectory_file", "parameter_file"):
+        if meta.get(key):
+            meta[key] = relative_path(meta[key])
+    return write_design_files(stem, {"correction": u, "dt": np.array(float(dt))}, meta, compressed=False)
+
+
+def read_learned_feedforward(path) -> LearnedFeedforward:
+    """Read a learned-feedforward file (``.npz`` path, or its stem), checking its data chain.
+
+    Raises
+    ------
+    IlcError
+        Not a learned-feedforward file, or malformed.
+    flexarm.gain_schedule.StaleDataError
+        The file, or the trajectory or parameter file it was learned on, changed since.
+    """
+    p = Path(path)
+    stem = p.with_suffix("") if p.suffix == ".npz" else p
+    try:
+        meta, arrays = read_design_files(stem, "learned-feedforward file")
+    except GainError:
+        raise
+    except (OSError, ValueError, KeyError) as exc:
+        raise IlcError(f"learned-feedforward file {p}: cannot be read: {type(exc).__name__}: {exc}") from exc
+    if meta.get("format") != FILE_FORMAT or "correction" not in arrays:
+        raise IlcError(f"learned-feedforward file {p}: format {meta.get('format')!r}, expected {FILE_FORMAT!r} "
+                       "with an array 'correction'")
+    u = np.asarray(arrays["correction"], dtype=float)
+    if u.ndim != 2 or u.shape[1] != 2 or not np.isfinite(u).all():
+        raise IlcError(f"learned-feedforward file {p}: correction must be finite, shape (n, 2); got {u.shape}")
+    return LearnedFeedforward(correction=u, dt=float(arrays["dt"]), metadata=meta)
+
+
+# -- the library loop (no FMI): for the tests and quick studies ------------------------
+def simulate_trial(controller, n_steps: int, payload_mass: float = 0.275, noise: bool = True, seed: int = 1,
+                   substeps: int | None = None) -> dict:
+    """One trial of the library plant and sensors under `controller`, started at rest on the trajectory.
+
+    Parameters
+    ----------
+    controller : flexarm.control.TrackingController
+        With its ``feedforward_correction`` (the trial's u_j).
+    n_steps : int
+        1 ms samples to run.
+    payload_mass : float
+        Tip payload of the plant, kg (the controller does not know it).
+    noise : bool
+        Sensor noise (the paper's uniform noise), seeded with `seed`.
+
+    Returns
+    -------
+    dict
+        ``q`` (n + 1, 2) and ``strain`` (n + 1, 6): the measured encoder and gauge angles, rad (what the
+        learning sees); ``states`` (n + 1, 22) the true states and ``torques`` (n, 2) N·m (for the metrics).
+    """
+    from .integrator import DEFAULT_SUBSTEPS, PlantSimulator
+    from .model import ArmModel
+    from .parameters import load_parameters
+    from .sensors import ENCODERS, STRAIN_GAUGES, SensorBank, SensorSettings, true_signals_from_state
+
+    model = ArmModel(load_parameters(payload_mass=payload_mass))
+    settings = SensorSettings.from_toml().replace(noise_enabled=bool(noise), noise_seed=int(seed))
+    bank = SensorBank(settings, model.params, controller.dt)
+    plant = PlantSimulator(model, controller.z[0], substeps=substeps or DEFAULT_SUBSTEPS)
+    meas, states, torques = [], [plant.z.copy()], []
+    for k in range(int(n_steps) + 1):
+        z = plant.z
+        m = bank.measure(true_signals_from_state(model, z, np.zeros(2)))
+        meas.append(m)
+        if k == n_steps:
+            break
+        tau = controller.torque_from_measurements(k, m[:10])
+        plant.step(tau, controller.dt)
+        torques.append(tau)
+        states.append(plant.z.copy())
+    meas = np.array(meas)
+    return {"q": meas[:, ENCODERS], "strain": meas[:, STRAIN_GAUGES], "states": np.array(states),
+            "torques": np.array(torques)}

@@ -1,0 +1,228 @@
+"""Iterative learning control (flexarm.ilc, scenarios/ilc.py): the mathematics, the files, the FMU parameter,
+and a short learning run through the FMUs (resumed from its journal)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flexarm import ilc
+from flexarm.control import TrackingController
+from flexarm.gain_schedule import StaleDataError, as_trajectory
+from flexarm.model import N_STATE
+from flexarm.trajectory.io import DEFAULT_TRAJECTORY_FILE
+
+SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "ilc_payload.toml"
+
+
+@pytest.fixture(scope="module")
+def small_model():
+    """The lifted closed-loop model over 80 samples in the middle of the first 200 ms (dense forms stay small)."""
+    m = ilc.closed_loop_model(120)
+    return ilc.LtvModel(m.A[40:], m.B[40:], m.C, m.dt)
+
+
+def _scalar_model(n: int, a: float, b: float, c: float) -> ilc.LtvModel:
+    """x_(k+1) = a x_k + b u1_k, y = c x in state 0 / output 0; everything else zero (u2 reaches nothing)."""
+    A = np.zeros((n, N_STATE, N_STATE))
+    A[:, 0, 0] = a
+    B = np.zeros((n, N_STATE, 2))
+    B[:, 0, 0] = b
+    C = np.zeros((11, N_STATE))
+    C[0, 0] = c
+    return ilc.LtvModel(A, B, C, 1e-3)
+
+
+def test_update_equals_a_hand_computed_small_case():
+    # N = 2, a = 0.5, b = 1, c = 2: y1 = 2 u0, y2 = 2 (0.5 u0 + u1) -> G = [[2, 0], [1, 2]] for input 1.
+    # Qe = 1, Ru = 1, e = (1, 1): Δu = (GᵀG + I)⁻¹ Gᵀ e = [[6, 2], [2, 5]]⁻¹ [3, 2] = [11, 6] / 26.
+    law = ilc.NormOptimalIlc(_scalar_model(2, 0.5, 1.0, 2.0), error_weight=1.0, input_weight=1.0, q_cutoff_hz=None)
+    e = np.zeros((2, 11))
+    e[:, 0] = 1.0
+    du = law.step(e)
+    assert du[:, 0] == pytest.approx([11 / 26, 6 / 26], rel=1e-12)
+    assert np.all(du[:, 1] == 0.0)  # the input that reaches no output is not moved
+    # With a leak s = 1 on the correction u = (1, 0): Δu = (GᵀG + 2I)⁻¹ (Gᵀe − u) = [[7, 2], [2, 6]]⁻¹ [2, 2]
+    #   = [6·2 − 2·2, −2·2 + 7·2] / 38 = [8, 10] / 38.
+    leaky = ilc.NormOptimalIlc(_scalar_model(2, 0.5, 1.0, 2.0), 1.0, 1.0, None, leak_weight=1.0)
+    u = np.array([[1.0, 0.0], [0.0, 0.0]])
+    assert leaky.step(e, u)[:, 0] == pytest.approx([8 / 38, 10 / 38], rel=1e-12)
+    # The update adds Δu and clips τ_ff + u to the limits: with τ_ff = 0.3, 0.1 and limit 0.5 on joint 1, the
+    # first sample (0.3 + 11/26 > 0.5) is clipped to 0.2, the second (0.1 + 6/26 < 0.5) is not.
+    nxt = law.update(np.zeros((2, 2)), e, feedforward=np.array([[0.3, 0.0], [0.1, 0.0]]), limits=(0.5, 1.0))
+    assert nxt[:, 0] == pytest.approx([0.2, 6 / 26], rel=1e-12)
+
+
+@pytest.mark.parametrize("leak", [0.0, 1e-3])
+def test_riccati_sweep_equals_the_dense_norm_optimal_update(small_model, leak):
+    rng = np.random.default_rng(3)
+    w = rng.uniform(0.5, 3.0, small_model.n_samples)  # per-sample error weights
+    law = ilc.NormOptimalIlc(small_model, error_weight=1.0, input_weight=1e-4, q_cutoff_hz=10.0, leak_weight=leak,
+                             time_weight=w)
+    e = rng.normal(scale=1e-3, size=(small_model.n_samples, 11))
+    u = rng.normal(scale=0.1, size=(small_model.n_samples, 2))
+    G = law.lifted_matrix()
+    W = np.repeat(w, 11)
+    H = (G.T * W) @ G + (1e-4 + leak) * np.eye(G.shape[1])
+    dense = np.linalg.solve(H, (G.T * W) @ e.ravel() - leak * u.ravel()).reshape(-1, 2)
+    sweep = law.step(e, u)
+    assert np.abs(sweep - dense).max() <= 1e-9 * np.abs(dense).max()
+    # and G itself is the model: its product equals simulating the LTV model
+    assert np.allclose((G @ u.ravel()).reshape(-1, 11), small_model.simulate(u), rtol=1e-10, atol=1e-15)
+
+
+def test_learning_operator_is_a_contraction_on_the_lifted_model(small_model):
+    """ρ(Q(I − LG − sH⁻¹)) < 1 with the scenario's weights; without leak and Q-filter the plain norm-optimal
+    operator (GᵀG + rI)⁻¹r has every eigenvalue in (0, 1), and the error falls monotonically on the model."""
+    import tomllib
+
+    cfg = tomllib.loads(SCENARIO.read_text())["ilc"]
+    law = ilc.NormOptimalIlc(small_model, cfg["error_weight"], cfg["input_weight"], cfg["q_filter_cutoff_hz"],
+                             cfg["q_filter_order"], cfg["leak_weight"])
+    _, T = law.dense_operator()
+    assert np.abs(np.linalg.eigvals(T)).max() < 1.0
+    plain = ilc.NormOptimalIlc(small_model, 1.0, 1e-4, None)
+    _, T0 = plain.dense_operator()
+    eig = np.linalg.eigvals(T0)
+    assert np.abs(eig.imag).max() < 1e-8 and 0 < eig.real.min() and eig.real.max() < 1.0
+    rng = np.random.default_rng(5)
+    r = small_model.simulate(rng.normal(scale=0.2, size=(small_model.n_samples, 2)))  # a reachable error
+    u, norms = np.zeros((small_model.n_samples, 2)), []
+    for _ in range(6):
+        e = r - small_model.simulate(u)
+        norms.append(np.linalg.norm(e))
+        u = u + plain.step(e)
+    assert all(b < a for a, b in zip(norms, norms[1:])) and norms[-1] < 0.05 * norms[0]
+
+
+def test_q_filter_is_zero_phase_and_low_pass():
+    t = np.arange(2000) * 1e-3
+    slow, fast = np.sin(2 * np.pi * 1.0 * t), np.sin(2 * np.pi * 80.0 * t)
+    out = ilc.q_filter(np.column_stack([slow, fast]), 1e-3, 10.0, 2)
+    assert np.abs(out[200:-200, 0] - slow[200:-200]).max() < 2e-3  # passes 1 Hz without lag
+    assert np.abs(out[200:-200, 1]).max() < 0.01  # stops 80 Hz
+    with pytest.raises(ilc.IlcError, match="Nyquist"):
+        ilc.q_filter(np.zeros((100, 2)), 1e-3, 600.0)
+
+
+def test_measured_errors_are_zero_on_the_trajectory_and_refuse_nan():
+    from flexarm.model import joint_angles, strain_gauge_angles
+
+    traj = as_trajectory(DEFAULT_TRAJECTORY_FILE)
+    q = np.array([joint_angles(th) for th in traj.theta[:301]])
+    eps = np.array([strain_gauge_angles(th) for th in traj.theta[:301]])
+    assert np.abs(ilc.measured_errors(q, eps, traj)).max() < 1e-12
+    q[5, 0] = np.nan
+    with pytest.raises(ilc.IlcError, match="non-finite"):
+        ilc.measured_errors(q, eps, traj)
+
+
+def test_learned_feedforward_file_round_trip_and_data_chain(tmp_path):
+    from flexarm.parameters import DEFAULT_PARAMETER_FILE
+    from flexarm.provenance import sha256_file
+
+    u = np.linspace(-0.1, 0.1, 600).reshape(300, 2)
+    meta = {"trajectory_file": str(DEFAULT_TRAJECTORY_FILE), "trajectory_sha256": sha256_file(DEFAULT_TRAJECTORY_FILE),
+            "parameter_file": str(DEFAULT_PARAMETER_FILE), "parameter_sha256": sha256_file(DEFAULT_PARAMETER_FILE),
+            "trials": [0, 1]}
+    path = ilc.write_learned_feedforward(tmp_path / "learned", u, 1e-3, meta)
+    got = ilc.read_learned_feedforward(path)
+    assert np.array_equal(got.correction, u) and got.dt == 1e-3 and got.metadata["trials"] == [0, 1]
+    # a controller adds it to the feedforward (and after the slew, where the trajectory's is zero)
+    ctrl = TrackingController(DEFAULT_TRAJECTORY_FILE, "gamma0.1", feedforward_correction=got.correction)
+    plain = TrackingController(DEFAULT_TRAJECTORY_FILE, "gamma0.1")
+    assert np.array_equal(ctrl.feedforward(7), plain.feedforward(7) + u[7])
+    assert np.array_equal(ctrl.feedforward(300), plain.feedforward(300))
+    # another file's trajectory SHA-256: refused as stale
+    doc = json.loads((tmp_path / "learned.json").read_text())
+    doc["trajectory_sha256"] = "0" * 64
+    (tmp_path / "learned.json").write_text(json.dumps(doc))
+    with pytest.raises(StaleDataError, match="trajectory"):
+        ilc.read_learned_feedforward(path)
+
+
+def _learned_file(tmp_path, n: int):
+    from flexarm.parameters import DEFAULT_PARAMETER_FILE
+    from flexarm.provenance import sha256_file
+
+    u = 0.05 * np.sin(np.arange(2 * n).reshape(n, 2) * 0.01)
+    meta = {"trajectory_file": str(DEFAULT_TRAJECTORY_FILE), "trajectory_sha256": sha256_file(DEFAULT_TRAJECTORY_FILE),
+            "parameter_file": str(DEFAULT_PARAMETER_FILE), "parameter_sha256": sha256_file(DEFAULT_PARAMETER_FILE)}
+    return u, ilc.write_learned_feedforward(tmp_path / "u", u, 1e-3, meta)
+
+
+def _torques(fmu, n, params):
+    from fmu_harness import _controller_inputs
+    from native_fmus import run_fmpy
+
+    names, rows = run_fmpy(fmu, n, _controller_inputs, params)
+    return np.asarray(rows)[:, [names.index("tau1"), names.index("tau2")]]
+
+
+def test_controller_fmus_add_the_learned_correction_python_and_native_alike(tmp_path):
+    """Both kinds of controller FMU with feedforward_correction_file: the Python one equals the library law with
+    the same correction bit for bit; the native one equals the Python one to 1e-13 N·m (their K·m products sum in
+    different orders: the unlearned controllers differ by the same ~1e-14 N·m), a run past the file's end and the
+    saturation included; a missing or stale file is refused by both."""
+    from fmu_harness import _controller_inputs, built_fmus
+    from native_fmus import native_fmus
+
+    n = 2200  # past the slew (2058 samples) and past the correction's 400 samples
+    u, path = _learned_file(tmp_path, 400)
+    py, native = built_fmus()["controller"], native_fmus()["controller"]
+    got = _torques(py, n, {"feedforward_correction_file": str(path)})
+    law = TrackingController(DEFAULT_TRAJECTORY_FILE, "gamma0.1", feedforward_correction=u)
+    keys = ("q1_m", "q2_m", "qd1_m", "qd2_m", *(f"eps{i}_m" for i in range(1, 7)))
+    expect = np.array([law.torque_from_measurements(k, [_controller_inputs(k)[x] for x in keys])
+                       for k in range(n + 1)])
+    assert np.array_equal(got, expect)
+    plain = _torques(py, n, {})
+    assert not np.array_equal(plain[:400], got[:400]) and np.array_equal(plain[400:], got[400:])
+    native_got, native_plain = _torques(native, n, {"feedforward_correction_file": str(path)}), _torques(native, n, {})
+    assert np.abs(native_got - got).max() <= 1e-13 and np.abs(native_plain - plain).max() <= 1e-13
+    # the correction itself is applied identically: learned − unlearned agree where nothing saturates
+    free = (np.abs(got) < [7.0, 2.25]).all(axis=1) & (np.abs(plain) < [7.0, 2.25]).all(axis=1)
+    assert np.abs((native_got - native_plain)[free] - (got - plain)[free]).max() <= 1e-13
+    doc = json.loads((tmp_path / "u.json").read_text())
+    doc["parameter_sha256"] = "0" * 64
+    (tmp_path / "u.json").write_text(json.dumps(doc))
+    for fmu in (py, native):
+        for bad in (path, tmp_path / "missing.npz"):
+            with pytest.raises(Exception):  # noqa: B017 - fmpy raises its own exception type for fmi2Error
+                _torques(fmu, 2, {"feedforward_correction_file": str(bad)})
+
+
+def test_ilc_scenario_learns_through_the_fmus_and_resumes(tmp_path):
+    """Two trials of a short ILC scenario through the Python FMUs, then a third after a 'restart': the journal
+    keeps the first two, the third runs with the correction they produced, and the error falls."""
+    from scenarios.config import ScenarioError
+    from scenarios.ilc import run_ilc
+
+    text = SCENARIO.read_text().replace("samples = 3058", "samples = 400").replace("trials = 50", "trials = 2")
+    text = text.replace('evaluate_cases = ["learn", "payload_0p2", "payload_0p35"]', 'evaluate_cases = ["learn"]')
+    scen = tmp_path / "ilc_short.toml"
+    scen.write_text(text)
+    out = tmp_path / "out"
+    first = run_ilc(scen, out, plots=False, progress=lambda s: None)
+    assert first["stopped"] is None and [r["trial"] for r in first["trials"]] == [0, 1]
+    assert [r["seed"] for r in first["trials"]] == [1, 2]
+    journal = (out / "ilc_payload" / "journal.jsonl").read_text().splitlines()
+    assert len(journal) == 3  # config + two trials
+    second = run_ilc(scen, out, plots=False, progress=lambda s: None, trials=3)
+    assert [r["trial"] for r in second["trials"]] == [0, 1, 2]
+    assert second["trials"][0] == first["trials"][0]  # not rerun
+    rms = [r["metrics"]["slew_rms_position_error"] for r in second["trials"]]
+    assert rms[2] < rms[1] < rms[0]
+    ev = second["evaluation"]["learn"]
+    assert ev["learned"]["metrics"]["slew_rms_position_error"] < ev["unlearned"]["metrics"]["slew_rms_position_error"]
+    learned = ilc.read_learned_feedforward(out / "ilc_payload" / "learned_feedforward.npz")
+    assert learned.metadata["trials_learned_from"] == 3 and learned.correction.shape == (400, 2)
+    # another configuration in the same folder is refused, not mixed
+    scen.write_text(text.replace("leak_weight = 1e-3", "leak_weight = 2e-3"))
+    with pytest.raises(ScenarioError, match="another configuration"):
+        run_ilc(scen, out, plots=False, progress=lambda s: None)
+    shutil.rmtree(out)
