@@ -11,10 +11,10 @@ from types import SimpleNamespace
 import fmpy
 import numpy as np
 import pytest
+from fmu_harness import built_fmus
 
 from flexarm.reference import REFERENCE_OUTPUTS, ReferenceSignals
 from flexarm.trajectory import load_trajectory
-from fmu_build import build_all
 from scenarios import runner
 from scenarios.__main__ import main
 from scenarios.config import ScenarioError, load_scenario, parse_assignment, select_cases
@@ -44,8 +44,8 @@ def _expected(traj, k: np.ndarray) -> dict[str, np.ndarray]:
 
 
 @pytest.fixture(scope="module")
-def reference_fmu(tmp_path_factory) -> Path:
-    return build_all(tmp_path_factory.mktemp("fmus"), only=["reference"], force=True)["reference"]
+def reference_fmu() -> Path:
+    return built_fmus()["reference"]  # the process's one build of every FMU (tests/fmu_harness.py)
 
 
 @pytest.fixture(scope="module")
@@ -106,7 +106,7 @@ def test_reference_fmu_refuses_a_trajectory_whose_parameter_file_changed(referen
     from fmu_harness import Slave
 
     folder = Path(extract(str(reference_fmu), str(tmp_path / "x")))
-    params = folder / "resources" / "flexarm" / "data" / "sandia_arm.toml"
+    params = next((folder / "resources").glob("*/data/sandia_arm.toml"))  # the FMU's own copy of flexarm's data
     params.write_text(params.read_text() + "\n# edited after the trajectory was made\n")
     # refused when instantiated (the bundle's manifest) or initialised (the trajectory's parameter SHA-256)
     with pytest.raises(Exception, match="instantiate|fmi2ExitInitializationMode"):
