@@ -88,9 +88,9 @@ class IlcSettings:
 
 def _ilc_table(path: Path) -> dict | None:
     try:
-        doc = tomllib.loads(path.read_text())
-    except (OSError, tomllib.TOMLDecodeError):
-        return None
+        doc = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError):
+        return None  # not an ILC scenario; load_scenario then refuses the file naming what is wrong
     return doc.get("ilc")
 
 

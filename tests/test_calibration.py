@@ -67,14 +67,16 @@ def test_committed_file_is_the_calibration_output(tmp_path):
     """Re-fitting the static facts at the committed stator mass (the minimum-time lever) gives the same file.
 
     The full calibration (python -m flexarm.calibration) also re-solves the minimum time for each
-    stator mass, a minute or two; its result is checked below through the committed trajectory."""
+    stator mass, a minute or two; its result is checked below through the committed trajectory. The fit is
+    reproduced to 1e-5: with the same library versions another CPU's BLAS kernels move the fitted point mass
+    by 3.5e-6 (measured), above the 1e-6 this test first had."""
     old = load_parameters()
     stator = calibrated_unknowns(old, load_design())["stator_mass_kg"]
     out = tmp_path / "arm.toml"
     assert calibration_main(["--output", str(out), "--stator-mass", repr(stator)]) == 0
     new = load_parameters(out)
     for name in ("length", "mass", "com", "inertia", "spring_stiffness", "point_mass"):
-        assert np.allclose(getattr(new, name), getattr(old, name), rtol=1e-6), name
+        assert np.allclose(getattr(new, name), getattr(old, name), rtol=1e-5), name
 
 
 def test_minimum_time_meets_the_paper():

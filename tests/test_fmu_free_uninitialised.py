@@ -9,9 +9,11 @@ loading the FMUs). The FMI front end (fmus/common/fmi2_shim.c,
 ``fmi2Instantiate``. The instances run in a subprocess, so that a crash fails
 this test instead of ending the test session.
 
-The slave logs at creation here because the host imported a ``flexarm``
-that differs from the copy bundled in the FMU (a real situation, which the
-FMUs warn about): a copy of the package with one comment line added.
+The host here imports a ``flexarm`` that differs from the copy bundled in
+the FMU (a copy with one comment line added). Before the FMUs imported their
+bundled library under private names, the slaves warned about it at creation;
+now the host's copy never reaches them, and the test checks that, and that
+every free still succeeds.
 """
 
 from __future__ import annotations
@@ -78,11 +80,8 @@ def test_free_after_a_warning_at_instantiation_does_not_crash(fmu_paths, tmp_pat
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, f"host exited with {proc.returncode} (-11: segfault):\n{proc.stderr[-3000:]}"
     log = json.loads(proc.stdout.strip().splitlines()[-1])
-    warnings = [m for phase, status, m in log if status == 1 and "differs from the copy bundled" in m]
-    # Each of the 6 instances warned during fmi2Instantiate, and the 2 reset ones during fmi2Reset (the calls
-    # whose new Python slave logged it) ...
-    assert len(warnings) == 8, log
-    phases = [phase for phase, status, m in log if "differs from the copy bundled" in m]
-    assert phases.count("instantiate") == 6 and phases.count("reset") == 2, log
+    # Each FMU imports its own privately named copy of flexarm (issue 21 item 4), so the host's differing copy
+    # no longer reaches the slaves and none of them warns about it; the frees still all succeed ...
+    assert [m for phase, status, m in log if "differs from the copy bundled" in m] == [], log
     # ... and nothing was left to deliver when the instance was freed.
     assert [entry for entry in log if entry[0] == "free"] == []

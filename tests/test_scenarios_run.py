@@ -133,7 +133,7 @@ def test_case_option_selects_cases_and_refuses_an_unknown_key(capsys):
     assert select_cases(sc, None) is sc and len(sc.cases) == 4
     assert main(["run", "table2", "--case", "none", "--case", "nope", "--no-plots"]) == 2
     err = capsys.readouterr().err
-    assert "--case: nope not a case of scenario table2 (allowed: none, noise, tip, tip_noise)" in err
+    assert "--case: one of the cases of table2 (none, noise, tip, tip_noise), got 'nope'" in err
 
 
 def test_progress_is_a_bar_on_a_terminal_and_one_line_in_a_log():
