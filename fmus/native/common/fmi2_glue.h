@@ -99,6 +99,10 @@ const char *glue_string(const Instance *inst, size_t index);
 int glue_read_doubles(const Instance *inst, const char *file, const char *text, const char *name, double *out,
                       size_t n);
 
+/* The whole file at `path`, NUL-terminated, in a malloc'ed buffer (*size bytes before the NUL); NULL if it
+   cannot be read. The caller frees it. */
+char *glue_read_file(const char *path, size_t *size);
+
 /* A step within this many seconds of a whole number of samples counts as that number. */
 #define GLUE_STEP_TOLERANCE 1e-9
 

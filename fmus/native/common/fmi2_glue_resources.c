@@ -43,7 +43,7 @@ static char *uri_to_path(const char *uri)
     return out;
 }
 
-static char *read_whole(const char *path, size_t *size)
+char *glue_read_file(const char *path, size_t *size)
 {
     FILE *f = fopen(path, "rb");
     if (f == NULL) return NULL;
@@ -119,7 +119,7 @@ int glue_load_resources(Instance *inst, const char *uri)
         size_t n = strlen(dir) + strlen(res->file) + 2;
         char *path = malloc(n);
         snprintf(path, n, "%s%s%s", dir, dir[strlen(dir) - 1] == '/' ? "" : "/", res->file);
-        contents[r] = read_whole(path, &sizes[r]);
+        contents[r] = glue_read_file(path, &sizes[r]);
         if (contents[r] == NULL) {
             glue_log(inst, fmi2Error, "fmi2Instantiate: cannot read the resource %s (it ships inside the FMU in "
                      "resources/; unpack the whole FMU)", path);
@@ -185,7 +185,7 @@ int glue_load_start_values(Instance *inst, const char *uri)
         return -1;
     }
     snprintf(path, n, "%s%s%s", dir, dir[0] && dir[strlen(dir) - 1] == '/' ? "" : "/", START_VALUES_FILE);
-    char *text = read_whole(path, &size);
+    char *text = glue_read_file(path, &size);
     free(path);
     free(dir);
     if (text == NULL) return 0; /* no file: the table's start values */

@@ -127,27 +127,6 @@ fail:
 }
 
 /* -- the learned feedforward correction (flexarm.ilc design files) ---------------------------------------- */
-static char *read_file(const char *path, size_t *size)
-{
-    FILE *f = fopen(path, "rb");
-    if (f == NULL) return NULL;
-    size_t cap = 1 << 16, n = 0;
-    char *buf = malloc(cap + 1);
-    for (size_t got; buf != NULL && (got = fread(buf + n, 1, cap - n, f)) > 0;) {
-        n += got;
-        if (n == cap) {
-            char *bigger = realloc(buf, 2 * cap + 1);
-            if (bigger == NULL) free(buf);
-            buf = bigger;
-            cap *= 2;
-        }
-    }
-    fclose(f);
-    if (buf != NULL) buf[n] = '\0';
-    *size = n;
-    return buf;
-}
-
 /* The string value of "key": "value" in a JSON text into out (size 80); 0 if found. */
 static int json_string(const char *json, const char *key, char *out)
 {
@@ -245,7 +224,7 @@ static fmi2Status load_correction(Instance *inst)
     if (json_path == NULL) return fmi2Error;
     memcpy(json_path, path, n - 4);
     strcpy(json_path + n - 4, ".json");
-    char *zip = read_file(path, &size), *json = read_file(json_path, &json_size);
+    char *zip = glue_read_file(path, &size), *json = glue_read_file(json_path, &json_size);
     fmi2Status status = fmi2Error;
     char digest[65], recorded[80];
     if (zip == NULL || json == NULL) {
