@@ -9,7 +9,12 @@ and bit-for-bit repeatable (the FMUs' get/set-state and the sweeps rely on it):
 
 ``rodas4``
     Linearly implicit, L-stable Rosenbrock method (order 4): one Jacobian,
-    one 11×11 LU and six right-hand sides per substep. L-stability DAMPS
+    one 11×11 LU and six right-hand sides per substep. Error-controlled:
+    ``substeps`` per ms is the nominal (longest) substep; a substep whose
+    embedded error estimate exceeds ``_kernels.RODAS4_ANGLE_TOL`` (1e-7 rad)
+    on an element angle is redone at half the length, down to 1/32 of it
+    (``_kernels.advance``; issue 26 W1: a 4 ms zero-order hold drives the
+    190 Hz mode, whose phase the 0.5 ms substep then gets wrong). L-stability DAMPS
     the bracket modes (5.7, 13, 21 kHz) it cannot resolve: at 0.5 ms
     substeps they lose most of their amplitude in a few ms, so an unstable
     bracket mode of a closed loop can look stable. The 8 and 20 Hz modes
@@ -135,9 +140,10 @@ def advance(model: ArmModel, z, tau, dt: float, substeps: int = DEFAULT_SUBSTEPS
             z_new = kern.advance_rk4(z, tau, float(dt), count, model.mass_coefficients, model.stiffness,
                                      model.j2p, model.j2d, model.damping)
         else:
-            z_new, err = kern.advance(z, tau, float(dt), count, model.mass_coefficients,
-                                      model.stiffness, model.j2p, model.j2d, model.damping, kern.RODAS4_A,
-                                      kern.RODAS4_C, kern.RODAS4_GAMMA)
+            z_new, err, _ = kern.advance(z, tau, float(dt), count, model.mass_coefficients,
+                                         model.stiffness, model.j2p, model.j2d, model.damping, kern.RODAS4_A,
+                                         kern.RODAS4_C, kern.RODAS4_GAMMA, kern.RODAS4_ANGLE_TOL,
+                                         kern.RODAS4_MAX_HALVINGS)
     except (ValueError, ZeroDivisionError, np.linalg.LinAlgError) as exc:
         # Absurd torques or steps overflow the stage systems to inf/NaN before the state does: the
         # kernels' factorisations then report a singular or indefinite matrix (Gauss: no convergence).

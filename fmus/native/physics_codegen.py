@@ -237,6 +237,9 @@ static const double RODAS4_A[5][4] = {{
     {a_rows}}};
 static const double RODAS4_C[6][5] = {{
     {c_rows}}};
+/* its error control: largest embedded estimate on an angle (rad), most halvings of the nominal substep */
+#define RODAS4_ANGLE_TOL {kern.RODAS4_ANGLE_TOL!r}
+#define RODAS4_MAX_HALVINGS {kern.RODAS4_MAX_HALVINGS}
 /* 2-stage Gauss-Legendre (flexarm._kernels.GAUSS_*) and its simplified-Newton tolerances */
 static const double GAUSS_A[2][2] = {{{gauss_a}}};
 static const double GAUSS_A2[2][2] = {{{gauss_a2}}};

@@ -133,7 +133,7 @@ static void input_forces(PlantData *d, const double *tau, double *forces)
 /* -- RODAS4 (flexarm._kernels._rodas4_step_loops) -------------------------------------------------- */
 /* One step of size h from z, whose evaluation is `ev0`; `ev` is workspace. -1 if a matrix is singular. */
 static int rodas4_step(PlantData *d, const double *z, const Eval *ev0, Eval *ev, const double *forces, double h,
-                       double *z_new, double *err)
+                       double *z_new, double *err, double *err_angle)
 {
     double mass[N * N], q[N * N], v[N * N], w[N * N], f[NZ], ks[6][NZ], u[NZ], r[N], tm[N], tv[N], k_th[N];
     int piv[N];
@@ -186,6 +186,7 @@ static int rodas4_step(PlantData *d, const double *z, const Eval *ev0, Eval *ev,
     for (int i = 0; i < NZ; i++) {
         z_new[i] = u[i] + ks[5][i];
         e = fmax(e, fabs(ks[5][i]));
+        if (i == N - 1) *err_angle = e; /* the embedded estimate's largest angle component */
     }
     *err = e;
     return 0;
@@ -557,17 +558,28 @@ static fmi2Status plant_do_step(Instance *inst, double t, double h)
         at_z = &ev_a;
         ok = ok && evaluate(d, z, at_z) == 0;
     } else {
-        for (long k = 0; k < count && ok; k++) {
-            double e = 0.0;
+        /* RODAS4 is error-controlled (flexarm._kernels.advance): a substep whose embedded estimate exceeds
+           RODAS4_ANGLE_TOL on an angle is redone at half the length, at most RODAS4_MAX_HALVINGS times, and the
+           rest of the step keeps the shorter length; positions count in units of the shortest allowed substep. */
+        const long total = count << RODAS4_MAX_HALVINGS;
+        long pos = 0;
+        int level = 0;
+        while (pos < total && ok) {
+            double e = 0.0, e_angle = 0.0;
             int iterations = 0;
             if (which == SCHEME_EXPONENTIAL) ok = exponential_step(d, z, at_z, forces, hs, z_new) == 0;
             else if (which == SCHEME_GAUSS) ok = gauss_step(d, z, at_z, work, forces, hs, z_new, &iterations) == 0;
-            else ok = rodas4_step(d, z, at_z, work, forces, hs, z_new, &e) == 0;
+            else ok = rodas4_step(d, z, at_z, work, forces, h / (double)(count << level), z_new, &e, &e_angle) == 0;
             for (int i = 0; i < NZ && ok; i++) ok = isfinite(z_new[i]);
+            if (ok && which == SCHEME_RODAS4 && level < RODAS4_MAX_HALVINGS && e_angle > RODAS4_ANGLE_TOL) {
+                level++; /* rejected: z and its evaluation are unchanged */
+                continue;
+            }
             err = fmax(err, e);
             memcpy(z, z_new, sizeof z);
             if (at_z == &d->cache) at_z = &ev_a;
             ok = ok && evaluate(d, z, at_z) == 0; /* the next substep's start, or the outputs' state */
+            pos += 1L << (RODAS4_MAX_HALVINGS - level);
         }
     }
     if (!ok) { /* a failed step changes nothing */
