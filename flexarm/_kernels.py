@@ -452,11 +452,11 @@ else:
 
 
 #: RODAS4 error control (issue 26 W1): a substep whose embedded error estimate exceeds this on any element angle
-#: (rad) is redone at half the length, and the rest of the communication step keeps the shorter substep. The 1 ms
-#: paper loops stay below it at 2 substeps per ms (table2/none: at most 6.5e-8), so they run as before; a loop whose
-#: coarse zero-order hold drives the 190 Hz and 66 Hz modes harder (table2 at 4 ms: up to 2.6e-6) gets the substep
-#: those modes need. The angles only: the L-stable scheme damps the kHz bracket modes at any unresolved substep
-#: length, which keeps the rate components of the estimate near 1e-3 rad/s at 2 to 8 substeps per ms.
+#: (rad) is redone at half the length, and the rest of the communication step keeps the shorter substep. A coarse
+#: zero-order hold (table2 at 4 ms) drives the 190 Hz mode hard enough for the 0.5 ms substep's phase error on it to
+#: show (8.7 % rms rates against 64 substeps per ms before; docs/model.md); the 1 ms loops mostly stay below it
+#: (about 6 % more substeps on table2/none). The angles only: the L-stable scheme damps the kHz bracket modes at
+#: any unresolved substep length, which keeps the rate components of the estimate high until they are resolved.
 RODAS4_ANGLE_TOL = 3e-8
 #: At most this many halvings of the nominal substep (2 per ms: down to 64 per ms).
 RODAS4_MAX_HALVINGS = 5

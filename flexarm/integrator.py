@@ -11,7 +11,7 @@ and bit-for-bit repeatable (the FMUs' get/set-state and the sweeps rely on it):
     Linearly implicit, L-stable Rosenbrock method (order 4): one Jacobian,
     one 11×11 LU and six right-hand sides per substep. Error-controlled:
     ``substeps`` per ms is the nominal (longest) substep; a substep whose
-    embedded error estimate exceeds ``_kernels.RODAS4_ANGLE_TOL`` (1e-7 rad)
+    embedded error estimate exceeds ``_kernels.RODAS4_ANGLE_TOL`` (3e-8 rad)
     on an element angle is redone at half the length, down to 1/32 of it
     (``_kernels.advance``; issue 26 W1: a 4 ms zero-order hold drives the
     190 Hz mode, whose phase the 0.5 ms substep then gets wrong). L-stability DAMPS

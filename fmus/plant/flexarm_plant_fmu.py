@@ -31,7 +31,9 @@ point), as FMI intends for a step a smaller one may complete.
 ``substeps`` counts substeps **per millisecond**: a communication step of
 h ms takes ceil(h · substeps) equal substeps, so the plant's accuracy does not
 depend on the master's step (a 10 ms step at the default 2 takes 20 substeps
-of 0.5 ms, as ten 1 ms steps would).
+of 0.5 ms, as ten 1 ms steps would). With ``rodas4`` that is the nominal
+substep: one whose embedded error estimate exceeds 3e-8 rad on an angle is
+redone at half the length (``flexarm._kernels.advance``; docs/model.md).
 
 Integration scheme (``integrator``; docs/model.md has each scheme's measured
 accuracy against the reference, generated, and its cost):
@@ -116,7 +118,8 @@ VARIABLES = variable_table([
      "default: the trajectory's first sample", _SLEW["q2_0"], (-math.pi, math.pi)),
     ("substeps", "parameter", "fixed", "1",
      "Integrator substeps per millisecond of the communication step (a step of h ms takes ceil(h * substeps), so "
-     "the accuracy does not depend on the step size); the reference scheme takes 200 RK4 steps per substep",
+     "the accuracy does not depend on the step size); rodas4 halves a substep whose error estimate exceeds "
+     "3e-8 rad on an angle; the reference scheme takes 200 RK4 steps per substep",
      int(DEFAULT_SUBSTEPS), (1, MAX_SUBSTEPS)),
     ("integrator", "parameter", "fixed", "1",
      "Integration scheme: rodas4 is L-stable and damps the kHz bracket modes; exponential adds no numerical "
