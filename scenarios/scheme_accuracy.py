@@ -402,7 +402,8 @@ def render(data: dict) -> str:
         lines.append("")
     st = data.get("step_size")
     if st:
-        lines += ["**Communication step** (table2/none, default plant settings: rodas4, 2 substeps per ms), "
+        lines += ["**Communication step** (table2/none, default plant settings: rodas4, 2 substeps per ms nominal, "
+                  "error-controlled), "
                   "against a 64-substep-per-ms run at the same step: rms difference of the plant states relative "
                   "to their rms motion (angles and rates, the worse of the two); in brackets the worst single "
                   "state against its own motion, and the run's rms velocity error (deg/s, 2 / 64 substeps):", "",
