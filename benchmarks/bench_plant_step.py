@@ -11,6 +11,12 @@ after a warm-up, and the real-time factor (1 ms divided by that cost):
 * FMU: ``FMU2Slave.doStep`` plus ``getReal`` of all 40 outputs, the work a
   master does per communication step, for each scheme (``integrator`` 1-4).
 
+* table2/none (native FMUs, closed loop) at communication steps of 1 and 4
+  ms: its torques replayed through the library's error-controlled RODAS4
+  (``flexarm._kernels.advance``) at the default settings, with the RODAS4
+  substeps taken per ms of simulated time (nominal: 2; rejected substeps
+  count) and the library's cost per ms of simulated time (issue 26 W1).
+
 The reference (RK4 at 2.5 µs) costs about a hundred times RODAS4: it is timed
 over fewer steps; the exponential scheme over at most 2.5 s of simulated time
 (it refuses to run past 3 s).
@@ -106,6 +112,45 @@ def measure(fmu_path: Path, n_lib: int, n_fmu: int) -> dict:
     return result
 
 
+def table2_substeps(steps_ms=(1, 4)) -> list[str]:
+    """Lines: RODAS4 substeps taken per ms and library µs per ms of simulated time over table2/none's closed-loop
+    torques at each communication step (default plant settings)."""
+    import copy
+    import math
+    import tempfile
+
+    from flexarm import ArmModel
+    from flexarm import _kernels as kern
+    from flexarm.integrator import DEFAULT_SUBSTEPS, substep_count
+    from scenarios.config import load_scenario
+    from scenarios.runner import run_scenario
+
+    model = ArmModel()
+    lines = []
+    for ms in steps_ms:
+        s = copy.deepcopy(load_scenario("table2"))
+        s.name, s.cases = f"bench-{ms}ms", [c for c in s.cases if c.key == "none"]
+        s.step_size, s.samples = ms * 1e-3, math.ceil(2058 / ms)
+        with tempfile.TemporaryDirectory() as tmp:
+            (r,) = run_scenario(s, Path(tmp), progress=False, kind="native")
+        tau = np.column_stack([r.series["controller.tau1"], r.series["controller.tau2"]])[:-1]
+        z = np.array([r.series[f"plant.{v}{i}"][0] for v in ("theta", "omega") for i in range(1, 12)])
+        dt = ms * 1e-3
+        count = substep_count(dt, DEFAULT_SUBSTEPS)
+        taken = 0
+        t0 = time.perf_counter()
+        for k in range(len(tau)):
+            z, _, n = kern.advance(z, np.ascontiguousarray(tau[k]), dt, count, model.mass_coefficients,
+                                   model.stiffness, model.j2p, model.j2d, model.damping, kern.RODAS4_A, kern.RODAS4_C,
+                                   kern.RODAS4_GAMMA, kern.RODAS4_ANGLE_TOL, kern.RODAS4_MAX_HALVINGS)
+            taken += n
+        wall = time.perf_counter() - t0
+        sim_ms = len(tau) * ms
+        lines.append(f"  table2/none at {ms} ms ({r.status}): {taken / sim_ms:.2f} RODAS4 substeps per ms taken "
+                     f"(nominal {DEFAULT_SUBSTEPS}), library {1e6 * wall / sim_ms:.1f} µs per ms simulated")
+    return lines
+
+
 def _print(result: dict) -> None:
     for key in sorted(k for k in result if "/" in k):
         kind, integrator = key.split("/", 1)
@@ -125,6 +170,8 @@ def main() -> int:
     fmu_path = build_all(only="plant")["plant"]
     print(f"plant step cost per 1 ms communication step (median after warm-up), FMU {fmu_path}")
     _print(measure(fmu_path, n_lib=5000, n_fmu=5000))
+    print("error-controlled RODAS4 over a closed loop (Numba; substeps include rejected ones):")
+    print("\n".join(table2_substeps()))
     env = {**os.environ, "FLEXARM_NO_NUMBA": "1"}
     proc = subprocess.run([sys.executable, __file__, "--child", str(fmu_path)], env=env, capture_output=True,
                           text=True, timeout=300)
