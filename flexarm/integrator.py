@@ -103,7 +103,7 @@ def check_integrator(integrator: str) -> str:
 
 
 def advance(model: ArmModel, z, tau, dt: float, substeps: int = DEFAULT_SUBSTEPS,
-            integrator: str = DEFAULT_INTEGRATOR) -> tuple[np.ndarray, float]:
+            integrator: str = DEFAULT_INTEGRATOR, angle_tol: float = kern.RODAS4_ANGLE_TOL) -> tuple[np.ndarray, float]:
     """Advance the state z (shape (22,)) by dt seconds with constant torque tau (N·m).
 
     Parameters
@@ -112,6 +112,9 @@ def advance(model: ArmModel, z, tau, dt: float, substeps: int = DEFAULT_SUBSTEPS
         Substeps per millisecond of dt (:func:`substep_count`); the reference takes 200 RK4 steps per substep.
     integrator : {"rodas4", "exponential", "gauss", "reference"}
         Scheme (see the module notes).
+    angle_tol : float
+        RODAS4's error control (rad on an element angle; the plant FMUs' setting is the default); 0 turns it
+        off: fixed equal substeps, to measure the scheme itself (its order, its damping).
 
     Returns the new state and, for RODAS4, the largest embedded error estimate
     of the substeps (a diagnostic, in the state's units; 0 for the other
@@ -142,7 +145,7 @@ def advance(model: ArmModel, z, tau, dt: float, substeps: int = DEFAULT_SUBSTEPS
         else:
             z_new, err, _ = kern.advance(z, tau, float(dt), count, model.mass_coefficients,
                                          model.stiffness, model.j2p, model.j2d, model.damping, kern.RODAS4_A,
-                                         kern.RODAS4_C, kern.RODAS4_GAMMA, kern.RODAS4_ANGLE_TOL,
+                                         kern.RODAS4_C, kern.RODAS4_GAMMA, float(angle_tol),
                                          kern.RODAS4_MAX_HALVINGS)
     except (ValueError, ZeroDivisionError, np.linalg.LinAlgError) as exc:
         # Absurd torques or steps overflow the stage systems to inf/NaN before the state does: the
@@ -195,13 +198,15 @@ class PlantSimulator:
 
 
 def simulate(model: ArmModel, z0, torques, dt: float = 1e-3, substeps: int = DEFAULT_SUBSTEPS,
-             integrator: str = DEFAULT_INTEGRATOR) -> np.ndarray:
+             integrator: str = DEFAULT_INTEGRATOR, angle_tol: float = kern.RODAS4_ANGLE_TOL) -> np.ndarray:
     """Open-loop run with piecewise-constant torques.
 
     Parameters
     ----------
     torques : array_like, shape (n_steps, 2)
         Torque held over each step, N·m.
+    angle_tol : float
+        RODAS4's error control (see :func:`advance`; 0: off).
 
     Returns
     -------
@@ -215,7 +220,7 @@ def simulate(model: ArmModel, z0, torques, dt: float = 1e-3, substeps: int = DEF
     out[0] = z0
     z = np.asarray(z0, dtype=float)
     for k, tau in enumerate(torques):
-        z, _ = advance(model, z, tau, dt, substeps, integrator)
+        z, _ = advance(model, z, tau, dt, substeps, integrator, angle_tol)
         out[k + 1] = z
     return out
 

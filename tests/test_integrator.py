@@ -80,15 +80,20 @@ def test_default_integrator_accuracy(model, reference):
 
 
 def test_fourth_order_convergence(model, reference):
-    """Halving the substep cuts the error about 16 times (order 4)."""
+    """Halving the substep cuts the error about 16 times (order 4): the scheme itself, error control off. With it
+    on (the default), the 1-substep run is refined where its embedded estimate exceeds the tolerance and is at
+    least as accurate as the fixed 2-substep run."""
     z0, ref = reference
     n = 500
     errs = []
     for sub in (1, 2, 4):
-        traj = simulate(model, z0, torque_profile(n), substeps=sub)
+        traj = simulate(model, z0, torque_profile(n), substeps=sub, angle_tol=0.0)
         errs.append(np.max(np.abs(measured_angles(traj) - measured_angles(ref[: n + 1]))))
     ratios = np.array(errs[:-1]) / np.array(errs[1:])
     assert np.all(ratios > 8), f"errors {errs}"
+    controlled = np.max(np.abs(measured_angles(simulate(model, z0, torque_profile(n), substeps=1))
+                               - measured_angles(ref[: n + 1])))
+    assert controlled <= errs[1] * 1.01, (controlled, errs)
 
 
 def test_free_vibration_conserves_energy(model):
@@ -178,9 +183,11 @@ def modal_amplitude(model, traj, shape, frequency_hz):
 
 
 def free_bracket_vibration(model, shape, n_steps, integrator, substeps=DEFAULT_SUBSTEPS):
+    """RODAS4 with its error control off: the scheme's own damping at the nominal substep (the stability function);
+    with it on, a 1 µrad bracket vibration is above the tolerance and gets halved substeps for a while."""
     th0 = rigid_configuration(*BRACKET_CONFIGURATION)
     z0 = np.concatenate([th0 + 1e-6 * shape / np.abs(shape).max(), np.zeros(N)])  # 1 µrad: linear regime
-    return simulate(model, z0, np.zeros((n_steps, 2)), substeps=substeps, integrator=integrator)
+    return simulate(model, z0, np.zeros((n_steps, 2)), substeps=substeps, integrator=integrator, angle_tol=0.0)
 
 
 def test_exponential_scheme_keeps_every_bracket_mode_for_0_1_s(model):
