@@ -452,7 +452,7 @@ else:
 
 
 #: RODAS4 error control (issue 26 W1): a substep whose embedded error estimate exceeds this on any element angle
-#: (rad) is redone at half the length, and the rest of that nominal substep keeps the shorter length. A coarse
+#: (rad) is redone at half the length, and the rest of the communication step keeps the shorter length. A coarse
 #: zero-order hold (table2 at 4 ms) drives the 190 Hz mode hard enough for the 0.5 ms substep's phase error on it to
 #: show (8.7 % rms rates against 64 substeps per ms before; docs/model.md); the 1 ms loops mostly stay below it
 #: (about 6 % more substeps on table2/none). The angles only: the L-stable scheme damps the kHz bracket modes at
@@ -467,9 +467,10 @@ def advance(z, tau, dt, substeps, mc, kl, j2p, j2d, dmp, coef_a, coef_c, gamma, 
     """Advance by dt (s) with constant torque in RODAS4 substeps of nominal length dt/substeps, error-controlled.
 
     A substep whose embedded estimate exceeds `angle_tol` (rad) on an angle is rejected and retried at half the
-    length, at most `max_halvings` times (angle_tol <= 0: no control); the rest of that nominal substep keeps the
-    shorter length, and each nominal substep starts at its full length. So the result depends on the state and
-    torque only, and a step of k nominal substeps equals k steps of one (the master's step does not matter).
+    length, at most `max_halvings` times (angle_tol <= 0: no control); the rest of the step keeps the shorter
+    length, and the next call starts at the nominal one again: the result depends on (z, tau, dt) only. (Restarting
+    every nominal substep at full length instead, so that a 4 ms step would equal four 1 ms steps even where it
+    refines, measured 1.15 % rms rates against 64 substeps per ms on table2/none at 4 ms, over the 1 % asked.)
 
     Returns (z_new, max_abs_error_estimate of the accepted substeps, substeps taken including rejected ones)."""
     n = z.shape[0] // 2
@@ -488,8 +489,6 @@ def advance(z, tau, dt, substeps, mc, kl, j2p, j2d, dmp, coef_a, coef_c, gamma, 
         z = z_try
         err = max(err, np.max(np.abs(e)))
         pos += 1 << (max_halvings - level)
-        if pos % (1 << max_halvings) == 0:
-            level = 0  # each nominal substep starts at its full length
     return z, err, taken
 
 

@@ -560,8 +560,7 @@ static fmi2Status plant_do_step(Instance *inst, double t, double h)
     } else {
         /* RODAS4 is error-controlled (flexarm._kernels.advance): a substep whose embedded estimate exceeds
            RODAS4_ANGLE_TOL on an angle is redone at half the length, at most RODAS4_MAX_HALVINGS times, and the
-           rest of that nominal substep keeps the shorter length; positions count in units of the shortest allowed
-           substep. */
+           rest of the step keeps the shorter length; positions count in units of the shortest allowed substep. */
         const long total = count << RODAS4_MAX_HALVINGS;
         long pos = 0;
         int level = 0;
@@ -581,7 +580,6 @@ static fmi2Status plant_do_step(Instance *inst, double t, double h)
             if (at_z == &d->cache) at_z = &ev_a;
             ok = ok && evaluate(d, z, at_z) == 0; /* the next substep's start, or the outputs' state */
             pos += 1L << (RODAS4_MAX_HALVINGS - level);
-            if (pos % (1L << RODAS4_MAX_HALVINGS) == 0) level = 0; /* each nominal substep starts at full length */
         }
     }
     if (!ok) { /* a failed step changes nothing */
