@@ -303,6 +303,9 @@ class Setup:
     held_inputs: dict[str, list[str]] = field(default_factory=dict)
     #: The outputs wired into the torques' source (what the controller saw), recorded after :attr:`record`.
     seen: list[tuple[str, str]] = field(default_factory=list)
+    #: The reference FMU's ``lead_samples`` for the run's stepping (:func:`reference_lead`), unless a case sets
+    #: it; None without a reference FMU that has the parameter.
+    reference_lead: int | None = None
 
     def fmu_kinds(self) -> dict[str, str]:
         """Instance -> kind of the FMU file it runs, from its model description (:func:`fmu_kind`)."""
@@ -320,15 +323,18 @@ class Setup:
         params = check_parameters(where or f"{self.scenario.path.name}: parameters", self.descriptions,
                                   case_parameters)
         params[self.plant] = {**self.start, **params.get(self.plant, {})}
+        if self.reference_lead is not None:
+            params[REFERENCE_FMU] = {"lead_samples": self.reference_lead, **params.get(REFERENCE_FMU, {})}
         return params
 
 
 def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
             names: dict[str, str] | None = None, build: bool = True, kind: str | None = None,
-            native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR) -> Setup:
+            native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR, algorithm: str | None = None) -> Setup:
     """Resolve (and build) the FMUs, read and wire them, and precompute what the cases share.
 
-    `kind` (default the scenario's): "python" or "native", see :func:`resolve_fmus`.
+    `kind` (default the scenario's): "python" or "native", see :func:`resolve_fmus`. `algorithm` (default the
+    scenario's): the stepping the FMUs will run in, which sets the reference FMU's lead (:func:`reference_lead`).
     """
     kind = kind or scenario.kind
     paths = resolve_fmus(scenario, fmu_dir, controller, build, names, kind, native_fmu_dir)
@@ -352,7 +358,8 @@ def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str
     seen = [(c.src_fmu, c.src_var) for c in connections if c.dst_fmu == driver and (c.src_fmu, c.src_var) not in record]
     return Setup(scenario, paths, connections, plant, driver, record, n,
                  desired_states(traj, np.arange(n + 1) * scenario.step_size), start_parameters(traj),
-                 descriptions, kind, left_out, held, list(dict.fromkeys(seen)))
+                 descriptions, kind, left_out, held, list(dict.fromkeys(seen)),
+                 reference_lead(scenario, descriptions, algorithm or scenario.algorithm))
 
 
 #: The FMU name of the reference signals (fmus/reference/), added to a run whose controller asks for them.
@@ -383,6 +390,25 @@ def with_reference(scenario: Scenario, paths: dict[str, Path], descriptions: dic
     descriptions = {REFERENCE_FMU: read_description(extra[REFERENCE_FMU]), **descriptions}
     return replace(scenario, order=[REFERENCE_FMU, *scenario.order], fmus={REFERENCE_FMU: REFERENCE_FMU,
                                                                           **scenario.fmus}), paths, descriptions
+
+
+def reference_lead(scenario: Scenario, descriptions: dict, algorithm: str) -> int | None:
+    """The reference FMU's ``lead_samples`` for `algorithm` at the scenario's step
+    (:func:`flexarm.reference.lead_samples_for`: 0 Gauss-Seidel, the step in samples Jacobi); None when the run
+    has no reference FMU with that parameter. A case's own value wins (:meth:`Setup.case_parameters`)."""
+    from flexarm.reference import lead_samples_for
+    from flexarm.trajectory.io import SAMPLE_TIME
+
+    md = descriptions.get(REFERENCE_FMU)
+    if md is None or not any(v.name == "lead_samples" for v in md.modelVariables):
+        return None
+    samples = round(scenario.step_size / SAMPLE_TIME)
+    if samples < 1 or abs(scenario.step_size - samples * SAMPLE_TIME) > 1e-9:
+        return None  # no whole number of samples: the reference FMU refuses the step itself, naming it
+    try:
+        return lead_samples_for(algorithm, samples)
+    except ValueError as exc:
+        raise ScenarioError(f"{scenario.path.name}: the reference FMU's lead_samples: {exc}") from None
 
 
 def unfed_inputs(descriptions: dict, connections: list[master.Connection]) -> dict[str, list[str]]:
@@ -503,7 +529,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
         setups = []
         for names, cases in groups.items():
             setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None, kind=kind,
-                            native_fmu_dir=native_fmu_dir)
+                            native_fmu_dir=native_fmu_dir, algorithm=algorithm)
             check_overrides(setup, overrides or {})
             for case in cases:
                 setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")
@@ -592,7 +618,10 @@ def swap_report(setup: Setup) -> list[str]:
         lines.append(f"{name}: {inst} input(s) {', '.join(held)} fed by nothing: held at their start values")
     if REFERENCE_FMU in setup.paths:
         fed = sorted({c.dst_fmu for c in setup.connections if c.src_fmu == REFERENCE_FMU})
-        lines.append(f"{name}: {', '.join(fed) or 'nothing'} fed by the reference FMU ({setup.paths[REFERENCE_FMU]})")
+        lead = "" if setup.reference_lead is None else (
+            f", lead_samples = {setup.reference_lead} (the stepping's delay from the reference to the plant)")
+        lines.append(f"{name}: {', '.join(fed) or 'nothing'} fed by the reference FMU ({setup.paths[REFERENCE_FMU]})"
+                     + lead)
     return lines
 
 
