@@ -39,7 +39,9 @@ ctypes.pythonapi.Py_IncRef(ctypes.py_object(globals()))
 
 MEASURED = ("q1_m", "q2_m", "qd1_m", "qd2_m")
 REFERENCE = ("q1_ref", "q2_ref", "qd1_ref", "qd2_ref", "tau1_ff", "tau2_ff")
-GAINS = {"kp1": (80.0, "N.m/rad"), "kd1": (1.0, "N.m.s/rad"), "kp2": (8.0, "N.m/rad"), "kd2": (0.1, "N.m.s/rad")}
+# Chosen for both masters: in a Jacobi master larger rate gains (kd1 = 1, kd2 = 0.1) let the loop delay make a
+# link-1 vibration of the undamped arm grow (docs/own-controller.md, "Jacobi masters").
+GAINS = {"kp1": (80.0, "N.m/rad"), "kd1": (0.25, "N.m.s/rad"), "kp2": (2.0, "N.m/rad"), "kd2": (0.01, "N.m.s/rad")}
 COMPARED = ("q1_ref", "q2_ref", "qd1_ref", "qd2_ref")  # the reference the measurements are compared with
 SAMPLE = 1e-3  # the reference's sample, s
 MAX_DELAY = 10  # loop_delay_samples allowed: 0..MAX_DELAY

@@ -20,7 +20,7 @@
 /* Value references: the order of modelDescription.xml's <ModelVariables>. */
 enum { Q1_M, Q2_M, QD1_M, QD2_M, Q1_REF, Q2_REF, QD1_REF, QD2_REF, TAU1_FF, TAU2_FF,
        KP1, KD1, KP2, KD2, USE_FF, TAU1_MAX, TAU2_MAX, TAU1, TAU2, LOOP_DELAY, N_VARS };
-static const double START[N_VARS] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 80.0, 1.0, 8.0, 0.1, 1, 7.0, 2.25, 0, 0, 0};
+static const double START[N_VARS] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 80.0, 0.25, 2.0, 0.01, 1, 7.0, 2.25, 0, 0, 0};
 enum { FIRST_INPUT = Q1_M, FIRST_PARAMETER = KP1, FIRST_OUTPUT = TAU1 };
 #define MAX_DELAY 10  /* loop_delay_samples allowed: 0..MAX_DELAY */
 #define SAMPLE 1e-3   /* the reference's sample, s */
