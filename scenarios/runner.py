@@ -311,9 +311,11 @@ class Setup:
         """Instance -> kind of the FMU file it runs, from its model description (:func:`fmu_kind`)."""
         return {inst: fmu_kind(md) for inst, md in self.descriptions.items()}
 
-    def open_master(self, algorithm: str = "gauss-seidel") -> master.Master:
-        """Load this set's FMUs once (reuse the master for every case that shares them)."""
-        return master.Master(self.paths, self.scenario.order, self.connections, algorithm)
+    def open_master(self, algorithm: str | None = None) -> master.Master:
+        """Load this set's FMUs once (reuse the master for every case that shares them), stepping with
+        `algorithm` (default the scenario's: a sweep point steps as the scenario does)."""
+        return master.Master(self.paths, self.scenario.order, self.connections,
+                             algorithm or self.scenario.algorithm)
 
     def case_parameters(self, case_parameters: dict[str, dict], where: str = "") -> dict[str, dict]:
         """The case's parameters checked against the FMUs and converted (:func:`scenarios.values.check_parameters`),
