@@ -33,8 +33,10 @@ _USAGE = {
                    "computes the torques from the inputs present and holds them until the next step."),
     "reference": ("Communication steps of whole 1 ms samples (within 1e-9 s; a step of at most 1e-9 s does "
                   "nothing); the slew starts at t = 0. No inputs: the outputs at t<sub>k</sub> are the trajectory's "
-                  "sample k = round(t<sub>k</sub> / 1 ms), the final state held after t<sub>f</sub>; wire them by "
-                  "name into a controller's inputs (docs/own-controller.md)."),
+                  "sample k = round(t<sub>k</sub> / 1 ms) + <code>lead_samples</code>, the final state held after "
+                  "t<sub>f</sub>; wire them by name into a controller's inputs (docs/own-controller.md). "
+                  "<code>lead_samples</code>: 0 in a Gauss-Seidel master, the communication step in samples in a "
+                  "Jacobi one (the controller's torques reach the plant one step late)."),
 }
 
 

@@ -303,14 +303,19 @@ class Setup:
     held_inputs: dict[str, list[str]] = field(default_factory=dict)
     #: The outputs wired into the torques' source (what the controller saw), recorded after :attr:`record`.
     seen: list[tuple[str, str]] = field(default_factory=list)
+    #: The reference FMU's ``lead_samples`` for the run's stepping (:func:`reference_lead`), unless a case sets
+    #: it; None without a reference FMU that has the parameter.
+    reference_lead: int | None = None
 
     def fmu_kinds(self) -> dict[str, str]:
         """Instance -> kind of the FMU file it runs, from its model description (:func:`fmu_kind`)."""
         return {inst: fmu_kind(md) for inst, md in self.descriptions.items()}
 
-    def open_master(self, algorithm: str = "gauss-seidel") -> master.Master:
-        """Load this set's FMUs once (reuse the master for every case that shares them)."""
-        return master.Master(self.paths, self.scenario.order, self.connections, algorithm)
+    def open_master(self, algorithm: str | None = None) -> master.Master:
+        """Load this set's FMUs once (reuse the master for every case that shares them), stepping with
+        `algorithm` (default the scenario's: a sweep point steps as the scenario does)."""
+        return master.Master(self.paths, self.scenario.order, self.connections,
+                             algorithm or self.scenario.algorithm)
 
     def case_parameters(self, case_parameters: dict[str, dict], where: str = "") -> dict[str, dict]:
         """The case's parameters checked against the FMUs and converted (:func:`scenarios.values.check_parameters`),
@@ -320,15 +325,18 @@ class Setup:
         params = check_parameters(where or f"{self.scenario.path.name}: parameters", self.descriptions,
                                   case_parameters)
         params[self.plant] = {**self.start, **params.get(self.plant, {})}
+        if self.reference_lead is not None:
+            params[REFERENCE_FMU] = {"lead_samples": self.reference_lead, **params.get(REFERENCE_FMU, {})}
         return params
 
 
 def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
             names: dict[str, str] | None = None, build: bool = True, kind: str | None = None,
-            native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR) -> Setup:
+            native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR, algorithm: str | None = None) -> Setup:
     """Resolve (and build) the FMUs, read and wire them, and precompute what the cases share.
 
-    `kind` (default the scenario's): "python" or "native", see :func:`resolve_fmus`.
+    `kind` (default the scenario's): "python" or "native", see :func:`resolve_fmus`. `algorithm` (default the
+    scenario's): the stepping the FMUs will run in, which sets the reference FMU's lead (:func:`reference_lead`).
     """
     kind = kind or scenario.kind
     paths = resolve_fmus(scenario, fmu_dir, controller, build, names, kind, native_fmu_dir)
@@ -352,7 +360,8 @@ def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str
     seen = [(c.src_fmu, c.src_var) for c in connections if c.dst_fmu == driver and (c.src_fmu, c.src_var) not in record]
     return Setup(scenario, paths, connections, plant, driver, record, n,
                  desired_states(traj, np.arange(n + 1) * scenario.step_size), start_parameters(traj),
-                 descriptions, kind, left_out, held, list(dict.fromkeys(seen)))
+                 descriptions, kind, left_out, held, list(dict.fromkeys(seen)),
+                 reference_lead(scenario, descriptions, algorithm or scenario.algorithm))
 
 
 #: The FMU name of the reference signals (fmus/reference/), added to a run whose controller asks for them.
@@ -383,6 +392,25 @@ def with_reference(scenario: Scenario, paths: dict[str, Path], descriptions: dic
     descriptions = {REFERENCE_FMU: read_description(extra[REFERENCE_FMU]), **descriptions}
     return replace(scenario, order=[REFERENCE_FMU, *scenario.order], fmus={REFERENCE_FMU: REFERENCE_FMU,
                                                                           **scenario.fmus}), paths, descriptions
+
+
+def reference_lead(scenario: Scenario, descriptions: dict, algorithm: str) -> int | None:
+    """The reference FMU's ``lead_samples`` for `algorithm` at the scenario's step
+    (:func:`flexarm.reference.lead_samples_for`: 0 Gauss-Seidel, the step in samples Jacobi); None when the run
+    has no reference FMU with that parameter. A case's own value wins (:meth:`Setup.case_parameters`)."""
+    from flexarm.reference import lead_samples_for
+    from flexarm.trajectory.io import SAMPLE_TIME
+
+    md = descriptions.get(REFERENCE_FMU)
+    if md is None or not any(v.name == "lead_samples" for v in md.modelVariables):
+        return None
+    samples = round(scenario.step_size / SAMPLE_TIME)
+    if samples < 1 or abs(scenario.step_size - samples * SAMPLE_TIME) > 1e-9:
+        return None  # no whole number of samples: the reference FMU refuses the step itself, naming it
+    try:
+        return lead_samples_for(algorithm, samples)
+    except ValueError as exc:
+        raise ScenarioError(f"{scenario.path.name}: the reference FMU's lead_samples: {exc}") from None
 
 
 def unfed_inputs(descriptions: dict, connections: list[master.Connection]) -> dict[str, list[str]]:
@@ -485,8 +513,6 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     descriptions like scenario values and applied to every case after the scenario's own.
     """
     algorithm = algorithm or scenario.algorithm
-    if progress and (kind or scenario.kind) == "python":
-        _say_numba_compile()  # before the FMUs are built: a build's trace step compiles them too
     scenario = with_overrides(scenario, overrides)
     chain = verify_data_chain()
     by_key: dict[str, CaseResult] = {}
@@ -503,7 +529,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
         setups = []
         for names, cases in groups.items():
             setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None, kind=kind,
-                            native_fmu_dir=native_fmu_dir)
+                            native_fmu_dir=native_fmu_dir, algorithm=algorithm)
             check_overrides(setup, overrides or {})
             for case in cases:
                 setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")
@@ -513,6 +539,9 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     reported.append(line)
                     print(line)
         check_writable(folder, sum(BYTES_PER_SAMPLE * (s.n_steps + 1) * len(c) for s, c in setups))
+        if progress:  # a Python plant FMU whose build has no kernels cached yet compiles them on its first step
+            for plant in dict.fromkeys(s.paths[s.plant] for s, _ in setups):
+                _say_numba_compile(plant)
         opened = []
         try:
             for setup, cases in setups:  # every case probed before the first one runs
@@ -592,7 +621,10 @@ def swap_report(setup: Setup) -> list[str]:
         lines.append(f"{name}: {inst} input(s) {', '.join(held)} fed by nothing: held at their start values")
     if REFERENCE_FMU in setup.paths:
         fed = sorted({c.dst_fmu for c in setup.connections if c.src_fmu == REFERENCE_FMU})
-        lines.append(f"{name}: {', '.join(fed) or 'nothing'} fed by the reference FMU ({setup.paths[REFERENCE_FMU]})")
+        lead = "" if setup.reference_lead is None else (
+            f", lead_samples = {setup.reference_lead} (the stepping's delay from the reference to the plant)")
+        lines.append(f"{name}: {', '.join(fed) or 'nothing'} fed by the reference FMU ({setup.paths[REFERENCE_FMU]})"
+                     + lead)
     return lines
 
 
@@ -646,22 +678,36 @@ def desired_states(traj, times, dt: float | None = None) -> dict[str, np.ndarray
     return {"theta": th, "omega": om}
 
 
-def numba_compiles() -> bool:
-    """Whether a Python plant FMU will compile Numba kernels: Numba importable and not switched off.
+def numba_compiles(fmu: Path | None = None) -> bool:
+    """Whether a Python plant FMU will compile Numba kernels when it steps.
 
-    Each Python FMU runs its own private copy of ``flexarm`` from its unpacked folder (fmu_build.isolate), so
-    its first step in a freshly unpacked copy compiles the kernels and caches them in that folder.
+    Numba must be importable and not switched off. Each Python FMU runs its own private copy of ``flexarm``
+    (fmu_build.isolate), whose kernels Numba caches once per FMU build in the user's cache folder
+    (:mod:`flexarm._numba_cache`); given the FMU file, this is also False when that cache holds its build.
     """
     import importlib.util
 
-    return not os.environ.get("FLEXARM_NO_NUMBA") and importlib.util.find_spec("numba") is not None
+    if os.environ.get("FLEXARM_NO_NUMBA") or importlib.util.find_spec("numba") is None:
+        return False
+    if fmu is None:
+        return True
+    import zipfile
+
+    from flexarm._numba_cache import cache_root
+
+    try:
+        with zipfile.ZipFile(fmu) as z:
+            bundled = {n.split("/")[1] for n in z.namelist() if n.startswith("resources/_") and n.count("/") >= 2}
+    except (OSError, zipfile.BadZipFile):
+        return True
+    return bool(bundled) and not any(next((cache_root() / b).glob("*.nbi"), None) for b in bundled)
 
 
-def _say_numba_compile() -> None:
-    if numba_compiles():
+def _say_numba_compile(fmu: Path | None = None) -> None:
+    if numba_compiles(fmu):
         try:
-            print("the Python plant FMU compiles its Numba kernels on its first step (about 20 s per freshly "
-                  "unpacked FMU; FLEXARM_NO_NUMBA=1 runs NumPy instead)", file=sys.stderr, flush=True)
+            print("the Python plant FMU compiles its Numba kernels on its first step (about 20 s, once per FMU "
+                  "build: then cached; FLEXARM_NO_NUMBA=1 runs NumPy instead)", file=sys.stderr, flush=True)
         except (OSError, ValueError):  # standard error unwritable: no reason to stop a run
             pass
 

@@ -193,7 +193,7 @@ SCENARIOS: dict[str, dict] = {
     "controller_lqg": {"params": {"gain_set": "gamma0.1", "loop_delay_samples": 2, "integral_action": True,
                                   "tau1_max": 1000.0, "tau2_max": 1000.0},  # the inputs are far off the path
                        "inputs": _controller_inputs},
-    "reference": {"params": {}, "inputs": lambda k: {}},  # no inputs, no parameters: outputs follow the time
+    "reference": {"params": {"lead_samples": 3}, "inputs": lambda k: {}},  # no inputs: outputs follow the time
 }
 
 

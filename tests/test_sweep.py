@@ -201,3 +201,19 @@ def test_shipped_sweeps_load():
     rob, sched = load_sweep("robustness"), load_sweep("schedule")
     assert rob.n_points == 360 and sched.n_points == 12
     assert [a.field for a in rob.axes] == ["plant.payload_mass", "controller.gain_set", "sensors.noise_seed"]
+
+
+def test_sweep_points_step_as_their_scenario(monkeypatch):
+    """A sweep point's master steps with the scenario's algorithm (lqg_jacobi: Jacobi), not always
+    Gauss-Seidel: the worker and the base-point probe open it through Setup.open_master."""
+    from scenarios import runner
+    from scenarios.config import load_scenario
+
+    opened = []
+    monkeypatch.setattr(runner.master, "Master", lambda *args: opened.append(args[3]) or args[3])
+    for name, algorithm in (("lqg_jacobi", "jacobi"), ("table2", "gauss-seidel")):
+        setup = runner.Setup.__new__(runner.Setup)
+        setup.paths, setup.connections, setup.scenario = {}, [], load_scenario(name)
+        assert setup.open_master() == algorithm
+        assert setup.open_master("gauss-seidel") == "gauss-seidel"  # an explicit choice wins
+    assert opened == ["jacobi", "gauss-seidel", "gauss-seidel", "gauss-seidel"]

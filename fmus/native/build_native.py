@@ -232,7 +232,7 @@ HANDLED_PARAMETERS = {
     # omega7_estimate: accepted and not used, as by the Python FMU (the Kalman filter estimates every velocity)
     "controller_lqg": {"gain_set", "schedule_period", "tau1_max", "tau2_max", "omega7_estimate",
                        "loop_delay_samples", "integral_action", "estimator"},
-    "reference": set(),
+    "reference": {"lead_samples"},
 }
 
 

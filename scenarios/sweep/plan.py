@@ -12,7 +12,6 @@ from pathlib import Path
 from flexarm.provenance import sha256_bytes
 
 from ..config import ScenarioError
-from ..master import Master
 from ..runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, known_fmu_names, prepare, read_descriptions, resolve_fmus
 from ..values import check_parameters, check_value, check_variable
 from .spec import Axis, Sweep, SweepError, _require, toml_content_sha256
@@ -165,7 +164,7 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
 def _probe(sweep: Sweep, fs: FmuSet) -> None:
     """Initialise the base point on this FMU set and step once; a refusal is a :class:`SweepError`."""
     setup = prepare(sweep.scenario, names={k: str(v) for k, v in fs.paths.items()}, build=False)
-    with Master(setup.paths, setup.scenario.order, setup.connections) as m:  # with a reference FMU added
+    with setup.open_master() as m:  # with a reference FMU added; stepping as the scenario does
         outcome = m.probe(setup.case_parameters(sweep.case.parameters), sweep.scenario.step_size)
     if outcome.status == "error":
         raise SweepError(f"{sweep.path.name}: base point (case {sweep.case.key}, communication step "

@@ -3,9 +3,13 @@
  * the slew's feedforward, the same law as own_pd.py. A short standalone template: copy it, change
  * `torque()` and the variable table (here and in own_pd_c/modelDescription.xml, same value references).
  *
- *     tau_i = sat( ff * tau_i_ff + kp_i (q_i_ref - q_i_m) + kd_i (qd_i_ref - qd_i_m) ),  |tau_i| <= tau_i_max
+ *     tau_i = sat( ff * tau_i_ff + kp_i (q_i_ref[-d] - q_i_m) + kd_i (qd_i_ref[-d] - qd_i_m) ),  |tau_i| <= tau_i_max
  *
  * Direct feedthrough: fmi2GetReal computes the torques from the inputs set at this communication point.
+ * d = loop_delay_samples (0..MAX_DELAY): samples between the plant state measured and the torques using it;
+ * 0 in a Gauss-Seidel master, 2 per ms of step in a Jacobi one. With d > 0 the measurements are compared with
+ * the reference present d samples before the last fmi2DoStep (kept in a ring, one entry per 1 ms sample;
+ * the first one kept until d exist), the feedforward is the one present now (as own_pd.py).
  * Build: examples/own_controller/build_c.sh (gcc, zip) -> build/examples/OwnPDC.fmu.
  */
 #include <stdlib.h>
@@ -15,12 +19,16 @@
 
 /* Value references: the order of modelDescription.xml's <ModelVariables>. */
 enum { Q1_M, Q2_M, QD1_M, QD2_M, Q1_REF, Q2_REF, QD1_REF, QD2_REF, TAU1_FF, TAU2_FF,
-       KP1, KD1, KP2, KD2, USE_FF, TAU1_MAX, TAU2_MAX, TAU1, TAU2, N_VARS };
-static const double START[N_VARS] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 80.0, 1.0, 8.0, 0.1, 1, 7.0, 2.25, 0, 0};
+       KP1, KD1, KP2, KD2, USE_FF, TAU1_MAX, TAU2_MAX, TAU1, TAU2, LOOP_DELAY, N_VARS };
+static const double START[N_VARS] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 80.0, 0.25, 2.0, 0.01, 1, 7.0, 2.25, 0, 0, 0};
 enum { FIRST_INPUT = Q1_M, FIRST_PARAMETER = KP1, FIRST_OUTPUT = TAU1 };
+#define MAX_DELAY 10  /* loop_delay_samples allowed: 0..MAX_DELAY */
+#define SAMPLE 1e-3   /* the reference's sample, s */
 
 typedef struct {
     double v[N_VARS];
+    double past[MAX_DELAY + 1][4]; /* q1_ref, q2_ref, qd1_ref, qd2_ref of the last samples (a ring) */
+    int n_past, next;              /* entries kept (<= MAX_DELAY + 1), where the next one goes */
     fmi2CallbackLogger log;
     fmi2ComponentEnvironment env;
     char name[64];
@@ -30,9 +38,14 @@ static double sat(double x, double limit) { return x < -limit ? -limit : (x > li
 
 static double torque(const Model *m, int joint) /* joint 0 or 1 */
 {
-    const double *v = m->v;
-    double tau = v[KP1 + 2 * joint] * (v[Q1_REF + joint] - v[Q1_M + joint])
-               + v[KD1 + 2 * joint] * (v[QD1_REF + joint] - v[QD1_M + joint]);
+    const double *v = m->v, *ref = &v[Q1_REF]; /* q1_ref, q2_ref, qd1_ref, qd2_ref: present, or d samples ago */
+    int d = (int)v[LOOP_DELAY];
+    if (d > 0 && m->n_past > 0) {
+        int back = d < m->n_past - 1 ? d : m->n_past - 1;
+        ref = m->past[(m->next - 1 - back + 2 * (MAX_DELAY + 1)) % (MAX_DELAY + 1)];
+    }
+    double tau = v[KP1 + 2 * joint] * (ref[joint] - v[Q1_M + joint])
+               + v[KD1 + 2 * joint] * (ref[2 + joint] - v[QD1_M + joint]);
     if (v[USE_FF] != 0.0) tau += v[TAU1_FF + joint];
     return sat(tau, v[TAU1_MAX + joint]);
 }
@@ -74,11 +87,16 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tol_on, fmi2Real tol
     return fmi2OK;
 }
 fmi2Status fmi2EnterInitializationMode(fmi2Component c) { (void)c; return fmi2OK; }
-fmi2Status fmi2ExitInitializationMode(fmi2Component c) { (void)c; return fmi2OK; }
+fmi2Status fmi2ExitInitializationMode(fmi2Component c)
+{
+    ((Model *)c)->n_past = ((Model *)c)->next = 0;
+    return fmi2OK;
+}
 fmi2Status fmi2Terminate(fmi2Component c) { (void)c; return fmi2OK; }
 fmi2Status fmi2Reset(fmi2Component c)
 {
     memcpy(((Model *)c)->v, START, sizeof START);
+    ((Model *)c)->n_past = ((Model *)c)->next = 0;
     return fmi2OK;
 }
 
@@ -86,7 +104,7 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n,
 {
     Model *m = c;
     for (size_t i = 0; i < n; i++) {
-        if (vr[i] >= N_VARS) return refuse(m, "fmi2GetReal: unknown value reference");
+        if (vr[i] >= N_VARS || vr[i] == USE_FF || vr[i] == LOOP_DELAY) return refuse(m, "fmi2GetReal: not a Real");
         value[i] = vr[i] == TAU1 ? torque(m, 0) : vr[i] == TAU2 ? torque(m, 1) : m->v[vr[i]];
     }
     return fmi2OK;
@@ -118,22 +136,39 @@ fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
     return fmi2OK;
 }
 
-fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean no_prior)
+fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer value[])
 {
-    (void)c, (void)t, (void)h, (void)no_prior;
-    return fmi2OK; /* stateless: the torques are a function of the inputs */
+    for (size_t i = 0; i < n; i++) {
+        if (vr[i] != LOOP_DELAY) return refuse(c, "fmi2GetInteger: not an Integer");
+        value[i] = (fmi2Integer)((Model *)c)->v[LOOP_DELAY];
+    }
+    return fmi2OK;
 }
 
-/* Not supported by this template. */
-fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer v[])
+fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer value[])
 {
-    (void)vr, (void)v;
-    return n == 0 ? fmi2OK : refuse(c, "fmi2GetInteger: no Integer variables");
+    for (size_t i = 0; i < n; i++) {
+        if (vr[i] != LOOP_DELAY) return refuse(c, "fmi2SetInteger: not an Integer");
+        if (value[i] < 0 || value[i] > MAX_DELAY) return refuse(c, "loop_delay_samples: allowed 0..10");
+    }
+    for (size_t i = 0; i < n; i++) ((Model *)c)->v[LOOP_DELAY] = value[i];
+    return fmi2OK;
 }
-fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer v[])
+
+fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean no_prior)
 {
-    (void)vr, (void)v;
-    return n == 0 ? fmi2OK : refuse(c, "fmi2SetInteger: no Integer variables");
+    (void)t, (void)no_prior;
+    Model *m = c;
+    long samples = h >= 0 ? (long)(h / SAMPLE + 0.5) : -1;
+    double off = h - (double)samples * SAMPLE;
+    if (samples < 0 || off > 1e-9 || off < -1e-9) return refuse(m, "fmi2DoStep: step_size: not a whole multiple of 1 ms");
+    /* keep the reference present now, once per 1 ms sample of the step (the torques read a past one) */
+    for (int k = 0; k < samples && k <= MAX_DELAY; k++) {
+        memcpy(m->past[m->next], &m->v[Q1_REF], sizeof m->past[0]);
+        m->next = (m->next + 1) % (MAX_DELAY + 1);
+        if (m->n_past < MAX_DELAY + 1) m->n_past++;
+    }
+    return fmi2OK;
 }
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[])
 {

@@ -1,8 +1,9 @@
 /*
  * Native reference FMU: flexarm.reference.ReferenceSignals in C.
  *
- * No inputs, no parameters. The outputs at communication point t are row min(k, n) of the table
- * computed by flexarm.reference (resource reference.txt, SHA-256 checked by the glue), k = lround(t / dt):
+ * No inputs; one parameter, lead_samples = L (Integer 0..1000, range checked by the glue). The outputs at
+ * communication point t are row min(k, n) of the table computed by flexarm.reference (resource reference.txt,
+ * SHA-256 checked by the glue), k = lround(t / dt) + L:
  * the desired states, joint references, feedforward torques (0 after the slew), desired tip and progress,
  * in the order of the variable table (the signal catalogue's "reference" outputs). Row n (t = t_f) is held
  * after the slew. A step must be a whole number of samples (glue_whole_samples).
@@ -60,7 +61,7 @@ fail:
 static fmi2Status reference_sample(Instance *inst)
 {
     const ReferenceData *d = inst->data;
-    long k = lround(inst->time / d->dt);
+    long k = lround(inst->time / d->dt) + (long)VALUE(inst, IDX_lead_samples);
     if (k < 0) k = 0;
     if (k > d->n_steps) k = d->n_steps;
     const double *row = d->table + (size_t)k * (size_t)d->n_outputs;
