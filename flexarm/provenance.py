@@ -26,6 +26,25 @@ SOURCE_ROOT = Path(__file__).resolve().parent.parent
 BUILD_COMMIT_FILE = Path(__file__).with_name("_build_commit.txt")
 
 
+def checkout_refusal(command: str, writes: str, root: str | Path = SOURCE_ROOT) -> str | None:
+    """The refusal of a command that rewrites committed files when `root` is no checkout, else None.
+
+    A checkout has ``build_fmus.py`` beside the packages; an installed package (``pip install .``) has not,
+    and a command that rewrote ``docs/`` or ``flexarm/data`` there would write into site-packages.
+
+    Parameters
+    ----------
+    command : str
+        The command as the user typed it (``python -m flexarm.lqr --write``).
+    writes : str
+        What it rewrites (``the gain files in flexarm/data/gains``).
+    """
+    if (Path(root) / "build_fmus.py").is_file():
+        return None
+    return (f"{command} rewrites {writes} of a checkout of flexarm-fmi, and {root} is none (an installed "
+            "package): run it in a clone of the repository")
+
+
 def git_commit(root: str | Path = SOURCE_ROOT) -> str:
     """The commit of this code: HEAD of its checkout, with '+dirty' when tracked files differ.
 

@@ -22,6 +22,8 @@ import sys
 import time
 from pathlib import Path
 
+from .provenance import checkout_refusal
+
 REPO = Path(__file__).resolve().parent.parent
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -52,10 +54,9 @@ def main(argv=None) -> int:
     ap.add_argument("--sensitivity", action="store_true",
                     help="the trajectory stage also solves the ±20 %% parameter cases (about a minute more)")
     args = ap.parse_args(argv)
-    if not (REPO / "build_fmus.py").is_file():  # an installed package: the stages would rewrite site-packages
-        print(f"error: python -m flexarm.regenerate rewrites the data files, FMUs and documents of a checkout of "
-              f"flexarm-fmi, and {REPO} is none (an installed package): run it in a clone of the repository",
-              file=sys.stderr)
+    refusal = checkout_refusal("python -m flexarm.regenerate", "the data files, FMUs and documents", REPO)
+    if refusal:  # an installed package: the stages would rewrite site-packages
+        print(f"error: {refusal}", file=sys.stderr)
         return 2
     chosen = stages(args.sensitivity)
     first = names.index(args.only or args.start)

@@ -240,6 +240,10 @@ def main(argv=None) -> int:
     ap.add_argument("--worker-threads", type=int, default=0,
                     help="libcosim worker threads (default 0: FMUs run on the calling thread; -1: libcosim's default)")
     args = ap.parse_args(argv)
+    if not args.ssp.is_file():
+        print(f"error: ssp: no such file {args.ssp} (write one with `python -m scenarios export-ssp SCENARIO`)",
+              file=sys.stderr)
+        return 2
     try:
         t0 = time.perf_counter()
         out = run_case_libcosim(args.ssp, args.steps,
