@@ -231,3 +231,49 @@ def test_ilc_scenario_learns_through_the_fmus_and_resumes(tmp_path):
     with pytest.raises(ScenarioError, match="another configuration"):
         run_ilc(scen, out, plots=False, progress=lambda s: None)
     shutil.rmtree(out)
+
+
+@pytest.mark.parametrize("params", [{"loop_delay_samples": 2, "integral_action": True},
+                                    {"estimator": 2, "schedule_period": 0.2}], ids=["kalman-delay2-integral", "bank"])
+def test_controller_lqg_adds_the_learned_correction_python_and_native_alike(tmp_path, params):
+    """controller_lqg (both kinds) with feedforward_correction_file: the Python FMU equals the library law with
+    the same correction bit for bit (the filter's input is τ − τ_ff, the correction included); the native one
+    equals the Python one to 1e-10 of the peak torque (as without a correction, tests/test_native_lqg.py); the
+    correction changes the torques; a stale file is refused by both."""
+    from fmu_harness import built_fmus
+    from native_fmus import native_fmus, run_fmpy
+    from test_native_lqg import MEASURED, lqg_inputs
+
+    from flexarm.lqg import lqg_controller
+    from flexarm.lqg_bank import bank_controller
+
+    n = 600
+    u, path = _learned_file(tmp_path, 400)
+    py, native = built_fmus()["controller_lqg"], native_fmus()["controller_lqg"]
+    learned = {**params, "feedforward_correction_file": str(path)}
+
+    def torques(fmu, p):
+        names, rows = run_fmpy(fmu, n, lqg_inputs, p)
+        return np.asarray(rows)[:, [names.index("tau1"), names.index("tau2")]]
+
+    got, plain = torques(py, learned), torques(py, params)
+    delay = params.get("loop_delay_samples", 0)
+    integral = params.get("integral_action", False)
+    law = (bank_controller("gamma0.1", "200ms", delay, integral, feedforward_correction=u) if "estimator" in params
+           else lqg_controller("gamma0.1", "200ms", delay, integral, feedforward_correction=u))
+    state, expect = law.initial_state(), []
+    for k in range(n + 1):  # the FMU computes sample k from the inputs of sample k - d (lqg_inputs(0) before)
+        m = law.design.C @ law.z[0] if k < delay else [lqg_inputs(max(k - 1, 0) if delay else k)[x] for x in MEASURED]
+        tau, state = law.step(state, k, m)
+        expect.append(tau)
+    assert not np.array_equal(got, plain)
+    native_got = torques(native, learned)
+    assert np.abs(native_got - got).max() <= 1e-10 * np.abs(got).max()
+    np.testing.assert_array_equal(got, np.array(expect))
+    from flexarm.ilc import read_learned_feedforward
+
+    stale = ilc.write_learned_feedforward(tmp_path / "stale", u, 1e-3,
+                                          dict(read_learned_feedforward(path).metadata, trajectory_sha256="0" * 64))
+    for fmu in (py, native):
+        with pytest.raises(Exception):  # noqa: B017 - fmpy raises its own exception type for fmi2Error
+            torques(fmu, {**params, "feedforward_correction_file": str(stale)})
