@@ -139,8 +139,9 @@ def test_learned_feedforward_file_round_trip_and_data_chain(tmp_path):
     assert np.array_equal(ctrl.feedforward(300), plain.feedforward(300))
     # learnt on another trajectory: refused as stale, naming it
     stale = ilc.write_learned_feedforward(tmp_path / "stale", u, 1e-3, dict(meta, trajectory_sha256="0" * 64))
-    with pytest.raises(StaleDataError, match="trajectory"):
+    with pytest.raises(StaleDataError, match="trajectory") as err:
         ilc.read_learned_feedforward(stale)
+    assert "python -m scenarios run ilc_payload" in str(err.value) and "flexarm.lqr" not in str(err.value)
     # an edited side file is refused too
     doc = json.loads((tmp_path / "learned.json").read_text())
     doc["trials"] = [0, 1, 2]
@@ -277,3 +278,42 @@ def test_controller_lqg_adds_the_learned_correction_python_and_native_alike(tmp_
     for fmu in (py, native):
         with pytest.raises(Exception):  # noqa: B017 - fmpy raises its own exception type for fmi2Error
             torques(fmu, {**params, "feedforward_correction_file": str(stale)})
+
+
+def test_an_fmu_error_in_the_middle_of_a_trial_stops_the_campaign(tmp_path, monkeypatch, capsys):
+    """The controller returns fmi2Error from fmi2DoStep at t = 0.2 s of trial 1 (as a failing FMU does): the
+    campaign stops there (no trial 2, no learned file, no evaluation), the journal keeps the failed trial, and
+    ``python -m scenarios run`` says which trial, step and FMU, and exits non-zero; run again, it stays stopped."""
+    import scenarios.master as master
+    from scenarios.__main__ import main
+
+    text = SCENARIO.read_text().replace("samples = 3058", "samples = 300").replace("trials = 50", "trials = 3")
+    text = text.replace('evaluate_cases = ["learn", "payload_0p2", "payload_0p35"]', 'evaluate_cases = ["learn"]')
+    scen = tmp_path / "ilc_fail.toml"
+    scen.write_text(text)
+    raw, runs = master.fmu2_raw_functions, []
+
+    def failing(slave):
+        get_real, set_real, do_step = raw(slave)
+        if slave.instanceName != "controller":
+            return get_real, set_real, do_step
+
+        def step(component, t, h, new_step):
+            if t == 0.0:
+                runs.append(t)
+            return 3 if len(runs) == 2 and t >= 0.2 else do_step(component, t, h, new_step)  # 3: fmi2Error
+        return get_real, set_real, step
+
+    monkeypatch.setattr(master, "fmu2_raw_functions", failing)
+    out = tmp_path / "out"
+    args = ["run", str(scen), "--out", str(out), "--no-plots", "--quiet"]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "stopped: trial 1: error" in err and "t = 0.2" in err and "controller" in err, err
+    folder = out / "ilc_payload"
+    journal = [json.loads(line) for line in (folder / "journal.jsonl").read_text().splitlines()]
+    assert [r.get("status") for r in journal[1:]] == ["ok", "error"]
+    assert not (folder / "learned_feedforward.npz").exists()
+    summary = json.loads((folder / "evaluation.json").read_text())
+    assert summary["evaluation"] == {} and len(summary["trials"]) == 2
+    assert main(args) == 1 and len((folder / "journal.jsonl").read_text().splitlines()) == 3  # stays stopped
