@@ -538,3 +538,146 @@ def simulate_trial(controller, n_steps: int, payload_mass: float = 0.275, noise:
     meas = np.array(meas)
     return {"q": meas[:, ENCODERS], "strain": meas[:, STRAIN_GAUGES], "states": np.array(states),
             "torques": np.array(torques)}
+
+
+# -- what any torque could do: the floor of the tracking error --------------------------------------------
+def open_loop_model(arm, states, torques, dt: float, every: int = 20) -> LtvModel:
+    """The arm's open-loop ZOH model linearised about a run, one model per sample (the same every `every` samples).
+
+    Parameters
+    ----------
+    arm : flexarm.model.ArmModel
+    states : array_like, shape (N + 1, 22)
+        The run's states at samples 0..N.
+    torques : array_like, shape (N, 2)
+        Its torques, N·m (sample k held over [k·dt, (k+1)·dt)).
+    dt : float
+        Sample time, s.
+    every : int
+        Samples between linearisation points.
+
+    Returns
+    -------
+    LtvModel
+        δx_(k+1) = Φ_k δx_k + Γ_k δτ_k; output: the 11 element angles (rad) of the state deviation.
+    """
+    states, torques = np.asarray(states, dtype=float), np.asarray(torques, dtype=float)
+    n = len(torques)
+    points = [truncated_physical_model(arm, states[k], torques[k], dt) for k in range(0, n, every)]
+    which = np.minimum(np.arange(n) // every, len(points) - 1)
+    return LtvModel(A=np.array([points[i][0] for i in which]), B=np.array([points[i][1] for i in which]),
+                    C=np.eye(N_STATE)[:N], dt=dt)
+
+
+def lifted_blocks(model: LtvModel, block: int) -> np.ndarray:
+    """The lifted model for inputs held over blocks of `block` samples: shape (N·11, 2·n_blocks), rows sample by
+    sample (δy_1..δy_N), columns (block, joint)."""
+    n = model.n_samples
+    nb = -(-n // block)
+    X = np.zeros((N_STATE, 2 * nb))
+    G = np.empty((n, len(model.C), 2 * nb))
+    for k in range(n):
+        X = model.A[k] @ X
+        b = k // block
+        X[:, 2 * b:2 * b + 2] += model.B[k]
+        G[k] = model.C @ X
+    return G.reshape(n * len(model.C), 2 * nb)
+
+
+def minimum_tracking_error(payload_mass: float = 0.275, block: int = 10, iterations: int = 6, trajectory=None,
+                           progress=None) -> dict:
+    """The smallest rms element-angle error along the slew that torques within the motors' peak torques reach.
+
+    Noise-free and open loop (any controller's torques are some torque history, so this bounds every
+    controller): starting from the torques of the unlearned γ = 0.1 controller on the arm with the payload,
+    Gauss-Newton steps on the torque history, held over blocks of `block` samples: the arm linearised about
+    the current run (:func:`open_loop_model`), the box-constrained least-squares step
+    min ‖e − G v‖² subject to |τ + v| ≤ peak torque (per block; QR, then BVLS), a line search (1, 1/2, 1/4)
+    on the nonlinear plant (:class:`flexarm.integrator.PlantSimulator`, the plant FMU's integrator), until a
+    step no longer lowers the error. The metric is the tables' rms over the 11 element angles and samples
+    0..n_slew (degrees).
+
+    Returns
+    -------
+    dict
+        ``start_rms_deg`` (the unlearned closed loop), ``achieved_rms_deg`` (the best nonlinear run, torques
+        within the limits: an achievable error, so an upper bound of the floor at this block length),
+        ``achieved_peak_torque`` (N·m), ``linear_constrained_rms_deg`` / ``linear_unconstrained_rms_deg`` (the
+        linearised minimum of the last step with and without the limits) and ``unconstrained_peak_torque``
+        (what the unconstrained step needs), ``linear_1ms_unconstrained_rms_deg`` (the minimum on the model
+        linearised about the achieved run, torques free every 1 ms sample, no limits: the Riccati sweep of
+        :class:`NormOptimalIlc` with input weight 1e-10), ``iterations`` (per step: linear prediction,
+        nonlinear result, step length).
+    """
+    import scipy.optimize
+
+    from .control import TrackingController
+    from .integrator import PlantSimulator
+    from .model import ArmModel
+    from .parameters import load_parameters
+    from .trajectory.io import DEFAULT_TRAJECTORY_FILE
+
+    say = progress or (lambda s: None)
+    traj = as_trajectory(DEFAULT_TRAJECTORY_FILE if trajectory is None else trajectory)
+    m, dt = traj.n_samples, sample_time(traj)
+    z_d = desired_states(traj)[:m + 1]
+    arm = ArmModel(load_parameters(payload_mass=payload_mass))
+    limit = np.asarray(arm.params.peak_torque, dtype=float)
+
+    def replay(tau):
+        plant = PlantSimulator(arm, z_d[0])
+        return np.array([plant.z.copy()] + [plant.step(t, dt).copy() for t in tau])
+
+    def rms(err):
+        return float(np.degrees(np.sqrt(np.mean(err ** 2))))
+
+    def error(states):
+        return (z_d - states)[:, :N]
+
+    start = simulate_trial(TrackingController(traj, "gamma0.1"), m, payload_mass, noise=False)
+    tau, states = start["torques"].copy(), replay(start["torques"])
+    best = rms(error(states))
+    out = {"payload_mass_kg": float(payload_mass), "block_samples": int(block), "slew_samples": int(m),
+           "peak_torque_limits": limit.tolist(), "start_rms_deg": float(rms(error(start["states"]))),
+           "iterations": []}
+    nb = -(-m // block)
+    for it in range(int(iterations)):
+        G = lifted_blocks(open_loop_model(arm, states, tau, dt), block)
+        e = error(states)[1:].ravel()
+        lo, hi = np.empty(2 * nb), np.empty(2 * nb)
+        for b in range(nb):
+            seg = tau[b * block:(b + 1) * block]
+            lo[2 * b:2 * b + 2], hi[2 * b:2 * b + 2] = -limit - seg.min(axis=0), limit - seg.max(axis=0)
+        lo, hi = np.minimum(lo, 0.0), np.maximum(hi, 0.0)  # a sample already at its limit stays there
+        q, r = np.linalg.qr(G)
+        qe = q.T @ e
+        v = scipy.optimize.lsq_linear(r, qe, bounds=(lo, hi), method="bvls").x
+        free = np.linalg.solve(r, qe)
+
+        def lin(x, e=e, G=G):  # sample 0 has no error to remove
+            return rms(np.r_[np.zeros(N), e - G @ x])
+
+        out["linear_constrained_rms_deg"], out["linear_unconstrained_rms_deg"] = lin(v), lin(free)
+        out["unconstrained_peak_torque"] = np.abs(tau + np.repeat(free.reshape(nb, 2), block, 0)[:m]).max(0).tolist()
+        dv = np.repeat(v.reshape(nb, 2), block, axis=0)[:m]
+        step = None
+        for a in (1.0, 0.5, 0.25):
+            trial = replay(tau + a * dv)
+            r_a = rms(error(trial))
+            if np.isfinite(r_a) and r_a < best:
+                step = (a, r_a, trial)
+                break
+        out["iterations"].append({"linear_rms_deg": lin(v), "nonlinear_rms_deg": None if step is None else step[1],
+                                  "step": None if step is None else step[0]})
+        say(f"step {it}: linearised minimum {lin(v):.4f} deg (no limits {lin(free):.4f}), nonlinear "
+            + ("no decrease" if step is None else f"{step[1]:.4f} deg at step length {step[0]}"))
+        if step is None:
+            break
+        tau, best, states = tau + step[0] * dv, step[1], step[2]
+    out["achieved_rms_deg"], out["achieved_peak_torque"] = best, np.abs(tau).max(axis=0).tolist()
+    model = open_loop_model(arm, states, tau, dt)
+    e1 = error(states)[1:]
+    du = NormOptimalIlc(model, 1.0, 1e-10, None).step(e1)
+    out["linear_1ms_unconstrained_rms_deg"] = rms(np.r_[np.zeros((1, N)), e1 - model.simulate(du)])
+    out["linear_1ms_unconstrained_peak_torque"] = np.abs(tau + du).max(axis=0).tolist()
+    return out

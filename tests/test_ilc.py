@@ -225,6 +225,10 @@ def test_ilc_scenario_learns_through_the_fmus_and_resumes(tmp_path):
     assert rms[2] < rms[1] < rms[0]
     ev = second["evaluation"]["learn"]
     assert ev["learned"]["metrics"]["slew_rms_position_error"] < ev["unlearned"]["metrics"]["slew_rms_position_error"]
+    from scenarios.ilc_report import MARKER, render  # the page renders such a summary (its figures in it)
+
+    page = render(second, [("study", second)], None, second)
+    assert page.startswith(MARKER) and f"| 2 | {rms[2]:.4f} |" in page and "Jacobi stepping" in page
     learned = ilc.read_learned_feedforward(out / "ilc_payload" / "learned_feedforward.npz")
     assert learned.metadata["trials_learned_from"] == 3 and learned.correction.shape == (400, 2)
     # another configuration in the same folder is refused, not mixed
