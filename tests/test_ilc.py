@@ -321,3 +321,16 @@ def test_an_fmu_error_in_the_middle_of_a_trial_stops_the_campaign(tmp_path, monk
     summary = json.loads((folder / "evaluation.json").read_text())
     assert summary["evaluation"] == {} and len(summary["trials"]) == 2
     assert main(args) == 1 and len((folder / "journal.jsonl").read_text().splitlines()) == 3  # stays stopped
+
+
+def test_lifted_blocks_equal_the_models_response(small_model):
+    """The floor's lifted matrix (inputs held over blocks) maps a block input as the model's own recursion does,
+    including a last, shorter block."""
+    block = 7  # 80 samples: 11 full blocks and one of 3
+    G = ilc.lifted_blocks(small_model, block)
+    nb = -(-small_model.n_samples // block)
+    assert G.shape == (small_model.n_samples * 11, 2 * nb)
+    v = np.random.default_rng(3).normal(size=(nb, 2))
+    held = np.repeat(v, block, axis=0)[:small_model.n_samples]
+    y = small_model.simulate(held)
+    assert np.abs(G @ v.ravel() - y.ravel()).max() <= 1e-12 * np.abs(y).max()
