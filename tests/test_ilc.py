@@ -327,7 +327,9 @@ def test_lifted_blocks_equal_the_models_response(small_model):
     """The floor's lifted matrix (inputs held over blocks) maps a block input as the model's own recursion does,
     including a last, shorter block."""
     block = 7  # 80 samples: 11 full blocks and one of 3
-    G = ilc.lifted_blocks(small_model, block)
+    from flexarm.ilc_floor import lifted_blocks
+
+    G = lifted_blocks(small_model, block)
     nb = -(-small_model.n_samples // block)
     assert G.shape == (small_model.n_samples * 11, 2 * nb)
     v = np.random.default_rng(3).normal(size=(nb, 2))
