@@ -104,7 +104,7 @@ def render(summary: dict, studies: list[tuple[str, dict]], floor: dict | None, l
             "| item | target | measured | verdict |", "|---|---|---|---|",
             f"| rms position error (11 elements, slew) | < 0.1° within 10 trials (from {rms[0]:.2f}°) | "
             f"{rms[min(10, len(rms) - 1)]:.3f}° at trial 10, {min(rms):.3f}° best of {len(rms)} | "
-            f"{'met' if within10 is not None and within10 <= 10 else 'missed (a floor, below)'} |",
+            f"{'met' if within10 is not None and within10 <= 10 else 'missed (the floor, below)'} |",
             f"| no growth over {len(ok)} trials | monotone in ‖e‖₂ up to the noise floor | ‖e‖₂ "
             f"{norms[0]:.3f} → {norms[-1]:.3f} rad; falls every trial to trial {first_in_band} "
             f"({len(rises_before)} rises before), then stays in a band of {floor_band:.4f} rad "
