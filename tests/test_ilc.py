@@ -336,3 +336,22 @@ def test_lifted_blocks_equal_the_models_response(small_model):
     held = np.repeat(v, block, axis=0)[:small_model.n_samples]
     y = small_model.simulate(held)
     assert np.abs(G @ v.ravel() - y.ravel()).max() <= 1e-12 * np.abs(y).max()
+
+
+def test_the_ilc_page_is_its_committed_results(capsys):
+    """docs/ilc.md's generated parts are what docs/ilc_results.json and docs/ilc_floor.json render to, from the
+    scenario and data files as they are (no runs: the runs take 15-20 minutes; their commands regenerate all)."""
+    from scenarios import ilc_floor, ilc_report
+
+    assert ilc_floor.main(["--check"]) == 0, capsys.readouterr().err
+    assert ilc_report.main(["--check"]) == 0, capsys.readouterr().err
+
+
+def test_run_all_says_it_leaves_the_ilc_scenarios_out(capsys):
+    """`run all` runs the single-run scenarios and says, in one line, which ILC scenarios it does not run (here it
+    stops at once, refusing an unknown case, before running anything)."""
+    from scenarios.__main__ import main
+
+    assert main(["run", "all", "--case", "no_such_case"]) != 0
+    lines = [x for x in capsys.readouterr().err.splitlines() if "ILC" in x]
+    assert len(lines) == 1 and "ilc_payload" in lines[0] and "ilc_lqg_jacobi" in lines[0], lines
