@@ -131,7 +131,7 @@ def render(summary: dict, studies: list[tuple[str, dict]], floor: dict | None, l
                    f"against the best torque history found within the limits, {floor['achieved_rms_deg']:.3f}° "
                    f"(noise-free; [the floor](#the-floor-what-any-torque-within-the-limits-can-do)): "
                    f"{min(rms) - floor['achieved_rms_deg']:+.3f}°. The target of 0.1° is "
-                   f"{floor['achieved_rms_deg'] / 0.1:.1f} times below what any torque within the limits reaches.")
+                   f"{floor['achieved_rms_deg'] / 0.1:.1f} times below the best the search found within the limits.")
     else:
         out.append("No floor computed (run `python -m scenarios.ilc_floor`).")
     out += [
