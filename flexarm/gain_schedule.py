@@ -367,7 +367,7 @@ def write_design_files(stem, arrays: dict, metadata: dict, compressed: bool = Tr
     return npz_path
 
 
-def read_design_files(stem, what: str) -> tuple[dict, dict]:
+def read_design_files(stem, what: str, regenerate: str | None = None) -> tuple[dict, dict]:
     """Read a design file pair written by :func:`write_design_files`: (metadata, arrays by name).
 
     Parameters
@@ -376,6 +376,9 @@ def read_design_files(stem, what: str) -> tuple[dict, dict]:
         The files' path without suffix.
     what : str
         What the file is, for the message (``gain file``, ``LQG design file``, ...).
+
+    regenerate : str, optional
+        The command that writes this file, named in the errors (default :data:`REGENERATE_COMMAND`, the gains').
 
     Raises
     ------
@@ -386,17 +389,17 @@ def read_design_files(stem, what: str) -> tuple[dict, dict]:
     """
     npz_path = Path(f"{stem}.npz")
     if not npz_path.exists():
-        raise GainError(f"{what} {npz_path} does not exist; run `{REGENERATE_COMMAND}`")
-    meta = read_design_metadata(Path(f"{stem}.json"), npz_path)
+        raise GainError(f"{what} {npz_path} does not exist; run `{regenerate or REGENERATE_COMMAND}`")
+    meta = read_design_metadata(Path(f"{stem}.json"), npz_path, regenerate)
     try:
         with np.load(npz_path, allow_pickle=False) as d:
             return meta, {k: d[k] for k in d.files}
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
         raise StaleDataError(f"{what} {npz_path}: cannot be read ({type(exc).__name__}: {exc}); regenerate it "
-                             f"with `{REGENERATE_COMMAND}`") from exc
+                             f"with `{regenerate or REGENERATE_COMMAND}`") from exc
 
 
-def read_design_metadata(json_path, data_path) -> dict:
+def read_design_metadata(json_path, data_path, regenerate: str | None = None) -> dict:
     """Read a design file's JSON side file and verify the data chain behind it.
 
     Checks, against the files as they are now: the SHA-256 of ``data_path``
@@ -409,6 +412,9 @@ def read_design_metadata(json_path, data_path) -> dict:
     ----------
     json_path, data_path : path-like
         The ``.json`` side file and the ``.npz`` it describes.
+    regenerate : str, optional
+        The command that writes this file (default :data:`REGENERATE_COMMAND`, the gains', with the whole chain's
+        :data:`CHAIN_COMMAND` for a changed parameter file).
 
     Returns
     -------
@@ -423,11 +429,12 @@ def read_design_metadata(json_path, data_path) -> dict:
         the side file or a recorded input is missing).
     """
     json_path, data_path = Path(json_path), Path(data_path)
+    command = regenerate or REGENERATE_COMMAND
     if not json_path.exists():
         raise StaleDataError(f"design file {data_path}: its provenance file {json_path} is missing; "
-                             f"regenerate with `{REGENERATE_COMMAND}`")
+                             f"regenerate with `{command}`")
     try:
-        meta = read_sealed_json(json_path, REGENERATE_COMMAND)
+        meta = read_sealed_json(json_path, command)
     except DataFileError as exc:
         raise StaleDataError(f"design file {data_path}: its provenance file {exc}") from exc
     problems = []
@@ -450,7 +457,8 @@ def read_design_metadata(json_path, data_path) -> dict:
         par = _resolve(meta.get("parameter_file", "")) if meta.get("parameter_file") else "(in memory)"
         raise StaleDataError(f"design file {data_path} is stale: " + "; ".join(problems)
                              + f". It was made from trajectory file {traj} and parameter file {par}; "
-                             f"regenerate it with `{REGENERATE_COMMAND}` (if the parameter file changed, the "
-                             f"whole chain: `{CHAIN_COMMAND}`)")
+                             f"regenerate it with `{command}`"
+                             + ("" if regenerate else f" (if the parameter file changed, the whole chain: "
+                                                      f"`{CHAIN_COMMAND}`)"))
     return meta
 

@@ -87,6 +87,8 @@ MODEL_SCHEDULE = "20ms"
 #: Modes above this frequency are left out of the lifted model (the bracket modes), Hz.
 MODE_CUTOFF_HZ = 1000.0
 FILE_FORMAT = "flexarm-learned-feedforward/1"
+#: How a learned-feedforward file is written anew (named when one is stale or unreadable).
+RELEARN_COMMAND = "python -m scenarios run ilc_payload (or the ILC scenario its .json names under 'scenario')"
 
 
 class IlcError(ValueError):
@@ -477,7 +479,7 @@ def read_learned_feedforward(path) -> LearnedFeedforward:
     p = Path(path)
     stem = p.with_suffix("") if p.suffix == ".npz" else p
     try:
-        meta, arrays = read_design_files(stem, "learned-feedforward file")
+        meta, arrays = read_design_files(stem, "learned-feedforward file", RELEARN_COMMAND)
     except GainError:
         raise
     except (OSError, ValueError, KeyError) as exc:
@@ -536,3 +538,4 @@ def simulate_trial(controller, n_steps: int, payload_mass: float = 0.275, noise:
     meas = np.array(meas)
     return {"q": meas[:, ENCODERS], "strain": meas[:, STRAIN_GAUGES], "states": np.array(states),
             "torques": np.array(torques)}
+

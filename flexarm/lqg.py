@@ -15,8 +15,9 @@ desired value" and j = k − d:
 2. measurement update: x̂⁺_j = x̂⁻_j + M (δm − C x̂⁻_j);
 3. prediction across the delay with the torques already sent (exact for the
    linear model): x̂_k = Φ^d x̂⁺_j + Σ_i Φ^{k−1−i} Γ δu_i, i = j .. k−1;
-4. δu_k = −K x̂_k − K_ξ ξ_k, τ_k = sat(τ_ff(k) + δu_k) (the saturated value is
-   what the filter and predictor use next);
+4. δu_k = −K x̂_k − K_ξ ξ_k, τ_k = sat(τ_ff(k) + u_k + δu_k) with u_k a learned
+   feedforward correction (:mod:`flexarm.ilc`, zero without one); the
+   saturated τ_k − τ_ff(k) is what the filter and predictor use next;
 5. integral action (optional): ξ_{k+1} = ξ_k + dt·C_q x̂_k, frozen in a sample
    whose torque saturates (conditional integration: no wind-up).
 
@@ -95,6 +96,22 @@ def check_saturation(value) -> np.ndarray:
     return sat
 
 
+def check_correction(value) -> np.ndarray | None:
+    """A learned feedforward correction (:mod:`flexarm.ilc`) as an array of shape (m, 2) N·m, None for none, or
+    :class:`LqgError`."""
+    if value is None:
+        return None
+    corr = np.array(value, dtype=float)
+    if corr.ndim != 2 or corr.shape[1] != 2 or not np.isfinite(corr).all():
+        raise LqgError(f"feedforward_correction: finite values of shape (m, 2) N·m, got shape {corr.shape}")
+    return corr
+
+
+def correction_at(correction: np.ndarray | None, k: int) -> np.ndarray:
+    """Row k of a learned correction (N·m, shape (2,)); zero past its end or without one."""
+    return correction[k].copy() if correction is not None and k < len(correction) else np.zeros(2)
+
+
 def check_sample_input(state_k: int, k: int, measurements) -> np.ndarray:
     """The ten measurements of sample k as an array, or :class:`LqgError` (wrong sample, shape or value)."""
     if k != state_k:
@@ -121,11 +138,16 @@ class LqgController:
         Feed back the integrated joint-angle errors (anti-windup by conditional integration).
     saturation : (float, float)
         Torque limits |τ1|, |τ2|, N·m.
+    feedforward_correction : array_like, shape (m, 2), optional
+        A learned correction (N·m, :mod:`flexarm.ilc`) added to the feedforward of samples 0..m−1. The
+        filter's input stays the deviation from the nominal feedforward it was linearised about
+        (τ − τ_ff, correction included), so it predicts the correction's effect.
     """
 
     def __init__(self, trajectory, design: LqgDesign, gain_set: str = "gamma0.1", loop_delay_samples: int = 0,
-                 integral_action: bool = False, saturation=(7.0, 2.25)):
+                 integral_action: bool = False, saturation=(7.0, 2.25), feedforward_correction=None):
         delay, sat = check_loop_delay(loop_delay_samples), check_saturation(saturation)
+        self.correction = check_correction(feedforward_correction)
         self.trajectory = as_trajectory(trajectory)
         #: Desired states at every sample, shape (n_steps + 1, 22).
         self.z = desired_states(self.trajectory)
@@ -210,7 +232,7 @@ class LqgController:
         x_post, x_now = self.estimate(state, k, m)
         i_k = self._index[self._c(k)]
         ff = self.feedforward(k)
-        tau_free = ff - self._K[i_k] @ x_now - self._K_xi[i_k] @ state.xi
+        tau_free = ff + correction_at(self.correction, k) - self._K[i_k] @ x_now - self._K_xi[i_k] @ state.xi
         tau = np.minimum(np.maximum(tau_free, -self.saturation), self.saturation)
         xi = state.xi
         if self.integral_action and np.array_equal(tau, tau_free):
@@ -220,14 +242,15 @@ class LqgController:
 
 
 def lqg_controller(gain_set: str = "gamma0.1", schedule: str = "200ms", loop_delay_samples: int = 0,
-                   integral_action: bool = False, saturation=None) -> LqgController:
-    """The controller on the committed trajectory and LQG design files (torque limits from the parameter file)."""
+                   integral_action: bool = False, saturation=None, feedforward_correction=None) -> LqgController:
+    """The controller on the committed trajectory and LQG design files (torque limits from the parameter file;
+    `feedforward_correction`: a learned correction, :class:`LqgController`)."""
     from .gain_schedule import default_trajectory_path
     from .parameters import load_parameters
 
     sat = load_parameters().peak_torque if saturation is None else saturation
     return LqgController(default_trajectory_path(), LqgDesign.load(schedule), gain_set, loop_delay_samples,
-                         integral_action, sat)
+                         integral_action, sat, feedforward_correction)
 
 
 def simulate_lqg(model, controller: LqgController, n_steps: int | None = None, plant_delay: int | None = None,

@@ -51,7 +51,15 @@ from .gain_schedule import (
     sample_time,
     write_design_files,
 )
-from .lqg import LqgController, LqgError, check_loop_delay, check_sample_input, check_saturation
+from .lqg import (
+    LqgController,
+    LqgError,
+    check_correction,
+    check_loop_delay,
+    check_sample_input,
+    check_saturation,
+    correction_at,
+)
 from .lqg_design import DEFAULT_LQG_DIR, ELEMENT_FORCE_SIGMA, MOTOR_TORQUE_SIGMA, LqgDesign, design_lqg
 from .lqr_design import scaling_transform, zoh
 from .model import N_STATE, ArmModel, N
@@ -266,14 +274,14 @@ def load_bank(schedule: str = "200ms") -> PayloadBank:
 
 
 def bank_controller(gain_set: str = "gamma0.1", schedule: str = "200ms", loop_delay_samples: int = 0,
-                    integral_action: bool = False, saturation=None) -> BankController:
+                    integral_action: bool = False, saturation=None, feedforward_correction=None) -> BankController:
     """The multiple-model LQG of the committed trajectory and bank (as :func:`flexarm.lqg.lqg_controller`;
     torque limits from the parameter file by default). It keeps no posterior history."""
     from .parameters import load_parameters
 
     sat = load_parameters().peak_torque if saturation is None else saturation
     c = BankController(default_trajectory_path(), load_bank(schedule), gain_set, loop_delay_samples,
-                       integral_action, sat)
+                       integral_action, sat, feedforward_correction=feedforward_correction)
     c.history = None
     return c
 
@@ -336,12 +344,16 @@ class BankController:
         Smallest posterior probability, in (0, 1/n_models).
     reseed_below : float
         Posterior of the unloaded model below which the quiet filter is re-seeded.
+    feedforward_correction : array_like, shape (m, 2), optional
+        A learned feedforward correction, N·m (as :class:`flexarm.lqg.LqgController`).
     """
 
     def __init__(self, trajectory, bank: PayloadBank, gain_set: str = "gamma0.1", loop_delay_samples: int = 0,
                  integral_action: bool = False, saturation=(7.0, 2.25), select: str = "mixture",
-                 floor: float = POSTERIOR_FLOOR, reseed_below: float = QUIET_RESEED_BELOW):
+                 floor: float = POSTERIOR_FLOOR, reseed_below: float = QUIET_RESEED_BELOW,
+                 feedforward_correction=None):
         delay, sat = check_loop_delay(loop_delay_samples), check_saturation(saturation)
+        self.correction = check_correction(feedforward_correction)
         if select not in SELECTIONS:
             raise LqgError(f"select: {select!r} is not one of {SELECTIONS}")
         if not 0.0 < floor < 1.0 / len(bank.models):
@@ -453,7 +465,7 @@ class BankController:
         if self.integral_action:
             u = u + self._K_xi[i_k] @ state.xi
         x_sel = weights @ x_now
-        tau_free = ff - weights @ u
+        tau_free = ff + correction_at(self.correction, k) - weights @ u
         tau = np.minimum(np.maximum(tau_free, -self.saturation), self.saturation)
         xi = state.xi
         if self.integral_action and np.array_equal(tau, tau_free):

@@ -213,7 +213,11 @@ def _dispatch(args) -> int:
             ilc.load_ilc(n)
         args.scenario_name = names[0]
         return ilc.cli(args)
-    names = [n for n in names if not ilc.is_ilc_scenario(n)]  # `all`: the single-run scenarios
+    skipped = [n for n in names if ilc.is_ilc_scenario(n)]
+    if skipped:  # `all`: the single-run scenarios; an ILC scenario runs alone
+        _err(f"run all: not running the ILC scenario{'s' * (len(skipped) > 1)} {', '.join(skipped)} (each runs alone: "
+             f"python -m scenarios run {skipped[0]})")
+    names = [n for n in names if n not in skipped]
     controller, overrides = _controller_arg(args.controller), _overrides(args.sets)
     scenarios = [select_cases(load_scenario(name), args.cases) for name in names]  # all refused before any runs
     for sc in scenarios:

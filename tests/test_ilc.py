@@ -139,8 +139,9 @@ def test_learned_feedforward_file_round_trip_and_data_chain(tmp_path):
     assert np.array_equal(ctrl.feedforward(300), plain.feedforward(300))
     # learnt on another trajectory: refused as stale, naming it
     stale = ilc.write_learned_feedforward(tmp_path / "stale", u, 1e-3, dict(meta, trajectory_sha256="0" * 64))
-    with pytest.raises(StaleDataError, match="trajectory"):
+    with pytest.raises(StaleDataError, match="trajectory") as err:
         ilc.read_learned_feedforward(stale)
+    assert "python -m scenarios run ilc_payload" in str(err.value) and "flexarm.lqr" not in str(err.value)
     # an edited side file is refused too
     doc = json.loads((tmp_path / "learned.json").read_text())
     doc["trials"] = [0, 1, 2]
@@ -224,6 +225,10 @@ def test_ilc_scenario_learns_through_the_fmus_and_resumes(tmp_path):
     assert rms[2] < rms[1] < rms[0]
     ev = second["evaluation"]["learn"]
     assert ev["learned"]["metrics"]["slew_rms_position_error"] < ev["unlearned"]["metrics"]["slew_rms_position_error"]
+    from scenarios.ilc_report import MARKER, render  # the page renders such a summary (its figures in it)
+
+    page = render(second, [("study", second)], None, second)
+    assert page.startswith(MARKER) and f"| 2 | {rms[2]:.4f} |" in page and "Jacobi stepping" in page
     learned = ilc.read_learned_feedforward(out / "ilc_payload" / "learned_feedforward.npz")
     assert learned.metadata["trials_learned_from"] == 3 and learned.correction.shape == (400, 2)
     # another configuration in the same folder is refused, not mixed
@@ -231,3 +236,122 @@ def test_ilc_scenario_learns_through_the_fmus_and_resumes(tmp_path):
     with pytest.raises(ScenarioError, match="another configuration"):
         run_ilc(scen, out, plots=False, progress=lambda s: None)
     shutil.rmtree(out)
+
+
+@pytest.mark.parametrize("params", [{"loop_delay_samples": 2, "integral_action": True},
+                                    {"estimator": 2, "schedule_period": 0.2}], ids=["kalman-delay2-integral", "bank"])
+def test_controller_lqg_adds_the_learned_correction_python_and_native_alike(tmp_path, params):
+    """controller_lqg (both kinds) with feedforward_correction_file: the Python FMU equals the library law with
+    the same correction bit for bit (the filter's input is τ − τ_ff, the correction included); the native one
+    equals the Python one to 1e-10 of the peak torque (as without a correction, tests/test_native_lqg.py); the
+    correction changes the torques; a stale file is refused by both."""
+    from fmu_harness import built_fmus
+    from native_fmus import native_fmus, run_fmpy
+    from test_native_lqg import MEASURED, lqg_inputs
+
+    from flexarm.lqg import lqg_controller
+    from flexarm.lqg_bank import bank_controller
+
+    n = 600
+    u, path = _learned_file(tmp_path, 400)
+    py, native = built_fmus()["controller_lqg"], native_fmus()["controller_lqg"]
+    learned = {**params, "feedforward_correction_file": str(path)}
+
+    def torques(fmu, p):
+        names, rows = run_fmpy(fmu, n, lqg_inputs, p)
+        return np.asarray(rows)[:, [names.index("tau1"), names.index("tau2")]]
+
+    got, plain = torques(py, learned), torques(py, params)
+    delay = params.get("loop_delay_samples", 0)
+    integral = params.get("integral_action", False)
+    law = (bank_controller("gamma0.1", "200ms", delay, integral, feedforward_correction=u) if "estimator" in params
+           else lqg_controller("gamma0.1", "200ms", delay, integral, feedforward_correction=u))
+    state, expect = law.initial_state(), []
+    for k in range(n + 1):  # the FMU computes sample k from the inputs of sample k - d (lqg_inputs(0) before)
+        m = law.design.C @ law.z[0] if k < delay else [lqg_inputs(max(k - 1, 0) if delay else k)[x] for x in MEASURED]
+        tau, state = law.step(state, k, m)
+        expect.append(tau)
+    assert not np.array_equal(got, plain)
+    native_got = torques(native, learned)
+    assert np.abs(native_got - got).max() <= 1e-10 * np.abs(got).max()
+    np.testing.assert_array_equal(got, np.array(expect))
+    from flexarm.ilc import read_learned_feedforward
+
+    stale = ilc.write_learned_feedforward(tmp_path / "stale", u, 1e-3,
+                                          dict(read_learned_feedforward(path).metadata, trajectory_sha256="0" * 64))
+    for fmu in (py, native):
+        with pytest.raises(Exception):  # noqa: B017 - fmpy raises its own exception type for fmi2Error
+            torques(fmu, {**params, "feedforward_correction_file": str(stale)})
+
+
+def test_an_fmu_error_in_the_middle_of_a_trial_stops_the_campaign(tmp_path, monkeypatch, capsys):
+    """The controller returns fmi2Error from fmi2DoStep at t = 0.2 s of trial 1 (as a failing FMU does): the
+    campaign stops there (no trial 2, no learned file, no evaluation), the journal keeps the failed trial, and
+    ``python -m scenarios run`` says which trial, step and FMU, and exits non-zero; run again, it stays stopped."""
+    import scenarios.master as master
+    from scenarios.__main__ import main
+
+    text = SCENARIO.read_text().replace("samples = 3058", "samples = 300").replace("trials = 50", "trials = 3")
+    text = text.replace('evaluate_cases = ["learn", "payload_0p2", "payload_0p35"]', 'evaluate_cases = ["learn"]')
+    scen = tmp_path / "ilc_fail.toml"
+    scen.write_text(text)
+    raw, runs = master.fmu2_raw_functions, []
+
+    def failing(slave):
+        get_real, set_real, do_step = raw(slave)
+        if slave.instanceName != "controller":
+            return get_real, set_real, do_step
+
+        def step(component, t, h, new_step):
+            if t == 0.0:
+                runs.append(t)
+            return 3 if len(runs) == 2 and t >= 0.2 else do_step(component, t, h, new_step)  # 3: fmi2Error
+        return get_real, set_real, step
+
+    monkeypatch.setattr(master, "fmu2_raw_functions", failing)
+    out = tmp_path / "out"
+    args = ["run", str(scen), "--out", str(out), "--no-plots", "--quiet"]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "stopped: trial 1: error" in err and "t = 0.2" in err and "controller" in err, err
+    folder = out / "ilc_payload"
+    journal = [json.loads(line) for line in (folder / "journal.jsonl").read_text().splitlines()]
+    assert [r.get("status") for r in journal[1:]] == ["ok", "error"]
+    assert not (folder / "learned_feedforward.npz").exists()
+    summary = json.loads((folder / "evaluation.json").read_text())
+    assert summary["evaluation"] == {} and len(summary["trials"]) == 2
+    assert main(args) == 1 and len((folder / "journal.jsonl").read_text().splitlines()) == 3  # stays stopped
+
+
+def test_lifted_blocks_equal_the_models_response(small_model):
+    """The floor's lifted matrix (inputs held over blocks) maps a block input as the model's own recursion does,
+    including a last, shorter block."""
+    block = 7  # 80 samples: 11 full blocks and one of 3
+    from flexarm.ilc_floor import lifted_blocks
+
+    G = lifted_blocks(small_model, block)
+    nb = -(-small_model.n_samples // block)
+    assert G.shape == (small_model.n_samples * 11, 2 * nb)
+    v = np.random.default_rng(3).normal(size=(nb, 2))
+    held = np.repeat(v, block, axis=0)[:small_model.n_samples]
+    y = small_model.simulate(held)
+    assert np.abs(G @ v.ravel() - y.ravel()).max() <= 1e-12 * np.abs(y).max()
+
+
+def test_the_ilc_page_is_its_committed_results(capsys):
+    """docs/ilc.md's generated parts are what docs/ilc_results.json and docs/ilc_floor.json render to, from the
+    scenario and data files as they are (no runs: the runs take 15-20 minutes; their commands regenerate all)."""
+    from scenarios import ilc_floor, ilc_report
+
+    assert ilc_floor.main(["--check"]) == 0, capsys.readouterr().err
+    assert ilc_report.main(["--check"]) == 0, capsys.readouterr().err
+
+
+def test_run_all_says_it_leaves_the_ilc_scenarios_out(capsys):
+    """`run all` runs the single-run scenarios and says, in one line, which ILC scenarios it does not run (here it
+    stops at once, refusing an unknown case, before running anything)."""
+    from scenarios.__main__ import main
+
+    assert main(["run", "all", "--case", "no_such_case"]) != 0
+    lines = [x for x in capsys.readouterr().err.splitlines() if "ILC" in x]
+    assert len(lines) == 1 and "ilc_payload" in lines[0] and "ilc_lqg_jacobi" in lines[0], lines

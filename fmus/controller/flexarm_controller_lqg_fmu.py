@@ -9,7 +9,9 @@ schedule point, :mod:`flexarm.lqg`; 2 ``payload_bank``: a bank of filters, one
 per payload mass, :mod:`flexarm.lqg_bank`, 200 ms schedule only). ``gain_set``
 names the LQR weights (their discrete-time design);
 ``omega7`` / ``omega7_estimate`` is accepted and not used (the Kalman filter
-estimates every velocity). The law: :mod:`flexarm.lqg`; the design files:
+estimates every velocity). ``feedforward_correction_file`` (String, as the
+other controllers): a learned feedforward correction (:mod:`flexarm.ilc`),
+added to the feedforward; the filter's input includes it. The law: :mod:`flexarm.lqg`; the design files:
 ``flexarm/data/lqg/`` (:mod:`flexarm.lqg_design`).
 
 The controller has a state (the filter's estimate, the torques sent, the
@@ -48,6 +50,7 @@ from flexarm_controller_base import FEEDFORWARD_CORRECTION, VARIABLES, Controlle
 from flexarm_feedthrough import whole_samples
 from flexarm_fmu_base import Var, pin_module_namespace, variable_table
 
+from flexarm.ilc import read_learned_feedforward
 from flexarm.lqg import MAX_DELAY_SAMPLES, LqgController, lqg_controller
 from flexarm.lqg_bank import BANK_SCHEDULES, BankController, bank_controller
 
@@ -64,24 +67,26 @@ DEFAULT_ESTIMATOR = 1
 
 @functools.lru_cache(maxsize=16)
 def _law(name: str, schedule: str, tau1_max: float, tau2_max: float, delay: int, integral: bool,
-         estimator: int) -> LqgController | BankController:
-    """The control law of one configuration, built once per process (immutable; the state lives in the slave)."""
+         estimator: int, correction: tuple = ("", "")) -> LqgController | BankController:
+    """The control law of one configuration, built once per process (immutable; the state lives in the slave).
+    `correction`: the learned-feedforward file and its SHA-256 (part of the cache key), ("", "") for none."""
+    learned = read_learned_feedforward(correction[0]).correction if correction[0] else None
     if estimator == 2:
         if schedule not in BANK_SCHEDULES:
             raise ValueError(f"estimator = 2 (payload_bank) needs schedule_period = 0.2 s (the bank exists for "
                              f"{', '.join(BANK_SCHEDULES)}), got the {schedule} schedule")
-        return bank_controller(name, schedule, delay, integral, (tau1_max, tau2_max))
+        return bank_controller(name, schedule, delay, integral, (tau1_max, tau2_max), learned)
     if estimator != 1:
         raise ValueError(f"estimator: {estimator!r} is not one of "
                          + ", ".join(f"{v} ({n})" for v, n, _ in ESTIMATOR_ITEMS))
-    return lqg_controller(name, schedule, delay, integral, (tau1_max, tau2_max))
+    return lqg_controller(name, schedule, delay, integral, (tau1_max, tau2_max), learned)
 
 
 class FlexarmControllerLQG(ControllerSlave):
     """Feedforward + LQG (Kalman filter on the ten measurements, discrete LQR of the ``gain_set`` weights)."""
 
     VARIABLES = variable_table([
-        *[v for v in VARIABLES if v.name != FEEDFORWARD_CORRECTION],  # the LQG law takes no learned correction
+        *[v for v in VARIABLES if v.name != FEEDFORWARD_CORRECTION],  # last here too (value references kept)
         Var("loop_delay_samples", "parameter", "fixed", None,
             "Samples between the plant state measured and the sample whose torques use it; the estimator "
             "predicts across them. 0: direct feedthrough (Gauss-Seidel master); d > 0: no direct feedthrough, "
@@ -94,6 +99,7 @@ class FlexarmControllerLQG(ControllerSlave):
         Var("estimator", "parameter", "fixed", None,
             "State estimator: one Kalman filter (kalman) or a bank of filters, one per payload mass (payload_bank)",
             DEFAULT_ESTIMATOR, 1, len(ESTIMATOR_ITEMS), type="Integer", choices=ESTIMATOR_ITEMS),
+        *[v for v in VARIABLES if v.name == FEEDFORWARD_CORRECTION],
     ])
     DISCRETE = True
     description = "Sandia two-link flexible arm: feedforward + discrete-time LQG controller (Kalman filter, " \
@@ -108,17 +114,17 @@ class FlexarmControllerLQG(ControllerSlave):
     def _config(self) -> tuple:
         name, schedule, tau1_max, tau2_max, _omega7 = super()._config()
         return (name, schedule, tau1_max, tau2_max, int(self.value("loop_delay_samples")),
-                bool(self.value("integral_action")), int(self.value("estimator")))
+                bool(self.value("integral_action")), int(self.value("estimator")), self._correction())
 
     def setup(self) -> None:
-        key = self._config()
         try:
+            key = self._config()
             self.law = _law(*key)
         except (ValueError, OSError) as exc:
             raise ValueError(f"gain_set = {self.value('gain_set')!r}, schedule_period = "
                              f"{self.value('schedule_period')!r} s, loop_delay_samples = "
-                             f"{self.value('loop_delay_samples')!r}, estimator = {self.value('estimator')!r}: "
-                             f"{exc}") from None
+                             f"{self.value('loop_delay_samples')!r}, estimator = {self.value('estimator')!r}, "
+                             f"{FEEDFORWARD_CORRECTION} = {self.value(FEEDFORWARD_CORRECTION)!r}: {exc}") from None
         self._key = key
         self.state = self.law.initial_state()
         self._pending = self._tau = None

@@ -6,9 +6,10 @@
  *   1. time update to j:     x = Phi x_post + Gamma du_(j-1)            (once the filter has started and k >= d)
  *   2. measurement update:   x_post = x + M (dm - C x),  dm = m - y_d(c(j))
  *   3. predictor to k:       x_now = x_post, then x_now = Phi x_now + Gamma du_i for the torques sent at j .. k-1
- *   4. torque:               tau = sat(tau_ff(k) - K x_now - K_xi xi)    (tau_ff = 0 after the slew)
+ *   4. torque:               tau = sat(tau_ff(k) + u(k) - K x_now - K_xi xi)    (tau_ff = 0 after the slew; u the
+ *                            learned correction of feedforward_correction_file, learned_ff.c; zero without)
  *   5. integral action:      xi += dt C_q x_now, only in a sample whose torque does not saturate (anti-windup)
- * The torque deviations tau - tau_ff of the last d + 1 samples are kept for steps 1 and 3.
+ * The torque deviations tau - tau_ff of the last d + 1 samples (the correction included) are kept for steps 1, 3.
  *
  * FMU stepping (as the Python FMU; docs/control.md, "Sampling and the loop delay"): the torques are a pure
  * function of the committed state and, with d = 0 only, of the inputs present; reads change nothing.
@@ -34,6 +35,8 @@
 #include "model_vars.h"
 
 #include "controller_lqg.h"
+#include "learned_ff.h"
+#include "learned_ff_data.h"
 
 #define N_SCHEDULES 3
 static const char *const SCHEDULE_FILES[N_SCHEDULES] = {"lqg_200ms.txt", "lqg_20ms.txt", "lqg_single.txt"};
@@ -63,7 +66,7 @@ static void lqg_unload(Instance *inst)
 {
     LqgData *d = inst->data;
     if (d == NULL) return;
-    free(d->feedforward), free(d->desired), free(d->index);
+    free(d->feedforward), free(d->desired), free(d->index), free(d->correction);
     for (int s = 0; d->designs != NULL && s < N_SCHEDULES; s++) {
         Design *g = &d->designs[s];
         free(g->times), free(g->phi), free(g->gamma), free(g->m), free(g->k), free(g->k_integral);
@@ -185,6 +188,15 @@ void lqg_propagate(const Design *g, int i, double *x, const double du[2])
 
 static long long clamp(const LqgData *d, long long k) { return k < d->n_steps ? k : d->n_steps; }
 
+void lqg_feedforward(const LqgData *d, long long k, double nominal[2], double command[2])
+{
+    const double *slew = k < d->n_steps ? d->feedforward + 2 * k : NULL; /* zero feedforward in the hold */
+    for (int r = 0; r < 2; r++) {
+        nominal[r] = slew ? slew[r] : 0.0;
+        command[r] = nominal[r] + (k < d->n_correction ? d->correction[2 * k + r] : 0.0);
+    }
+}
+
 /* Torques of sample k from measurements m and the state s after k - 1; `next` the state after k. */
 static void lqg_step(const LqgData *d, const LqgState *s, long long k, const double m[N_MEAS], const double limit[2],
                      double tau[2], LqgState *next)
@@ -207,8 +219,8 @@ static void lqg_step(const LqgData *d, const LqgState *s, long long k, const dou
         lqg_propagate(g, d->index[clamp(d, j + n)], x_now, s->du[row]);
 
     const int i_k = d->index[clamp(d, k)]; /* 4 */
-    const double *slew = k < d->n_steps ? d->feedforward + 2 * k : NULL; /* zero feedforward in the hold */
-    const double ff[2] = {slew ? slew[0] : 0.0, slew ? slew[1] : 0.0};
+    double ff[2], ff_cmd[2];
+    lqg_feedforward(d, k, ff, ff_cmd);
     double kx[2], kxi[2] = {0.0, 0.0}, free_tau[2];
     if (d->integral) {
         const double *ka = g->k_integral + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_AUG;
@@ -219,7 +231,7 @@ static void lqg_step(const LqgData *d, const LqgState *s, long long k, const dou
     }
     int saturated = 0;
     for (int r = 0; r < 2; r++) {
-        free_tau[r] = ff[r] - kx[r] - kxi[r];
+        free_tau[r] = ff_cmd[r] - kx[r] - kxi[r];
         tau[r] = fmin(fmax(free_tau[r], -limit[r]), limit[r]);
         saturated |= tau[r] != free_tau[r];
     }
@@ -338,6 +350,10 @@ static fmi2Status lqg_initialize(Instance *inst)
     FmuState *st = inst->state;
     LqgData *d = inst->data;
     fmi2Status status = configure(inst);
+    if (status != fmi2OK) return status;
+    free(d->correction), d->correction = NULL, d->n_correction = 0;
+    status = learned_ff_load(inst, glue_string(inst, IDX_feedforward_correction_file), TRAJECTORY_SHA256,
+                             PARAMETER_SHA256, &d->correction, &d->n_correction);
     if (status != fmi2OK) return status;
     memset(st, 0, sizeof *st); /* on the trajectory, nothing sent, integrators empty */
     if (d->use_bank) bank_initial_state(&d->bank, &st->committed);

@@ -48,7 +48,13 @@ typedef struct {
     const Design *design;
     int weight, delay, integral, use_bank;
     int *index; /* n_steps + 1: the design point in force at each sample */
+    double *correction; /* n_correction x 2: the learned feedforward correction (NULL: none), N.m */
+    long n_correction;
 } LqgData;
+
+/* The feedforward sent at sample k: the trajectory's (zero after the slew) plus the learned correction (into
+ * command); the nominal one (into nominal), about which the filter's model is linearised. */
+void lqg_feedforward(const LqgData *d, long long k, double nominal[2], double command[2]);
 
 typedef struct {  /* flexarm.lqg.LqgState and flexarm.lqg_bank.BankState */
     long long k;  /* next sample */

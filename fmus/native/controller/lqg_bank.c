@@ -175,8 +175,8 @@ void bank_step(const LqgData *d, const LqgState *s, long long k, const double m[
     for (int i = 1; i < nm; i++) w[i] = p[i];
     w[nf - 1] = p[0];
     const int i_k = b->index[clamp(d, k)];
-    const double *slew = k < d->n_steps ? d->feedforward + 2 * k : NULL; /* zero feedforward in the hold */
-    const double ff[2] = {slew ? slew[0] : 0.0, slew ? slew[1] : 0.0};
+    double ff[2], ff_cmd[2];
+    lqg_feedforward(d, k, ff, ff_cmd);
     double u[2][MAX_FILTERS], x_t[N_STATE][MAX_FILTERS], fb[2], x_sel[N_STATE], free_tau[2];
     for (int f = 0; f < nf; f++) { /* each model's feedback on its own estimate */
         const Design *g = &b->filters[f];
@@ -196,7 +196,7 @@ void bank_step(const LqgData *d, const LqgState *s, long long k, const double m[
     lqg_mat_vec(x_t[0], N_STATE, nf, MAX_FILTERS, w, x_sel);       /* weights @ x_now */
     int saturated = 0;
     for (int r = 0; r < 2; r++) {
-        free_tau[r] = ff[r] - fb[r];
+        free_tau[r] = ff_cmd[r] - fb[r];
         tau[r] = fmin(fmax(free_tau[r], -limit[r]), limit[r]);
         saturated |= tau[r] != free_tau[r];
     }
