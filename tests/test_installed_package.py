@@ -36,6 +36,9 @@ def _snapshot(folder: Path) -> dict[str, int]:
     ["flexarm.lqr", "--write"],
     ["flexarm.regenerate"],
     ["scenarios.reexamine"],
+    ["scenarios.ilc_report"],
+    ["scenarios.ilc_report", "--check"],
+    ["scenarios.ilc_floor"],
 ])
 def test_commands_that_rewrite_committed_files_refuse_outside_a_checkout(site, tmp_path, command):
     before = _snapshot(site)
