@@ -70,7 +70,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m scenarios.ilc_floor", description=__doc__.splitlines()[0])
     p.add_argument("--check", action="store_true", help="check docs/ilc.md against docs/ilc_floor.json (no run)")
     args = p.parse_args(argv)
-    refusal = checkout_refusal("python -m scenarios.ilc_floor", "docs/ilc.md and docs/ilc_floor.json", REPO)  # also --check: it compares with them
+    refusal = checkout_refusal("python -m scenarios.ilc_floor", "docs/ilc.md and docs/ilc_floor.json", REPO)
     if refusal:
         print(f"error: {refusal}", file=sys.stderr)
         return 2

@@ -209,7 +209,7 @@ def main(argv=None) -> int:
                     help="no runs: write the generated part of docs/ilc.md from docs/ilc_results.json and "
                          "docs/ilc_floor.json (after a change to the page's layout)")
     args = ap.parse_args(argv)
-    refusal = checkout_refusal("python -m scenarios.ilc_report", "docs/ilc.md and docs/ilc_results.json", REPO)  # also --check: it compares with them
+    refusal = checkout_refusal("python -m scenarios.ilc_report", "docs/ilc.md and docs/ilc_results.json", REPO)
     if refusal:
         print(f"error: {refusal}", file=sys.stderr)
         return 2
