@@ -57,7 +57,7 @@ def verify_data_files(root: Path | None = None) -> dict[str, str]:
     DataChainError
         The loader's message, which names the file (and what regenerates it).
     """
-    from .gain_schedule import read_design_files
+    from .gain_schedule import read_design_metadata
     from .gain_sets import GainError
     from .lqg_bank import BANK_SCHEDULES
     from .lqg_design import DEFAULT_LQG_DIR
@@ -84,8 +84,9 @@ def verify_data_files(root: Path | None = None) -> dict[str, str]:
             GainSchedule.load(name, schedule, directory=DEFAULT_GAIN_DIR)
         for npz in sorted(DEFAULT_LQG_DIR.glob("*.npz")):  # the files (the filters are built where they are used)
             reading = npz
-            read_design_files(npz.with_suffix(""), "LQG bank file" if npz.stem.startswith("bank_")
-                              else "LQG design file")
+            # The arrays' SHA-256 against the sealed JSON (and its inputs'): what loading them would add is
+            # decompression time only, the filters being built where they are used.
+            read_design_metadata(npz.with_suffix(".json"), npz)
         for schedule in BANK_SCHEDULES:
             if not (DEFAULT_LQG_DIR / f"bank_{schedule}.npz").is_file():
                 raise DataChainError(f"data chain: {DEFAULT_LQG_DIR / f'bank_{schedule}.npz'} is missing; "
