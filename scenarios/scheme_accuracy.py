@@ -72,6 +72,11 @@ HORIZON_SUBSTEPS = 4
 LOOPS = (("γ = 1, noise", "table1", "noise"), ("γ = 0.1, noise", "table2", "noise"),
          ("eq. 32, payload", "eq32", "tip"))
 MARKS = (2.0, 5.0, 10.0)
+#: The master's bound on recorded signals for the 10 s runs of the loops and horizons parts. The growing bracket
+#: vibration of the undamped loops drives the recorded accelerometers (what the controller sees) past the default
+#: 1e4 m/s² at about 2.6 s on eq. 32 with every scheme, the converged reference included, although the angles and
+#: rates stay finite and converge with the step: these runs measure that growth, so they are bounded at 1e7.
+DIVERGENCE_LIMIT = 1e7
 ENERGY_HORIZONS = (10.0, 60.0)
 STEP_SIZES_MS = (1, 2, 4, 10)
 CODES = {"rodas4": 1, "exponential": 2, "gauss": 3, "reference": 4}
@@ -230,7 +235,7 @@ def loops_part(seconds: float = max(MARKS), schemes=LOOP_SCHEMES, loops=LOOPS, k
                 start = time.perf_counter()
                 s = _variant(base, integrator, sub, samples=int(round(horizon / 1e-3)), keys=(key,),
                              name=f"acc-{scenario}-{integrator}-{sub}")
-                (r,) = run_scenario(s, Path(tmp), progress=False, kind=kind)
+                (r,) = run_scenario(s, Path(tmp), progress=False, kind=kind, divergence_limit=DIVERGENCE_LIMIT)
                 peaks = _velocity_error_peaks(r, MARKS)
                 if integrator == "exponential":
                     peaks = {m: (v if float(m) <= EXPONENTIAL_HORIZON_S else "refused") for m, v in peaks.items()}
@@ -264,7 +269,7 @@ def horizons_part(seconds: float = 10.0, kind: str = "native") -> dict:
                          samples=int(round(seconds / 1e-3)), keys=(case,), name=f"acc-h-{key.replace('|', '-')}")
             for c in s.cases:
                 c.parameters["plant"]["damping_ratio"] = ratio
-            (r,) = run_scenario(s, Path(tmp), progress=False, kind=kind)
+            (r,) = run_scenario(s, Path(tmp), progress=False, kind=kind, divergence_limit=DIVERGENCE_LIMIT)
             t = r.series["time"]
             rec = {"status": r.status, "end_s": float(t[-1]),
                    "peak_velocity_error": _velocity_error_peaks(r, HORIZON_MARKS)}
