@@ -82,12 +82,34 @@ STEP_SIZES_MS = (1, 2, 4, 10)
 CODES = {"rodas4": 1, "exponential": 2, "gauss": 3, "reference": 4}
 
 
+#: What this command itself writes: changes to them do not make the measuring code dirty.
+OUTPUTS = ("docs/scheme-accuracy.json", "docs/model.md", "docs/findings.md")
+
+
+def _commit() -> str:
+    """The commit of the measuring code: :func:`flexarm.provenance.git_commit`, whose '+dirty' is dropped when the
+    only changed tracked files are this command's own outputs (:data:`OUTPUTS`: the JSON it has just merged a
+    part into, the docs it renders), so a multi-part run does not mark its own later parts dirty."""
+    import subprocess
+
+    from flexarm.provenance import git_commit
+
+    commit = git_commit()
+    if commit.endswith("+dirty"):
+        status = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=REPO,
+                                capture_output=True, text=True, timeout=10)
+        changed = {line[3:].strip() for line in status.stdout.splitlines() if line.strip()}
+        if status.returncode == 0 and changed and changed <= set(OUTPUTS):
+            commit = commit.removesuffix("+dirty")
+    return commit
+
+
 def _provenance() -> dict:
     from flexarm.parameters import DEFAULT_PARAMETER_FILE
-    from flexarm.provenance import git_commit, sha256_file
+    from flexarm.provenance import sha256_file
     from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
-    return {"commit": git_commit(), "inputs_sha256": {
+    return {"commit": _commit(), "inputs_sha256": {
         str(p.relative_to(REPO)): sha256_file(p) for p in (DEFAULT_PARAMETER_FILE, DEFAULT_TRAJECTORY_FILE)}}
 
 
