@@ -39,6 +39,10 @@ GAIN_SETS = (("γ = 1", "gamma1"), ("γ = 0.1", "gamma0.1"), ("γ = 0", "gamma0"
 RTOL = 1e-5
 
 
+def _name(path) -> str:
+    return str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path)
+
+
 def _inputs() -> dict[str, str]:
     return {str(p.relative_to(REPO)): sha256_file(p) for p in (DEFAULT_PARAMETER_FILE, DEFAULT_TRAJECTORY_FILE)}
 
@@ -46,10 +50,10 @@ def _inputs() -> dict[str, str]:
 @functools.cache
 def _scheme_accuracy() -> dict:
     data = json.loads(SCHEME_ACCURACY.read_text())
-    for part in ("horizons",):
+    for part in ("horizons", "loops"):
         prov = data.get("provenance", {}).get(part, data)
         if prov.get("inputs_sha256") != _inputs():
-            raise ResultsPageError(f"{SCHEME_ACCURACY.relative_to(REPO)}: its {part} part was computed from other "
+            raise ResultsPageError(f"{_name(SCHEME_ACCURACY)}: its {part} part was computed from other "
                                    "inputs (SHA-256 of the trajectory or parameter file differs); rerun python -m "
                                    f"scenarios.scheme_accuracy --write --part {part}")
     return data
@@ -60,18 +64,18 @@ def _findings_data(runs: PageRuns) -> dict:
     fix = "; rerun python -m scenarios.reexamine"
     if (data.get("trajectory_sha256"), data.get("parameter_sha256")) != (
             sha256_file(DEFAULT_TRAJECTORY_FILE), sha256_file(DEFAULT_PARAMETER_FILE)):
-        raise ResultsPageError(f"{FINDINGS_DATA.relative_to(REPO)} was computed from another trajectory or "
+        raise ResultsPageError(f"{_name(FINDINGS_DATA)} was computed from another trajectory or "
                                "parameter file" + fix)
     for table in TABLES:
         for case in CASES:
             row = data["tables"].get(f"{table}|rodas4|0.0|{case}")
             fresh = runs.metrics(table).get(case)
             if row is None or (row["metrics"] is None) != (fresh is None):
-                raise ResultsPageError(f"{FINDINGS_DATA.relative_to(REPO)}: {table}/{case} (rodas4, ζ = 0) is "
+                raise ResultsPageError(f"{_name(FINDINGS_DATA)}: {table}/{case} (rodas4, ζ = 0) is "
                                        "missing or its status differs from the fresh run" + fix)
             for k in METRICS if fresh is not None else ():
                 if not math.isclose(row["metrics"][k], fresh[k], rel_tol=RTOL, abs_tol=1e-12):
-                    raise ResultsPageError(f"{FINDINGS_DATA.relative_to(REPO)}: {table}/{case} {k} is "
+                    raise ResultsPageError(f"{_name(FINDINGS_DATA)}: {table}/{case} {k} is "
                                            f"{row['metrics'][k]:.9g}, a fresh run gives {fresh[k]:.9g}" + fix)
     return data
 
@@ -88,7 +92,7 @@ def _horizon(key: str, t: float, what: str = "peak_velocity_error") -> float:
     h = _scheme_accuracy()["horizons"][key]
     value = h[what].get(f"{t:g}")
     if value is None or (what == "peak_velocity_error" and h["status"] != "ok"):
-        raise ResultsPageError(f"{SCHEME_ACCURACY.relative_to(REPO)}: horizons {key} has no {what} at {t:g} s "
+        raise ResultsPageError(f"{_name(SCHEME_ACCURACY)}: horizons {key} has no {what} at {t:g} s "
                                f"(status {h['status']})")
     return value
 
@@ -296,8 +300,7 @@ def _scheme_summary(runs: PageRuns) -> str:
     at 2, 5 and 10 s (docs/scheme-accuracy.json's loops part, whose table docs/model.md shows in full)."""
     from .scheme_accuracy import LOOP_REFERENCE, LOOP_SCHEMES, LOOPS, MARKS
 
-    data = json.loads(SCHEME_ACCURACY.read_text())
-    loops = data["loops"]
+    loops = _scheme_accuracy()["loops"]
     lines = ["| scheme | " + " | ".join(f"{m:g} s" for m in MARKS) + " |", "|---|" + "---|" * len(MARKS)]
     for label, _, _ in LOOP_SCHEMES:
         if label == LOOP_REFERENCE:
