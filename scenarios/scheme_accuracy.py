@@ -309,7 +309,7 @@ def horizons_part(seconds: float = 10.0, kind: str = "native") -> dict:
 def render_horizons(data: dict) -> str:
     h = data["horizons"]
     lines = [f"Measured by `python -m scenarios.scheme_accuracy --write --part horizons` at commit "
-             f"`{part_commit(data, 'horizons')[:12]}`: the reference plant (RK4 at "
+             f"`{short(part_commit(data, 'horizons'))}`: the reference plant (RK4 at "
              f"{reference_step_us(HORIZON_SUBSTEPS):g} µs, native FMUs, 1 ms loop), ζ = 0 unless "
              "stated; peak velocity error (deg/s, all 11 elements) from t = 0 up to each time.", "",
              "| run | " + " | ".join(f"{m:g} s" for m in HORIZON_MARKS) + " | status |",
@@ -407,6 +407,11 @@ def reference_step_us(substeps: int) -> float:
     return 1e6 * 1e-3 / substep_count(1e-3, substeps, "reference")
 
 
+def short(commit: str) -> str:
+    """12 hex digits, keeping a '+dirty' mark."""
+    return commit[:12] + ("+dirty" if commit.endswith("+dirty") else "")
+
+
 def part_commit(data: dict, part: str) -> str:
     """The commit that measured `part` (its own provenance; older files: the file's)."""
     return data.get("provenance", {}).get(part, {}).get("commit", data.get("commit", "unknown"))
@@ -415,8 +420,8 @@ def part_commit(data: dict, part: str) -> str:
 def render(data: dict) -> str:
     """The markdown block of docs/model.md from the JSON (what --check compares)."""
     commits = {part_commit(data, p) for p in PARTS if p in data}
-    where = (f"at commit `{commits.pop()[:12]}`" if len(commits) == 1 else "at commits " + ", ".join(
-        f"`{part_commit(data, p)[:12]}` ({p})" for p in PARTS if p in data))
+    where = (f"at commit `{short(commits.pop())}`" if len(commits) == 1 else "at commits " + ", ".join(
+        f"`{short(part_commit(data, p))}` ({p})" for p in PARTS if p in data))
     lines = [f"Measured by `python -m scenarios.scheme_accuracy --write` {where} "
              "(docs/scheme-accuracy.json, with the SHA-256 of the inputs).", ""]
     d = data.get("damping")
@@ -552,8 +557,12 @@ def merge_part(part: str, result: dict) -> dict:
         fcntl.flock(lock, fcntl.LOCK_EX)
         data = json.loads(JSON_PATH.read_text()) if JSON_PATH.is_file() else {}
         prov = _provenance()
+        kept = data.setdefault("provenance", {})
+        for other in PARTS:  # a part from a file without per-part provenance keeps the file's
+            if other in data and other not in kept:
+                kept[other] = {"commit": data.get("commit", "unknown"), "inputs_sha256": data.get("inputs_sha256")}
         data[part] = result
-        data.setdefault("provenance", {})[part] = prov
+        kept[part] = prov
         commits = {part_commit(data, p) for p in PARTS if p in data}
         data["commit"] = commits.pop() if len(commits) == 1 else "mixed (see provenance)"
         data["inputs_sha256"] = prov["inputs_sha256"]
