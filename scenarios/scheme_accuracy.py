@@ -21,7 +21,7 @@ Parts
     with noise, eq. 32 with the 0.275 kg payload; peak velocity error (deg/s, over all 11 elements, from t = 0)
     at 2, 5 and 10 s per scheme, against the converged reference (:data:`LOOP_REFERENCE`, RK4 at 1.25 µs, itself
     checked against 0.625 µs). Every run sees the same seeded sensor noise; the loops are well conditioned
-    (the reference moves by 0.02 % from 1.25 to 0.625 µs, Gauss converges onto it as its substep falls), but
+    (the reference moves by at most 0.2 % from 1.25 to 0.625 µs, Gauss converges onto it as its substep falls), but
     the 1 ms samples of the bracket vibration are sensitive to the bracket modes' frequencies: a relative error
     of 1e-4 on the 13 and 21 kHz modes (RK4 at 2.5 µs, Gauss at 256 per ms) moves a peak by up to about 1 %.
 ``horizons``
@@ -65,7 +65,7 @@ LOOP_SCHEMES = SCHEMES[:4] + (("gauss, 128/ms", "gauss", 128), ("gauss, 256/ms",
     ("reference, 1.25 µs", "reference", 4), ("reference, 0.625 µs", "reference", 8))
 #: What the closed loops are compared with: RK4 at 1.25 µs. The 2.5 µs reference is not converged on these loops
 #: (0.9 % off on γ = 0.1 at 5 s): its damping of the 21 kHz bracket mode (3.8 1/s) and its frequency error on it
-#: (about 1e-4) move the 1 ms samples of the bracket vibration; halving its step again moves them by 0.03 % at most.
+#: (about 1e-4) move the 1 ms samples of the bracket vibration; halving its step again moves them by 0.2 % at most.
 LOOP_REFERENCE = "reference, 1.25 µs"
 #: The reference runs behind docs/findings.md (findings 2, 5 and 12): RK4 at 1.25 µs (4 substeps per ms).
 HORIZON_SUBSTEPS = 4
