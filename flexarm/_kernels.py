@@ -30,6 +30,9 @@ if not os.environ.get("FLEXARM_NO_NUMBA"):
     try:
         from numba import njit
 
+        from ._numba_cache import keep_cache_per_build
+
+        keep_cache_per_build()  # inside an FMU: one cache per FMU build, not per unpacking (20 s per run)
         HAVE_NUMBA = True
     except ImportError:  # the FMUs must run with numpy/scipy only
         pass
@@ -474,36 +477,34 @@ _PADE13 = np.array([64764752532480000.0, 32382376266240000.0, 7771770303897600.0
                     40840800.0, 960960.0, 16380.0, 182.0, 1.0])
 _THETA13 = 5.371920351148152  # 1-norm bound of the degree-13 Padé approximant (Higham, SIMAX 26, 2005)
 
-if HAVE_NUMBA:
 
-    @_jit
-    def expm(a):
-        """Matrix exponential: scaling and squaring with the [13/13] Padé approximant (Higham 2005)."""
-        n = a.shape[0]
-        norm = 0.0
-        for j in range(n):
-            col = 0.0
-            for i in range(n):
-                col += abs(a[i, j])
-            norm = max(norm, col)
-        s = 0
-        if norm > _THETA13:
-            s = int(np.ceil(np.log2(norm / _THETA13)))
-        x = a * (0.5**s)
-        b = _PADE13
-        ident = np.eye(n)
-        x2 = x @ x
-        x4 = x2 @ x2
-        x6 = x4 @ x2
-        u = x @ (x6 @ (b[13] * x6 + b[11] * x4 + b[9] * x2) + b[7] * x6 + b[5] * x4 + b[3] * x2 + b[1] * ident)
-        v = x6 @ (b[12] * x6 + b[10] * x4 + b[8] * x2) + b[6] * x6 + b[4] * x4 + b[2] * x2 + b[0] * ident
-        r = np.ascontiguousarray(np.linalg.solve(v - u, v + u))
-        for _ in range(s):
-            r = r @ r
-        return r
+# Numba and NumPy alike (NumPy: no SciPy import for a few matrix exponentials).
+@_jit
+def expm(a):
+    """Matrix exponential: scaling and squaring with the [13/13] Padé approximant (Higham 2005)."""
+    n = a.shape[0]
+    norm = 0.0
+    for j in range(n):
+        col = 0.0
+        for i in range(n):
+            col += abs(a[i, j])
+        norm = max(norm, col)
+    s = 0
+    if norm > _THETA13:
+        s = int(np.ceil(np.log2(norm / _THETA13)))
+    x = a * (0.5**s)
+    b = _PADE13
+    ident = np.eye(n)
+    x2 = x @ x
+    x4 = x2 @ x2
+    x6 = x4 @ x2
+    u = x @ (x6 @ (b[13] * x6 + b[11] * x4 + b[9] * x2) + b[7] * x6 + b[5] * x4 + b[3] * x2 + b[1] * ident)
+    v = x6 @ (b[12] * x6 + b[10] * x4 + b[8] * x2) + b[6] * x6 + b[4] * x4 + b[2] * x2 + b[0] * ident
+    r = np.ascontiguousarray(np.linalg.solve(v - u, v + u))
+    for _ in range(s):
+        r = r @ r
+    return r
 
-else:
-    from scipy.linalg import expm  # noqa: F401  (the same algorithm, Al-Mohy & Higham 2009)
 
 
 @_jit

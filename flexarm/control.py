@@ -41,7 +41,6 @@ from __future__ import annotations
 import numpy as np
 
 from .gain_schedule import GainSchedule, as_trajectory, desired_states, sample_time
-from .integrator import DEFAULT_SUBSTEPS, PlantSimulator
 from .lqr_design import OMEGA7_CHOICES
 from .model import ArmModel, N, joint_angles, joint_velocities, reconstruct_angles, strain_gauge_angles
 from .parameters import load_parameters
@@ -261,7 +260,7 @@ def _vector(x, n: int, name: str, what: str) -> np.ndarray:
 
 
 def simulate_closed_loop(model: ArmModel, controller: TrackingController, n_steps: int | None = None, z0=None,
-                         substeps: int = DEFAULT_SUBSTEPS, stop_on_divergence: bool = True):
+                         substeps: int | None = None, stop_on_divergence: bool = True):
     """Run the library plant under the controller with noiseless sensors (1 ms).
 
     Parameters
@@ -273,8 +272,8 @@ def simulate_closed_loop(model: ArmModel, controller: TrackingController, n_step
         Samples to run; default the slew length.
     z0 : array_like, shape (22,), optional
         Initial state; default the trajectory's first state.
-    substeps : int
-        RODAS4 substeps per 1 ms step.
+    substeps : int, optional
+        RODAS4 substeps per 1 ms step; default :data:`flexarm.integrator.DEFAULT_SUBSTEPS`.
     stop_on_divergence : bool
         Stop (returning the partial run) when the plant integration fails.
 
@@ -285,8 +284,11 @@ def simulate_closed_loop(model: ArmModel, controller: TrackingController, n_step
     torques : ndarray, shape (n, 2)
         Torque applied over each step, N·m.
     """
-    from .integrator import IntegrationError
+    # Imported here: the integrator's Numba kernels cost a third of a second to import, and the reference
+    # signals (flexarm.reference, read by every run) need only the sampling of this module.
+    from .integrator import DEFAULT_SUBSTEPS, IntegrationError, PlantSimulator
 
+    substeps = DEFAULT_SUBSTEPS if substeps is None else substeps
     n_steps = controller.n_steps if n_steps is None else int(n_steps)
     z0 = controller.z[0] if z0 is None else np.asarray(z0, dtype=float)
     plant = PlantSimulator(model, z0, substeps=substeps)

@@ -209,19 +209,22 @@ def discrete_riccati_residual(Phi, Gamma, Q, R, P) -> float:
     return float(np.linalg.norm(res) / den)
 
 
-def zoh(A, B, dt: float = DEFAULT_DT) -> tuple[np.ndarray, np.ndarray]:
+def zoh(A, B, dt: float = DEFAULT_DT, expm=None) -> tuple[np.ndarray, np.ndarray]:
     """Zero-order-hold discretisation Φ = e^{A dt}, Γ = ∫₀^dt e^{As} ds B (augmented expm).
 
-    Call it on well-scaled matrices (e.g. Ã, B̃ of :func:`scaling_transform`).
+    Call it on well-scaled matrices (e.g. Ã, B̃ of :func:`scaling_transform`). ``expm`` is the matrix
+    exponential to use (default :func:`scipy.linalg.expm`; the kernels' Padé one spares a SciPy import).
     """
     A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
     n, m = B.shape
     aug = np.zeros((n + m, n + m))
     aug[:n, :n] = A * dt
     aug[:n, n:] = B * dt
-    import scipy.linalg
+    if expm is None:
+        import scipy.linalg
 
-    e = scipy.linalg.expm(aug)
+        expm = scipy.linalg.expm
+    e = expm(aug)
     return e[:n, :n], e[:n, n:]
 
 

@@ -14,6 +14,8 @@ reaction on element 6).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from .parameters import (
@@ -39,6 +41,35 @@ class _Kernels:
         return getattr(_kernels, name)
 
 
+def numpy_kernels():
+    """A private copy of :mod:`flexarm._kernels` on its NumPy path: the same mathematics, no Numba.
+
+    For a few evaluations in a process that has not loaded Numba (the start-up check of a run's sampled loop,
+    :mod:`scenarios.stability`, costs a third of a second more with it), and for symbolic arrays (CasADi,
+    :mod:`fmus.native.physics_codegen`). Loaded once per process.
+    """
+    global _NUMPY_KERNELS
+    if _NUMPY_KERNELS is None:
+        import importlib.util
+        import os
+
+        saved = os.environ.get("FLEXARM_NO_NUMBA")
+        os.environ["FLEXARM_NO_NUMBA"] = "1"
+        try:
+            spec = importlib.util.spec_from_file_location("flexarm._kernels_numpy",
+                                                          Path(__file__).with_name("_kernels.py"))
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+        finally:
+            if saved is None:
+                del os.environ["FLEXARM_NO_NUMBA"]
+            else:
+                os.environ["FLEXARM_NO_NUMBA"] = saved
+        _NUMPY_KERNELS = module
+    return _NUMPY_KERNELS
+
+
+_NUMPY_KERNELS = None
 kern = _Kernels()
 N = N_ELEMENTS
 N_STATE = 2 * N_ELEMENTS
@@ -59,6 +90,9 @@ class ArmModel:
     damping_ratio : float
         Modal structural damping ratio ζ ≥ 0 of every flexible mode (default 0: the paper's
         undamped model); see :func:`modal_damping_matrix`.
+    kernels : module, optional
+        The numerical kernels: default :mod:`flexarm._kernels` (Numba when installed); :func:`numpy_kernels`
+        for a few evaluations without loading Numba.
 
     Notes
     -----
@@ -66,7 +100,8 @@ class ArmModel:
     ("it only requires one evaluation of the mass and stiffness elements").
     """
 
-    def __init__(self, params: ArmParameters | None = None, damping_ratio: float = 0.0):
+    def __init__(self, params: ArmParameters | None = None, damping_ratio: float = 0.0, kernels=None):
+        self._kernels = kernels
         self.params = params if params is not None else load_parameters()
         self.mass_coefficients = self.params.mass_coefficients()
         self.stiffness = self.params.stiffness_matrix()
@@ -81,19 +116,23 @@ class ArmModel:
             self.damping = modal_damping_matrix(self, ratio)
 
     # -- dynamics ------------------------------------------------------------
+
+    @property
+    def _kern(self):
+        return self._kernels if self._kernels is not None else kern
     def mass_matrix(self, theta) -> np.ndarray:
         """M(θ) = [M_jk cos(θ_j − θ_k)], kg·m², shape (11, 11)."""
-        cosd, _ = kern.trig_differences(np.asarray(theta, dtype=float))
+        cosd, _ = self._kern.trig_differences(np.asarray(theta, dtype=float))
         return self.mass_coefficients * cosd
 
     def centrifugal_matrix(self, theta) -> np.ndarray:
         """C(θ) = [M_jk sin(θ_j − θ_k)], kg·m², shape (11, 11)."""
-        _, sind = kern.trig_differences(np.asarray(theta, dtype=float))
+        _, sind = self._kern.trig_differences(np.asarray(theta, dtype=float))
         return self.mass_coefficients * sind
 
     def spring_torques(self, theta) -> np.ndarray:
         """K(θ)·1: generalised spring forces ∂V/∂θ, N·m, shape (11,)."""
-        _, sind = kern.trig_differences(np.asarray(theta, dtype=float))
+        _, sind = self._kern.trig_differences(np.asarray(theta, dtype=float))
         return -(self.stiffness * sind).sum(axis=1)
 
     def input_matrix(self) -> np.ndarray:
@@ -106,13 +145,13 @@ class ArmModel:
 
     def acceleration(self, theta, omega, tau) -> np.ndarray:
         """θ̈ (rad/s²), shape (11,), eq. 5."""
-        return kern.acceleration(_f(theta), _f(omega), _f(tau), self.mass_coefficients, self.stiffness,
-                                 self.j2p, self.j2d, self.damping)
+        return self._kern.acceleration(_f(theta), _f(omega), _f(tau), self.mass_coefficients, self.stiffness,
+                                       self.j2p, self.j2d, self.damping)
 
     def state_derivative(self, z, tau) -> np.ndarray:
         """ż = f(z) + g(z)τ, shape (22,), eq. 7."""
-        return kern.state_derivative(_f(z), _f(tau), self.mass_coefficients, self.stiffness, self.j2p, self.j2d,
-                                     self.damping)
+        return self._kern.state_derivative(_f(z), _f(tau), self.mass_coefficients, self.stiffness, self.j2p,
+                                           self.j2d, self.damping)
 
     def drift_and_input(self, z) -> tuple[np.ndarray, np.ndarray]:
         """f(z), shape (22,), and g(z), shape (22, 2), of eq. 7."""
@@ -125,8 +164,8 @@ class ArmModel:
     def jacobian(self, z, tau=(0.0, 0.0)) -> np.ndarray:
         """Exact ∂ż/∂z at (z, τ), shape (22, 22)."""
         z = _f(z)
-        a_th, a_om, _ = kern.acceleration_jacobian(z[:N], z[N:], _f(tau), self.mass_coefficients,
-                                                   self.stiffness, self.j2p, self.j2d, self.damping)
+        a_th, a_om, _ = self._kern.acceleration_jacobian(z[:N], z[N:], _f(tau), self.mass_coefficients,
+                                                         self.stiffness, self.j2p, self.j2d, self.damping)
         jac = np.zeros((N_STATE, N_STATE))
         jac[:N, N:] = np.eye(N)
         jac[N:, :N] = a_th
@@ -162,7 +201,7 @@ class ArmModel:
 
     def strain_energy(self, theta) -> float:
         """V = Σ_springs k (1 − cos(θ_i − θ_j)), J."""
-        cosd, _ = kern.trig_differences(_f(theta))
+        cosd, _ = self._kern.trig_differences(_f(theta))
         return 0.5 * float(np.sum(-self.stiffness * (1.0 - cosd)))
 
     def total_energy(self, z) -> float:
@@ -191,7 +230,8 @@ class ArmModel:
             raise ValueError(f"element: a 0-based element index in [0, {N - 1}], got {element!r}")
         # The same summation as link_tip_kinematics, so both give the same bits.
         zeros = np.zeros(N)
-        return kern.chain_kinematics(theta, zeros, zeros, self.length, np.array([element], dtype=np.int64))[0, :2]
+        ends = np.array([element], dtype=np.int64)
+        return self._kern.chain_kinematics(theta, zeros, zeros, self.length, ends)[0, :2]
 
     def tip_position(self, theta) -> np.ndarray:
         """Tip of link 2 (x, y), m."""
@@ -229,7 +269,7 @@ class ArmModel:
         """
         theta, omega = _f(theta), _f(omega)
         alpha = self.acceleration(theta, omega, tau)
-        return kern.chain_kinematics(theta, omega, alpha, self.length, _LINK_TIPS)
+        return self._kern.chain_kinematics(theta, omega, alpha, self.length, _LINK_TIPS)
 
     def observables(self, z, tau) -> np.ndarray:
         """Everything a sensor or the plant FMU reads off state z with held torque tau, shape (40,).

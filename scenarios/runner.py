@@ -486,8 +486,6 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     ``divergence_limit``: a recorded |value| above it ends a case as "unbounded" (:meth:`master.Master.run`).
     """
     algorithm = algorithm or scenario.algorithm
-    if progress and (kind or scenario.kind) == "python":
-        _say_numba_compile()  # before the FMUs are built: a build's trace step compiles them too
     scenario = with_overrides(scenario, overrides)
     chain = verify_data_chain()
     by_key: dict[str, CaseResult] = {}
@@ -514,6 +512,9 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     reported.append(line)
                     print(line)
         check_writable(folder, sum(BYTES_PER_SAMPLE * (s.n_steps + 1) * len(c) for s, c in setups))
+        if progress:  # a Python plant FMU whose build has no kernels cached yet compiles them on its first step
+            for plant in dict.fromkeys(s.paths[s.plant] for s, _ in setups):
+                _say_numba_compile(plant)
         opened = []
         try:
             for setup, cases in setups:  # every case probed before the first one runs
@@ -648,22 +649,36 @@ def desired_states(traj, times, dt: float | None = None) -> dict[str, np.ndarray
     return {"theta": th, "omega": om}
 
 
-def numba_compiles() -> bool:
-    """Whether a Python plant FMU will compile Numba kernels: Numba importable and not switched off.
+def numba_compiles(fmu: Path | None = None) -> bool:
+    """Whether a Python plant FMU will compile Numba kernels when it steps.
 
-    Each Python FMU runs its own private copy of ``flexarm`` from its unpacked folder (fmu_build.isolate), so
-    its first step in a freshly unpacked copy compiles the kernels and caches them in that folder.
+    Numba must be importable and not switched off. Each Python FMU runs its own private copy of ``flexarm``
+    (fmu_build.isolate), whose kernels Numba caches once per FMU build in the user's cache folder
+    (:mod:`flexarm._numba_cache`); given the FMU file, this is also False when that cache holds its build.
     """
     import importlib.util
 
-    return not os.environ.get("FLEXARM_NO_NUMBA") and importlib.util.find_spec("numba") is not None
+    if os.environ.get("FLEXARM_NO_NUMBA") or importlib.util.find_spec("numba") is None:
+        return False
+    if fmu is None:
+        return True
+    import zipfile
+
+    from flexarm._numba_cache import cache_root
+
+    try:
+        with zipfile.ZipFile(fmu) as z:
+            bundled = {n.split("/")[1] for n in z.namelist() if n.startswith("resources/_") and n.count("/") >= 2}
+    except (OSError, zipfile.BadZipFile):
+        return True
+    return bool(bundled) and not any(next((cache_root() / b).glob("*.nbi"), None) for b in bundled)
 
 
-def _say_numba_compile() -> None:
-    if numba_compiles():
+def _say_numba_compile(fmu: Path | None = None) -> None:
+    if numba_compiles(fmu):
         try:
-            print("the Python plant FMU compiles its Numba kernels on its first step (about 20 s per freshly "
-                  "unpacked FMU; FLEXARM_NO_NUMBA=1 runs NumPy instead)", file=sys.stderr, flush=True)
+            print("the Python plant FMU compiles its Numba kernels on its first step (about 20 s, once per FMU "
+                  "build: then cached; FLEXARM_NO_NUMBA=1 runs NumPy instead)", file=sys.stderr, flush=True)
         except (OSError, ValueError):  # standard error unwritable: no reason to stop a run
             pass
 

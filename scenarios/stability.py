@@ -35,19 +35,22 @@ E_FOLDS = 3.0
 def sampled_loop_growth(gain_name: str, schedule: str, damping_ratio: float, payload_mass: float,
                         dt: float = 1e-3) -> dict:
     """Largest ln ρ(Φ − ΓKC)/dt (1/s) over the schedule's gain sets, where, and the mode's aliased frequency (Hz)."""
-    from flexarm import ArmModel
     from flexarm.lqr import GainSchedule, effective_gain, zoh
+    from flexarm.model import ArmModel, numpy_kernels
     from flexarm.parameters import load_parameters
     from flexarm.trajectory import load_trajectory
 
     traj = load_trajectory()
     sched = GainSchedule.load(gain_name, schedule)
-    model = ArmModel(load_parameters(payload_mass=payload_mass), damping_ratio=damping_ratio)
+    # NumPy kernels: eleven linearisations and exponentials do not pay for loading Numba or scipy.linalg (more
+    # than half a second of a run's start-up).
+    kernels = numpy_kernels()
+    model = ArmModel(load_parameters(payload_mass=payload_mass), damping_ratio=damping_ratio, kernels=kernels)
     worst = {"growth_per_s": -np.inf}
     for t_k, gain in zip(sched.times, sched.gains):
         k = min(int(round(t_k / dt)), traj.n_samples)
         A, B = model.linearize(traj.state(k))
-        phi, gam = zoh(A, B, dt)
+        phi, gam = zoh(A, B, dt, expm=kernels.expm)
         ev = np.linalg.eigvals(phi - gam @ effective_gain(gain))
         i = int(np.argmax(np.abs(ev)))
         rate = float(np.log(np.abs(ev[i])) / dt)

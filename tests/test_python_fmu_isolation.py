@@ -54,12 +54,13 @@ def clean_env() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME", "PYTHONSTARTUP")}
 
 
-def run_host(spec: dict, tmp_path: Path, name: str = "host") -> dict[str, np.ndarray]:
-    """Run tests/fmi_loop_host.py on `spec` in a fresh process (clean environment, cwd outside the repo)."""
+def run_host(spec: dict, tmp_path: Path, name: str = "host", env: dict | None = None) -> dict[str, np.ndarray]:
+    """Run tests/fmi_loop_host.py on `spec` in a fresh process (clean environment plus `env`, cwd outside the
+    repo)."""
     spec_file, out = tmp_path / f"{name}.json", tmp_path / f"{name}.npz"
     spec_file.write_text(json.dumps(spec))
     proc = subprocess.run([sys.executable, str(HOST), str(spec_file), str(out)], capture_output=True, text=True,
-                          env=clean_env(), cwd=tmp_path, timeout=1200)
+                          env={**clean_env(), **(env or {})}, cwd=tmp_path, timeout=1200)
     assert proc.returncode == 0, proc.stderr[-4000:]
     with np.load(out) as z:
         return {k: z[k] for k in z.files}
@@ -150,3 +151,26 @@ def test_python_fmus_in_every_load_order_next_to_a_user_fmu_equal_the_native_kin
         assert rms == pytest.approx(reference, rel=1e-6), order
         np.testing.assert_allclose(result[f"run{i}_theta"], result["run0_theta"], rtol=0, atol=1e-9)
     assert reference < 0.01  # the paper's tracking (Table 2 'none'), not a failed start
+
+
+def test_numba_kernels_compile_once_per_build_not_per_unpacking(tmp_path):
+    """The Python plant FMU's kernels are cached per FMU build (flexarm/_numba_cache.py): a second process,
+    which unpacks the same FMU into a new folder, writes nothing to the cache (compiles nothing) and steps the
+    same; the cache folder is named after the build's private package."""
+    python = built_fmus()
+    cache = tmp_path / "cache"
+    spec = {"runs": [{"fmus": {k: str(python[k]) for k in TRIO}, "n_steps": 20}]}
+
+    def cached_files() -> dict[str, tuple[int, int]]:
+        return {str(p.relative_to(cache)): (p.stat().st_mtime_ns, p.stat().st_size)
+                for p in cache.rglob("*") if p.is_file()}
+
+    first = run_host(spec, tmp_path, "first", env={"XDG_CACHE_HOME": str(cache)})
+    after_first = cached_files()
+    with zipfile.ZipFile(python["plant"]) as z:
+        package = json.loads(z.read("resources/flexarm_bundle.json"))["package"]
+    assert any(f.startswith(f"flexarm-fmi/numba/{package}/") and f.endswith(".nbi") for f in after_first), \
+        sorted(after_first)[:5]
+    second = run_host(spec, tmp_path, "second", env={"XDG_CACHE_HOME": str(cache)})
+    assert cached_files() == after_first  # nothing compiled, nothing rewritten
+    np.testing.assert_array_equal(second["run0_theta"], first["run0_theta"])

@@ -156,16 +156,33 @@ def test_progress_is_a_bar_on_a_terminal_and_one_line_in_a_log():
     assert tty.getvalue().count("\r") > 50 and tty.getvalue().endswith("100%\n")
 
 
-def test_numba_notice_only_where_numba_compiles(monkeypatch, capsys):
-    """A run of Python FMUs says the plant will compile its kernels, unless Numba is off or missing."""
+def test_numba_notice_only_where_numba_compiles(monkeypatch, capsys, tmp_path):
+    """A run of Python FMUs says the plant will compile its kernels, unless Numba is off or missing, or the
+    kernels of that FMU build are cached already (flexarm._numba_cache)."""
     import importlib.util
+    import zipfile
 
     from scenarios import runner
 
     monkeypatch.delenv("FLEXARM_NO_NUMBA", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    has_numba = importlib.util.find_spec("numba") is not None
     runner._say_numba_compile()
     err = capsys.readouterr().err
-    assert ("compiles its Numba kernels" in err) == (importlib.util.find_spec("numba") is not None)
+    assert ("compiles its Numba kernels" in err) == has_numba
+    fmu = tmp_path / "plant.fmu"  # the layout of a Python FMU's private packages
+    with zipfile.ZipFile(fmu, "w") as z:
+        z.writestr("resources/_flexarm_plant_0123456789ab/__init__.py", "")
+    assert runner.numba_compiles(fmu) == has_numba
+    cached = tmp_path / "cache" / "flexarm-fmi" / "numba" / "_flexarm_plant_0123456789ab"
+    cached.mkdir(parents=True)
+    (cached / "_kernels.advance-455.py311.nbi").write_bytes(b"")
+    assert runner.numba_compiles(fmu) is False  # that build's kernels are cached
+    runner._say_numba_compile(fmu)
+    assert capsys.readouterr().err == ""
     monkeypatch.setenv("FLEXARM_NO_NUMBA", "1")
     runner._say_numba_compile()
     assert capsys.readouterr().err == "" and runner.numba_compiles() is False
+
+

@@ -17,8 +17,6 @@ row-major): the arm's constants are not compiled in but read from
 
 from __future__ import annotations
 
-import importlib.util
-import os
 import re
 import struct
 from pathlib import Path
@@ -26,9 +24,8 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from flexarm import _kernels
 from flexarm.integrator import EXPONENTIAL_HORIZON_S, REFERENCE_STEPS_PER_SUBSTEP
-from flexarm.model import DAMPING_CONFIGURATION, ArmModel
+from flexarm.model import DAMPING_CONFIGURATION, ArmModel, numpy_kernels
 from flexarm.parameters import (
     JOINT2_PAIR,
     LINK1_TIP_ELEMENT,
@@ -46,19 +43,8 @@ SENSOR_RESOURCE = "sensor_constants.txt"
 
 
 def _numpy_kernels():
-    """A private copy of flexarm._kernels on its NumPy path (the one that accepts symbolic arrays)."""
-    saved = os.environ.get("FLEXARM_NO_NUMBA")
-    os.environ["FLEXARM_NO_NUMBA"] = "1"
-    try:
-        spec = importlib.util.spec_from_file_location("flexarm_kernels_symbolic", _kernels.__file__)
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        if saved is None:
-            del os.environ["FLEXARM_NO_NUMBA"]
-        else:
-            os.environ["FLEXARM_NO_NUMBA"] = saved
-    return module
+    """flexarm._kernels on its NumPy path (the one that accepts symbolic arrays)."""
+    return numpy_kernels()
 
 
 def _stiffness_pattern(model: ArmModel) -> np.ndarray:

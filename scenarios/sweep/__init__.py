@@ -55,15 +55,58 @@ point is that of the bytes that ran it.
 """
 
 
-from .journal import DONE, STATUSES, Journal, read_table, table_columns, table_rows, write_table
-from .plan import FmuSet, Plan, Point, plan_sweep, point_key
-from .report import Progress, format_summary, summary_plots
-from .run import DEFAULT_OUT_DIR, SweepResult, cli, run_sweep
-from .spec import MAX_POINTS, SWEEP_DIR, Axis, Sweep, SweepError, load_sweep, sweep_path
-from .worker import ShipFmus, close_loaded, iter_dask, iter_serial, local_cluster, run_point, store_fmus
+# The names are loaded on first use (PEP 562): importing one module of the package, such as .journal for an
+# ILC campaign, must not import Dask (.worker), which costs most of a second.
+_HOME = {
+    "DONE": "journal",
+    "STATUSES": "journal",
+    "Journal": "journal",
+    "read_table": "journal",
+    "table_columns": "journal",
+    "table_rows": "journal",
+    "write_table": "journal",
+    "FmuSet": "plan",
+    "Plan": "plan",
+    "Point": "plan",
+    "plan_sweep": "plan",
+    "point_key": "plan",
+    "Progress": "report",
+    "format_summary": "report",
+    "summary_plots": "report",
+    "DEFAULT_OUT_DIR": "run",
+    "SweepResult": "run",
+    "cli": "run",
+    "run_sweep": "run",
+    "MAX_POINTS": "spec",
+    "SWEEP_DIR": "spec",
+    "Axis": "spec",
+    "Sweep": "spec",
+    "SweepError": "spec",
+    "load_sweep": "spec",
+    "sweep_path": "spec",
+    "ShipFmus": "worker",
+    "close_loaded": "worker",
+    "iter_dask": "worker",
+    "iter_serial": "worker",
+    "local_cluster": "worker",
+    "run_point": "worker",
+    "store_fmus": "worker",
+}
 
 __all__ = ["DONE", "STATUSES", "Journal", "read_table", "table_columns", "table_rows", "write_table", "FmuSet",
            "Plan", "Point", "plan_sweep", "point_key", "Progress", "format_summary", "summary_plots",
            "DEFAULT_OUT_DIR", "SweepResult", "cli", "run_sweep", "MAX_POINTS", "SWEEP_DIR", "Axis", "Sweep",
            "SweepError", "load_sweep", "sweep_path", "ShipFmus", "close_loaded", "iter_dask", "iter_serial",
            "local_cluster", "run_point", "store_fmus"]
+
+def __getattr__(name: str):
+    if name not in _HOME:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    return getattr(importlib.import_module(f".{_HOME[name]}", __name__), name)
+
+
+def __dir__() -> list[str]:
+    return sorted(list(globals()) + list(_HOME))
+
