@@ -473,3 +473,7 @@ def _slew_steps(runs: PageRuns) -> str:
     """(inline) The 1 ms steps of a full run of Table 2 (the runner's run length)."""
     sc, results = runs["table2"]
     return f"{len(results[0].series['time']) - 1} steps of {sc.step_size * 1e3:g} ms"
+
+
+# docs/findings.md's blocks live beside the code that explains them; importing registers them.
+from . import findings_doc  # noqa: E402,F401

@@ -460,10 +460,10 @@ def check_overrides(setup: Setup, overrides: dict[str, dict]) -> dict[str, dict]
 
 
 def simulate_case(setup: Setup, m: master.Master, parameters: dict[str, dict],
-                  progress=None) -> tuple[dict, dict[str, float] | None]:
+                  progress=None, divergence_limit: float = 1e4) -> tuple[dict, dict[str, float] | None]:
     """One run on a loaded master: the master's result and the table metrics (None unless the outcome is ok)."""
     out = m.run(setup.case_parameters(parameters), setup.record + setup.seen, setup.n_steps,
-                setup.scenario.step_size, progress=progress)
+                setup.scenario.step_size, divergence_limit, progress=progress)
     if out["status"] != "ok":
         return out, None
     sig, p, d = out["signals"], setup.plant, setup.driver
@@ -496,7 +496,7 @@ def probe_cases(setup: Setup, m: master.Master, cases) -> None:
 def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
                  progress: bool = True, algorithm: str | None = None, plots: bool = False, kind: str | None = None,
                  native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR,
-                 overrides: dict[str, dict] | None = None) -> list[CaseResult]:
+                 overrides: dict[str, dict] | None = None, divergence_limit: float = 1e4) -> list[CaseResult]:
     """Check everything, then run every case; publish per-case CSV and JSON (and PNGs) in out_dir/<scenario>/.
 
     Cases with the same FMUs share one loaded master (reset between cases). ``algorithm`` None: the
@@ -511,6 +511,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     fed the reference FMU's outputs when it has inputs of their names (:func:`with_reference`).
     ``overrides`` ({instance: {variable: value}}, the CLI's ``--set``) are checked against the FMUs' model
     descriptions like scenario values and applied to every case after the scenario's own.
+    ``divergence_limit``: a recorded |value| above it ends a case as "unbounded" (:meth:`master.Master.run`).
     """
     algorithm = algorithm or scenario.algorithm
     scenario = with_overrides(scenario, overrides)
@@ -554,7 +555,8 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     params = setup.case_parameters(case.parameters)
                     t0 = time.perf_counter()
                     bar = _bar(f"{scenario.name}:{case.key}") if progress else None
-                    out, metrics = simulate_case(setup, m, case.parameters, progress=bar)
+                    out, metrics = simulate_case(setup, m, case.parameters, progress=bar,
+                                                 divergence_limit=divergence_limit)
                     wall = time.perf_counter() - t0
                     series = {"time": out["time"], **out["signals"]}
                     stab = loop_stability(setup.paths, setup.plant, setup.driver, params, scenario.step_size,

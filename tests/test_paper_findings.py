@@ -200,7 +200,9 @@ def test_findings_2_5_12_quote_the_reference_runs():
     for n, texts in quoted.items():
         for text in texts:
             assert text in rows[n], (n, text, rows[n])
-    assert not re.search(r"\b1880\b|1\.2 1/s", doc)  # the exponential scheme's figures past 4 s are gone
+    # the exponential scheme's figures past 4 s are gone (the words they came in: the 10 s reference runs may
+    # reach the same number at another time, e.g. eq. 32 at 7 s)
+    assert not re.search(r"1880 deg/s by 5 s|1\.2 1/s", doc)
 
 
 def test_a_run_whose_loop_is_unstable_says_so(tmp_path):
