@@ -39,6 +39,8 @@ def _snapshot(folder: Path) -> dict[str, int]:
     ["scenarios.ilc_report"],
     ["scenarios.ilc_report", "--check"],
     ["scenarios.ilc_floor"],
+    ["scenarios.scheme_accuracy", "--check"],
+    ["scenarios.scheme_accuracy", "--write", "--part", "horizons"],
 ])
 def test_commands_that_rewrite_committed_files_refuse_outside_a_checkout(site, tmp_path, command):
     before = _snapshot(site)
