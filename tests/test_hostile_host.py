@@ -120,7 +120,7 @@ class HostileHost:
         self._set_inputs([(c.dst_fmu, c.dst_var, self._get(c.src_fmu, c.src_var)) for c in feedback])
 
     # -- Master.run's interface -------------------------------------------------------------------------
-    def run(self, parameters, record, n_steps, step_size, progress=None, **_) -> dict:
+    def run(self, parameters, record, n_steps, step_size, divergence_limit=1e4, progress=None, **_) -> dict:
         self._load()
         try:
             for name, s in self.slaves.items():
