@@ -196,9 +196,11 @@ def import_sandbox(paths: list[Path], private: set[str] = frozenset()):
     """
     saved_path = list(sys.path)
     ours = {p.stem for p in SOURCES.glob("*/*.py")}
-    # Those of FMUs already loaded in this process would shadow the project's sources:
-    # set them aside while building, and put them back afterwards for those FMUs' sake.
-    shadowing = {name: sys.modules.pop(name) for name in ours & set(sys.modules)}
+    # Those of FMUs already loaded in this process would shadow the project's sources (and an earlier unpacking
+    # of this very build, its folder perhaps deleted since, the staged copy): set them aside while building, and
+    # put them back afterwards for those FMUs' sake.
+    shadowing = {name: sys.modules.pop(name) for name in list(sys.modules)
+                 if name in ours or name.split(".")[0] in private}
     sys.path[:0] = [str(p) for p in paths]
     try:
         yield
