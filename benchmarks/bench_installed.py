@@ -2,6 +2,7 @@
 
     python benchmarks/bench_installed.py                 # install into a temporary venv, run each command
     python benchmarks/bench_installed.py --timeout 300   # let the commands that work run longer
+    python benchmarks/bench_installed.py --only results-page regenerate   # the commands containing these
 
 Collects every command quoted in README.md and docs/*.md (``python -m ...``, ``flexarm-build-fmus ...``,
 ``python build_fmus.py ...``), installs this checkout with ``pip install .`` into a fresh venv that sees the
@@ -77,9 +78,9 @@ def run(command: str, python: Path, cwd: Path, timeout: float) -> tuple[str, flo
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--timeout", type=float, default=180.0, help="seconds per command (default 180)")
-    ap.add_argument("--only", help="run only the commands containing this text")
+    ap.add_argument("--only", nargs="+", help="run only the commands containing one of these texts")
     args = ap.parse_args(argv)
-    commands = [c for c in documented_commands() if not args.only or args.only in c]
+    commands = [c for c in documented_commands() if not args.only or any(o in c for o in args.only)]
     with tempfile.TemporaryDirectory(prefix="flexarm-installed-") as tmp:
         python = install(Path(tmp) / "venv")
         rows = []
