@@ -8,7 +8,8 @@ Collects every command quoted in README.md and docs/*.md (``python -m ...``, ``f
 ``python build_fmus.py ...``), installs this checkout with ``pip install .`` into a fresh venv that sees the
 system's packages (``--system-site-packages --no-deps``: the project, not its dependencies, is what is
 measured), and runs each command in an empty folder outside the checkout, with stdin closed. It prints, per
-command: the exit code, the wall time, and the first line of what it said on stderr (or stdout). A command
+command: the exit code, the wall time, its CPU time, and what it said first on stdout (the refusal, for a
+command that failed). A command
 that exits 0 works; one that exits non-zero should say why within a second (issue 23: "works or refuses in
 under a second with a reason"). Commands with placeholders (``...``, ``[--native]``, ``MyController.fmu``) are
 listed as templates and not run. A command still running at ``--timeout`` is stopped and reported as such.
@@ -19,6 +20,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import resource
 import shlex
 import subprocess
 import sys
@@ -38,6 +40,12 @@ def documented_commands() -> list[str]:
         for m in _QUOTED.finditer(doc.read_text(encoding="utf-8")):
             seen.setdefault(" ".join(m.group(1).split()), None)
     return list(seen)
+
+
+def _children_cpu() -> float:
+    """CPU seconds of the finished child processes (a busy machine inflates wall time, not this)."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
 
 
 def install(venv: Path) -> Path:
@@ -60,19 +68,21 @@ def run(command: str, python: Path, cwd: Path, timeout: float) -> tuple[str, flo
         argv[0] = str(python.parent / argv[0])
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     t0 = time.perf_counter()
+    cpu0 = _children_cpu()
     try:
         p = subprocess.run(argv, cwd=cwd, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True,
                            timeout=timeout)
     except subprocess.TimeoutExpired:
         return "timeout", time.perf_counter() - t0, f"still running after {timeout:.0f} s (stopped)"
     wall = time.perf_counter() - t0
+    cpu = _children_cpu() - cpu0
     said = [ln.strip() for ln in (p.stderr + "\n" + p.stdout).splitlines() if ln.strip()]
     if p.returncode != 0:  # the refusal is the last line that says something (a traceback ends with it)
         said = [ln for ln in said if ln.lower().startswith(("error", "refused")) or "error" in ln.lower()] or said
         first = said[-1] if said else "(said nothing)"
     else:
         first = said[0] if said else "(said nothing)"
-    return str(p.returncode), wall, first[:150]
+    return str(p.returncode), wall, f"[CPU {cpu:.2f} s] {first[:150]}"
 
 
 def main(argv=None) -> int:
