@@ -64,7 +64,7 @@ from .lqr_design import (  # noqa: F401 - re-exported
 )
 from .model import ArmModel
 from .parameters import load_parameters
-from .provenance import checkout_refusal
+from .provenance import refuse_outside_checkout
 from .provenance import sha256_file as file_sha256  # noqa: F401 - re-exported (older name)
 
 
@@ -101,10 +101,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     writes_package = args.write and (Path(args.out).resolve() == Path(DEFAULT_GAIN_DIR).resolve() or (
         not args.no_lqg and Path(args.lqg_out).resolve() == Path(DEFAULT_LQG_DIR).resolve()))
-    refusal = writes_package and checkout_refusal("python -m flexarm.lqr", "the gain and LQG design files in "
-                                                  "flexarm/data (or pass --out/--lqg-out and --no-lqg)")
-    if refusal:
-        print(f"error: {refusal}", file=sys.stderr)
+    if writes_package and refuse_outside_checkout("python -m flexarm.lqr", "the gain and LQG design files in "
+                                                  "flexarm/data (or pass --out/--lqg-out and --no-lqg)"):
         return 2
     if not Path(args.trajectory).exists():
         print(f"error: trajectory file {args.trajectory} does not exist", file=sys.stderr)

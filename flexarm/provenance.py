@@ -12,6 +12,7 @@ import json
 import os
 import re
 import subprocess
+import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -43,6 +44,15 @@ def checkout_refusal(command: str, writes: str, root: str | Path = SOURCE_ROOT) 
         return None
     return (f"{command} rewrites {writes} of a checkout of flexarm-fmi, and {root} is none (an installed "
             "package): run it in a clone of the repository")
+
+
+def refuse_outside_checkout(command: str, writes: str, root: str | Path = SOURCE_ROOT) -> bool:
+    """Print :func:`checkout_refusal`'s message to stderr and return True when `root` is no checkout (the
+    command then exits 2); False in a checkout."""
+    refusal = checkout_refusal(command, writes, root)
+    if refusal:
+        print(f"error: {refusal}", file=sys.stderr)
+    return refusal is not None
 
 
 def git_commit(root: str | Path = SOURCE_ROOT) -> str:

@@ -22,7 +22,7 @@ import sys
 import time
 from pathlib import Path
 
-from .provenance import checkout_refusal
+from .provenance import refuse_outside_checkout
 
 REPO = Path(__file__).resolve().parent.parent
 DATA = Path(__file__).resolve().parent / "data"
@@ -54,9 +54,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sensitivity", action="store_true",
                     help="the trajectory stage also solves the ±20 %% parameter cases (about a minute more)")
     args = ap.parse_args(argv)
-    refusal = checkout_refusal("python -m flexarm.regenerate", "the data files, FMUs and documents", REPO)
-    if refusal:  # an installed package: the stages would rewrite site-packages
-        print(f"error: {refusal}", file=sys.stderr)
+    if refuse_outside_checkout("python -m flexarm.regenerate", "the data files, FMUs and documents", REPO):
         return 2
     chosen = stages(args.sensitivity)
     first = names.index(args.only or args.start)

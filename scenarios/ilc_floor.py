@@ -16,7 +16,7 @@ import json
 import sys
 from pathlib import Path
 
-from flexarm.provenance import checkout_refusal, git_commit, sha256_file, write_atomic
+from flexarm.provenance import git_commit, refuse_outside_checkout, sha256_file, write_atomic
 
 REPO = Path(__file__).resolve().parent.parent
 DOC = REPO / "docs" / "ilc.md"
@@ -70,9 +70,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m scenarios.ilc_floor", description=__doc__.splitlines()[0])
     p.add_argument("--check", action="store_true", help="check docs/ilc.md against docs/ilc_floor.json (no run)")
     args = p.parse_args(argv)
-    refusal = checkout_refusal("python -m scenarios.ilc_floor", "docs/ilc.md and docs/ilc_floor.json", REPO)
-    if refusal:
-        print(f"error: {refusal}", file=sys.stderr)
+    if refuse_outside_checkout("python -m scenarios.ilc_floor", "docs/ilc.md and docs/ilc_floor.json", REPO):
         return 2
     if args.check:
         r = json.loads(DATA.read_text())

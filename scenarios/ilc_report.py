@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flexarm.provenance import checkout_refusal, sha256_file, write_atomic
+from flexarm.provenance import refuse_outside_checkout, sha256_file, write_atomic
 
 from .ilc import load_ilc, run_ilc
 
@@ -209,9 +209,7 @@ def main(argv=None) -> int:
                     help="no runs: write the generated part of docs/ilc.md from docs/ilc_results.json and "
                          "docs/ilc_floor.json (after a change to the page's layout)")
     args = ap.parse_args(argv)
-    refusal = checkout_refusal("python -m scenarios.ilc_report", "docs/ilc.md and docs/ilc_results.json", REPO)
-    if refusal:
-        print(f"error: {refusal}", file=sys.stderr)
+    if refuse_outside_checkout("python -m scenarios.ilc_report", "docs/ilc.md and docs/ilc_results.json", REPO):
         return 2
     if args.render:
         record = json.loads(RESULTS.read_text())

@@ -29,7 +29,7 @@ import numpy as np
 from flexarm import ArmModel
 from flexarm.lqr import GainSchedule, effective_gain, zoh
 from flexarm.parameters import DEFAULT_PARAMETER_FILE
-from flexarm.provenance import checkout_refusal, git_commit, sha256_file, write_atomic
+from flexarm.provenance import git_commit, refuse_outside_checkout, sha256_file, write_atomic
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
 from scenarios.config import SCENARIO_DIR, load_scenario
 from scenarios.metrics import METRICS
@@ -367,9 +367,7 @@ def main(argv=None) -> int:
     ap.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS),
                     help="recompute only these parts (the others are kept from docs/findings-data.json)")
     args = ap.parse_args(argv)
-    refusal = checkout_refusal("python -m scenarios.reexamine", "docs/findings-data.*", REPO)
-    if refusal:
-        print(f"error: {refusal}", file=sys.stderr)
+    if refuse_outside_checkout("python -m scenarios.reexamine", "docs/findings-data.*", REPO):
         return 2
     t0 = time.perf_counter()
     old = DOCS / "findings-data.json"

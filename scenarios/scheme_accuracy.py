@@ -579,7 +579,7 @@ def merge_part(part: str, result: dict) -> dict:
 
 
 def main(argv=None) -> int:
-    from flexarm.provenance import checkout_refusal, write_atomic
+    from flexarm.provenance import refuse_outside_checkout, write_atomic
 
     ap = argparse.ArgumentParser(prog="python -m scenarios.scheme_accuracy", description=__doc__.split("\n")[0])
     ap.add_argument("--write", action="store_true", help="run the parts and write the JSON and docs/model.md")
@@ -587,10 +587,8 @@ def main(argv=None) -> int:
     ap.add_argument("--render", action="store_true", help="rewrite docs/model.md's tables from the committed JSON")
     ap.add_argument("--check", action="store_true", help="exit 1 if docs/model.md differs from the JSON's tables")
     args = ap.parse_args(argv)
-    refusal = checkout_refusal("python -m scenarios.scheme_accuracy", "docs/scheme-accuracy.json and the tables "
-                               "of docs/model.md and docs/findings.md (--check compares with them)", REPO)
-    if refusal:
-        print(f"error: {refusal}", file=sys.stderr)
+    if refuse_outside_checkout("python -m scenarios.scheme_accuracy", "docs/scheme-accuracy.json and the tables "
+                               "of docs/model.md and docs/findings.md (--check compares with them)", REPO):
         return 2
     if args.check:
         problems = check()
