@@ -43,13 +43,14 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         if args.write_doc:
-            from .interface_doc import write_interface_doc
-            from .registry import DOC_FILE
+            from flexarm.provenance import refuse_outside_checkout
 
-            if not DOC_FILE.is_file():  # an installed package carries no docs/
-                raise BuildError(f"--write-doc regenerates docs/fmu-interface.md of a checkout, and there is none "
-                                 f"at {DOC_FILE} (an installed package, not a checkout): run it in a clone of "
-                                 "the repository")
+            from .interface_doc import write_interface_doc
+            from .registry import SOURCES
+
+            # an installed package carries no docs/: exit 2 with the reason, as every command that needs a checkout
+            if refuse_outside_checkout("flexarm-build-fmus --write-doc", "docs/fmu-interface.md", SOURCES.parent):
+                return 2
             print(f"{write_interface_doc()}: regenerated")
             return 0
         return _build(args)

@@ -18,7 +18,7 @@ import sysconfig
 import warnings
 from pathlib import Path
 
-from .registry import SHIM_SOURCES, SOURCES
+from .registry import NATIVE_COMMON_DIR, SHIM_SOURCES, SOURCES
 
 
 class BuildError(RuntimeError):
@@ -39,8 +39,8 @@ def c_compiler() -> str:
     if path is None:
         raise BuildError(
             f"no C compiler: {cc!r} is not on PATH. Building the FMUs compiles their FMI front end "
-            f"({', '.join(p.name for p in SHIM_SOURCES)} in {SOURCES / 'common'}) with a C compiler; install gcc "
-            "(Debian/Ubuntu: 'sudo apt-get install gcc') or set CC to a C compiler.")
+            f"({', '.join(str(p.relative_to(SOURCES)) for p in SHIM_SOURCES)} in {SOURCES}) with a C compiler; "
+            "install gcc (Debian/Ubuntu: 'sudo apt-get install gcc') or set CC to a C compiler.")
     return path
 
 
@@ -64,18 +64,20 @@ def libpython_name() -> str:
     return str(name)
 
 
-def compile_shim(guid: str, model_identifier: str, dest: Path, preflight: str = "flexarm_fmu_preflight.py") -> Path:
+def compile_shim(guid: str, model_identifier: str, dest: Path, preflight: str = "flexarm_fmu_preflight.py",
+                 cflags: tuple[str, ...] = ()) -> Path:
     """Compile the front end for one FMU into `dest` (a .so); BuildError with the compiler's output.
 
-    `preflight` is the file name (in the FMU's ``resources``) of the start-up check the front end runs.
+    `preflight` is the file name (in the FMU's ``resources``) of the start-up check the front end runs;
+    `cflags` are added to the compiler's (the tests build it with the sanitizers).
     """
     if not all(c.isalnum() or c in "-{}" for c in guid) or not model_identifier.isidentifier() \
             or not (preflight.endswith(".py") and preflight[:-3].isidentifier()):
         raise BuildError(f"unexpected GUID {guid!r}, model identifier {model_identifier!r} or start-up check "
                          f"{preflight!r}")
     version = f"{sys.version_info.major}.{sys.version_info.minor}"
-    cmd = [c_compiler(), "-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
-           f"-I{fmi_headers()}", f"-I{SOURCES / 'common'}", f'-DFLEXARM_FMU_GUID="{guid}"',
+    cmd = [c_compiler(), "-std=c11", "-O2", *cflags, "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
+           f"-I{fmi_headers()}", f"-I{SOURCES / 'common'}", f"-I{NATIVE_COMMON_DIR}", f'-DFLEXARM_FMU_GUID="{guid}"',
            f'-DFLEXARM_MODEL_IDENTIFIER="{model_identifier}"', f'-DFLEXARM_LIBPYTHON="{libpython_name()}"',
            f'-DFLEXARM_PYTHON_VERSION="{version}"', f'-DFLEXARM_PREFLIGHT_FILE="{preflight}"',
            "-o", str(dest), *map(str, SHIM_SOURCES), "-ldl", "-lpthread"]

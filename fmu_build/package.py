@@ -50,7 +50,7 @@ from .compile import BuildError, c_compiler, check_platform, compile_shim
 from .docs import render_documentation
 from .isolate import build_digest, private_name, rewrite_tree
 from .progress import say
-from .registry import COMMON_DIR, DOC_FILE, FLEXARM_DIR, FMUS, SHIM_SOURCES, SOURCES, FmuSpec, default_out_dir
+from .registry import COMMON_DIR, DOC_FILE, FLEXARM_DIR, FMUS, SHIM_FILES, SOURCES, FmuSpec, default_out_dir
 
 #: The pythonfmu version whose internals the glue works around (fmus/common/flexarm_fmu_pythonfmu.py).
 PYTHONFMU_VERSION = "0.7.0"
@@ -238,7 +238,7 @@ def interfaces() -> dict[str, dict]:
 
 def _sources(spec: FmuSpec) -> list[Path]:
     """Every file the FMU may be made from (for the up-to-date check)."""
-    return [spec.script, *spec.extra_files, *sorted(COMMON_DIR.glob("*.py")), *SHIM_SOURCES,
+    return [spec.script, *spec.extra_files, *sorted(COMMON_DIR.glob("*.py")), *SHIM_FILES,
             *bundle_files(FLEXARM_DIR), *bundle_files(Path(__file__).parent)]
 
 
@@ -305,7 +305,7 @@ def stage(spec: FmuSpec, folder: Path) -> Staged:
         "flexarm_files": [f.relative_to(package).as_posix() for f in bundle_files(package)],
         "data_sha256": {f.relative_to(data_dir).as_posix(): hashlib.sha256(f.read_bytes()).hexdigest()
                         for f in bundle_files(data_dir)},
-        "shim_sha256": {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in SHIM_SOURCES},
+        "shim_sha256": {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in SHIM_FILES},
         "slew": _slew(),
     }, indent=1))
     glue = [renamed[f.stem] for f in modules if f != spec.script]

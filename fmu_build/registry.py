@@ -19,8 +19,12 @@ SOURCES = Path(fmus.__file__).resolve().parent
 COMMON_DIR = SOURCES / "common"
 #: The physics package bundled (in part) into every FMU.
 FLEXARM_DIR = Path(flexarm.__file__).resolve().parent
+#: Where the C code shared with the native FMUs lives (the table of live instances and states).
+NATIVE_COMMON_DIR = SOURCES / "native" / "common"
 #: The C front end's sources, compiled together into binaries/linux64/<modelIdentifier>.so.
-SHIM_SOURCES = tuple(sorted(COMMON_DIR.glob("fmi2_shim*.c")))
+SHIM_SOURCES = (*sorted(COMMON_DIR.glob("fmi2_shim*.c")), NATIVE_COMMON_DIR / "live_table.c")
+#: Its sources and headers: what its build depends on (the up-to-date check, the FMU's recorded SHA-256).
+SHIM_FILES = (*SHIM_SOURCES, *sorted(COMMON_DIR.glob("fmi2_shim*.h")), NATIVE_COMMON_DIR / "live_table.h")
 #: Environment variable naming the default output folder.
 OUT_DIR_ENV = "FLEXARM_FMU_DIR"
 #: The interface document shipped in each FMU's documentation/ (when the checkout has it).

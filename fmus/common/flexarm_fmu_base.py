@@ -105,9 +105,6 @@ __all__ = ["BUNDLE_MANIFEST", "CHOICES_MARK", "START_VALUES", "UNITS", "FlexarmS
 #: Optional file (in an FMU's resources): {variable: start value} of a case's copy of the FMU.
 START_VALUES = "flexarm_start_values.json"
 
-#: SHA-256 of the imported `flexarm` folder, by path (see FlexarmSlave._check_vendored_modules).
-_LOADED_TREE_SHA256: dict[tuple[Path, str], str] = {}
-
 # Lifecycle of an instance (FMI 2.0 co-simulation state machine, simplified).
 _INSTANTIATED, _INITIALIZATION, _STEPPING, _TERMINATED = "instantiated", "initialization", "stepping", "terminated"
 
@@ -175,7 +172,6 @@ class FlexarmSlave(PythonfmuSlave):
         contiguous = self._output_vrs == list(range(self._output_vrs[0], self._output_vrs[-1] + 1)) \
             if self._output_vrs else False
         self._output_slice = slice(self._output_vrs[0], self._output_vrs[-1] + 1) if contiguous else None
-        self._check_vendored_modules()
         self._apply_start_values()
         self._constructed()
 
@@ -506,30 +502,6 @@ class FlexarmSlave(PythonfmuSlave):
                     self._values[vr] = value
         except Exception as exc:
             self._exception(f"reading {START_VALUES}", exc, "start_values")
-
-    def _check_vendored_modules(self) -> None:
-        """Warn if the imported `flexarm` differs from the copy bundled in this FMU."""
-        try:
-            if not self.resources:
-                return
-            manifest = Path(self.resources) / BUNDLE_MANIFEST
-            flexarm = sys.modules.get("flexarm")
-            if flexarm is None or not manifest.is_file():
-                return
-            loaded = Path(flexarm.__file__).resolve().parent
-            if loaded == (Path(self.resources) / "flexarm").resolve():
-                return
-            info = json.loads(manifest.read_text())
-            expected, files = info["flexarm_sha256"], info["flexarm_files"]
-            key = (loaded, expected)
-            if key not in _LOADED_TREE_SHA256:  # hashed once per process and build, not per instantiation
-                _LOADED_TREE_SHA256[key] = tree_sha256(loaded, files)  # the files this FMU bundles
-            if _LOADED_TREE_SHA256[key] != expected:
-                self.log(f"{self.instance_name}: using 'flexarm' already imported from {loaded}, which differs "
-                         f"from the copy bundled in this FMU (sha256 {expected[:12]}); results follow the "
-                         "imported copy", Fmi2Status.warning)
-        except Exception as exc:  # a diagnostic only: never fail instantiation for it
-            self.log(f"{self.instance_name}: bundled-module check skipped: {exc}", Fmi2Status.warning)
 
     # -- modelDescription.xml ------------------------------------------------------
     def to_xml(self, model_options: dict[str, str] | None = None) -> Element:

@@ -53,10 +53,13 @@ const char *const STATE_NAMES[S_COUNT] = {"instantiated", "initializationMode", 
 const char *const CATEGORIES[N_CATEGORIES] = {"logStatusWarning", "logStatusDiscard", "logStatusError",
                                               "logStatusFatal", "logAll"};
 
+LiveTable shim_instances, shim_states;
+
 Instance *as_instance(fmi2Component c)
 {
+    if (c == NULL || !live_contains(&shim_instances, c)) return NULL;
     Instance *s = (Instance *)c;
-    return (s != NULL && s->magic == INSTANCE_MAGIC) ? s : NULL;
+    return s->magic == INSTANCE_MAGIC ? s : NULL;
 }
 
 /* -- logging -------------------------------------------------------------------------- */
@@ -290,6 +293,11 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                  "messages above)");
         goto fail;
     }
+    if (live_add(&shim_instances, s, NULL) != 0) {
+        shim_log(s, fmi2Error, "fmi2Instantiate: out of memory");
+        api.freeInstance(s->inner);
+        goto fail;
+    }
     return s;
 fail:
     free_instance_memory(s);
@@ -299,7 +307,13 @@ fail:
 void fmi2FreeInstance(fmi2Component c)
 {
     Instance *s = as_instance(c);
-    if (s == NULL) return;
+    if (s == NULL) return; /* NULL, freed already, or not an instance of this FMU: nothing to do */
+    live_remove(&shim_instances, s);
+    for (State *w; (w = live_take_owned(&shim_states, s)) != NULL;) { /* the states it made go with it */
+        if (s->state != S_FATAL) api.freeFMUstate(s->inner, &w->inner);
+        w->magic = 0;
+        free(w);
+    }
     if (s->state == S_FATAL) /* pythonfmu already released its Python objects; its destructor would again */
         shim_log(s, fmi2Warning, "fmi2FreeInstance: pythonfmu's part of this instance is not freed after "
                  "fmi2Fatal (freeing it would crash the process)");

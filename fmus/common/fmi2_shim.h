@@ -18,6 +18,7 @@
 #include <string.h>
 
 #include "fmi2Functions.h"
+#include "live_table.h" /* fmus/native/common: shared with the native FMUs */
 
 #ifndef FLEXARM_FMU_GUID
 #error "compile with -DFLEXARM_FMU_GUID=\"<guid of modelDescription.xml>\""
@@ -97,16 +98,23 @@ typedef struct {
     double last_successful_time;
 } Instance;
 
-/* An FMU state: pythonfmu's (a Python object) plus the shim's own. */
+/* An FMU state: pythonfmu's (a Python object) plus the shim's own, sealed by a checksum of the fields before it
+   (a host that scribbles on it is refused, not followed to a wild pointer). */
 typedef struct {
     unsigned magic;
     int state;
     double start_time;
     double last_successful_time;
     fmi2FMUstate inner;
+    uint64_t seal;
 } State;
+/* tests/test_python_state_fuzz.py flips every bit of these 40 bytes */
+_Static_assert(sizeof(State) == 40, "State layout changed: update tests/test_python_state_fuzz.py");
 
 /* -- shared between the front end's files ---------------------------------------------- */
+/* The live instances and states of this binary (live_table.h): a handle is read only once found here, so a
+   second fmi2FreeInstance, a freed state or another FMU's state is refused without touching its memory. */
+extern LiveTable shim_instances, shim_states;
 /* fmi2_shim.c: instances, logging, the state machine */
 Instance *as_instance(fmi2Component c);
 void emit(Instance *s, fmi2Status status, const char *category, const char *text);

@@ -1,8 +1,12 @@
 /*
- * state_fuzz: FMU states of the native FMUs attacked as a misbehaving host would (tests/test_native_state_fuzz.py
- * builds this and the FMUs' sources with AddressSanitizer and UBSan and runs it).
+ * state_fuzz: FMU states attacked as a misbehaving host would (tests/test_native_state_fuzz.py builds this and the
+ * native FMUs' sources with AddressSanitizer and UBSan and runs it; tests/test_python_state_fuzz.py the same with
+ * the Python FMUs' C front end).
  *
- *   state_fuzz LIB.so,UNZIPPED_DIR,GUID [LIB.so,UNZIPPED_DIR,GUID ...]
+ *   state_fuzz LIB.so,UNZIPPED_DIR,GUID[,IN_MEMORY_BYTES] [...]
+ *
+ * IN_MEMORY_BYTES: how many bytes of the in-memory state to flip (default: the serialised length less its 16-byte
+ * tag and checksum, the native FMUs' flat snapshot).
  *
  * Each FMU is loaded (RTLD_LOCAL: every FMU has its own tables, as in a real host), instantiated, initialised
  * and stepped 5 times; then, for each FMU:
@@ -38,6 +42,7 @@ typedef struct {
     fmi2FMUstate state;
     fmi2Byte *bytes;
     size_t n_bytes;
+    long in_memory_bytes; /* < 0: n_bytes - 16 */
     fmi2InstantiateTYPE *instantiate;
     fmi2FreeInstanceTYPE *free_instance;
     fmi2SetupExperimentTYPE *setup;
@@ -84,11 +89,13 @@ static const fmi2CallbackFunctions CALLBACKS = {count_log, calloc, free, NULL, N
 
 static void load(Fmu *f, char *spec)
 {
-    char *lib_path = strtok(spec, ","), *dir = strtok(NULL, ","), *guid = strtok(NULL, ",");
+    char *lib_path = strtok(spec, ","), *dir = strtok(NULL, ","), *guid = strtok(NULL, ","),
+         *in_memory = strtok(NULL, ",");
     if (lib_path == NULL || dir == NULL || guid == NULL) {
-        fprintf(stderr, "state_fuzz: expected LIB,DIR,GUID\n");
+        fprintf(stderr, "state_fuzz: expected LIB,DIR,GUID[,IN_MEMORY_BYTES]\n");
         exit(2);
     }
+    f->in_memory_bytes = in_memory != NULL ? strtol(in_memory, NULL, 10) : -1;
     void *lib = dlopen(lib_path, RTLD_NOW | RTLD_LOCAL);
     if (lib == NULL) {
         fprintf(stderr, "state_fuzz: %s\n", dlerror());
@@ -131,7 +138,7 @@ static void load(Fmu *f, char *spec)
 /* Every single-bit flip of the serialised state is refused by fmi2DeSerializeFMUstate. */
 static void flip_serialised(Fmu *f)
 {
-    fmi2Byte *copy = malloc(f->n_bytes);
+    fmi2Byte *copy = calloc(f->n_bytes + 8, 1); /* room for the longer wrong lengths below: the host's buffer */
     memcpy(copy, f->bytes, f->n_bytes);
     long tried = 0, accepted = 0;
     for (size_t bit = 0; bit < 8 * f->n_bytes; bit++) {
@@ -155,12 +162,12 @@ static void flip_serialised(Fmu *f)
     report(f, "serialised_bit_flips_and_lengths", tried, accepted);
 }
 
-/* Every single-bit flip of the in-memory state is refused by fmi2SetFMUstate (the state's length is its
-   serialised length less the tag and the trailing checksum). */
+/* Every single-bit flip of the in-memory state is refused by fmi2SetFMUstate (the state's length: see
+   in_memory_bytes). */
 static void flip_in_memory(Fmu *f)
 {
     unsigned char *p = (unsigned char *)f->state;
-    size_t n = f->n_bytes - 16;
+    size_t n = f->in_memory_bytes >= 0 ? (size_t)f->in_memory_bytes : f->n_bytes - 16;
     long tried = 0, accepted = 0;
     for (size_t bit = 0; bit < 8 * n; bit++) {
         p[bit / 8] ^= (unsigned char)(1u << (bit % 8));

@@ -9,6 +9,7 @@
  * (parameters) or fmi2DoStep (inputs) until a valid value is set.
  */
 #include "fmi2_glue.h"
+#include "live_table.h"
 
 #include <math.h>
 #include <stddef.h>
@@ -81,97 +82,8 @@ void glue_log(const Instance *inst, fmi2Status status, const char *fmt, ...)
     inst->logger(inst->env, inst->name, status, category_of(status), escaped);
 }
 
-/* -- live instances and FMU states --------------------------------------------------------------
- * A handle given by the host is dereferenced only once it is found in these tables (one set per FMU binary,
- * so another FMU's instance or state, or one already freed, is never read): a second fmi2FreeInstance, a freed
- * or foreign FMUstate are refused without touching their memory. A spin lock guards the tables (instances may
- * live in different threads); it is held only for a scan of a few pointers. */
-typedef struct {
-    void *handle;
-    const Instance *owner; /* states: the instance that made it (freed with it); instances: NULL */
-} Live;
-
-typedef struct {
-    Live *items;
-    size_t n, cap;
-} LiveTable;
-
+/* -- live instances and FMU states (live_table.h) ------------------------------------------------ */
 static LiveTable live_instances, live_states;
-
-#if defined(_MSC_VER)
-#include <windows.h>
-static volatile LONG registry_lock;
-static void registry_acquire(void)
-{
-    while (InterlockedExchange(&registry_lock, 1)) Sleep(0);
-}
-static void registry_release(void) { InterlockedExchange(&registry_lock, 0); }
-#else
-static char registry_lock;
-static void registry_acquire(void)
-{
-    while (__atomic_test_and_set(&registry_lock, __ATOMIC_ACQUIRE)) {
-    }
-}
-static void registry_release(void) { __atomic_clear(&registry_lock, __ATOMIC_RELEASE); }
-#endif
-
-static long live_find(const LiveTable *t, const void *handle)
-{
-    for (size_t i = 0; i < t->n; i++)
-        if (t->items[i].handle == handle) return (long)i;
-    return -1;
-}
-
-/* Add a handle; 0 on success, -1 out of memory. */
-static int live_add(LiveTable *t, void *handle, const Instance *owner)
-{
-    registry_acquire();
-    if (t->n == t->cap) {
-        size_t cap = t->cap ? 2 * t->cap : 16;
-        Live *items = realloc(t->items, cap * sizeof *items);
-        if (items == NULL) {
-            registry_release();
-            return -1;
-        }
-        t->items = items, t->cap = cap;
-    }
-    t->items[t->n++] = (Live){handle, owner};
-    registry_release();
-    return 0;
-}
-
-/* 1 if the handle was live (and is now removed), 0 if it was not. */
-static int live_remove(LiveTable *t, const void *handle)
-{
-    registry_acquire();
-    long i = live_find(t, handle);
-    if (i >= 0) t->items[i] = t->items[--t->n];
-    registry_release();
-    return i >= 0;
-}
-
-static int live_contains(const LiveTable *t, const void *handle)
-{
-    registry_acquire();
-    int found = live_find(t, handle) >= 0;
-    registry_release();
-    return found;
-}
-
-/* Remove every state made by `owner`; returns one of them (to be freed by the caller) or NULL when none is left. */
-static void *live_take_owned(LiveTable *t, const Instance *owner)
-{
-    void *handle = NULL;
-    registry_acquire();
-    for (size_t i = 0; i < t->n && handle == NULL; i++)
-        if (t->items[i].owner == owner) {
-            handle = t->items[i].handle;
-            t->items[i] = t->items[--t->n];
-        }
-    registry_release();
-    return handle;
-}
 
 static Instance *as_instance(fmi2Component c)
 {
