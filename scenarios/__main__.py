@@ -115,6 +115,9 @@ def main(argv=None) -> int:
     sweep.add_argument("--serial", action="store_true", help="run in this process, no Dask (debugging)")
     sweep.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    sweep.add_argument("--allow-large", action="store_true",
+                       help=f"run past the caps of {MAX_SAMPLES} samples per point and of the points per sweep "
+                            "(each point's record is kept in memory)")
     ssp = sub.add_parser("export-ssp", help="write a scenario's cases as SSP 1.0 packages (one .ssp per case)")
     ssp.add_argument("scenario", help="a shipped scenario (see: python -m scenarios list) or a path to a scenario file")
     ssp.add_argument("--out", type=Path, default=Path("build") / "ssp",

@@ -217,3 +217,25 @@ def test_sweep_points_step_as_their_scenario(monkeypatch):
         assert setup.open_master() == algorithm
         assert setup.open_master("gauss-seidel") == "gauss-seidel"  # an explicit choice wins
     assert opened == ["jacobi", "gauss-seidel", "gauss-seidel", "gauss-seidel"]
+
+
+def test_sweep_caps_are_refused_and_allow_large_passes_them(tmp_path):
+    """Issue 26 item 6: a cap has a clear message, with an explicit flag to go past it."""
+    from scenarios.config import MAX_SAMPLES
+    from scenarios.sweep.spec import MAX_POINTS
+
+    long_points = _write(tmp_path, f"[sweep]\nname='a'\nscenario='table2'\nsamples={MAX_SAMPLES + 1}\n[axes]\n"
+                                   "plant.payload_mass=[0.0]\n")
+    with pytest.raises(SweepError) as err:
+        load_sweep(long_points)
+    assert "sweep.samples" in str(err.value) and "--allow-large" in str(err.value)
+    assert load_sweep(long_points, allow_large=True).scenario.samples == MAX_SAMPLES + 1
+    many = tmp_path / "many"
+    many.mkdir()
+    n = int(MAX_POINTS ** 0.5) + 1  # two axes of n values: n² > MAX_POINTS points
+    many_points = _write(many, "[sweep]\nname='b'\nscenario='table2'\n[axes]\n"
+                               f"sensors.noise_seed={{range=[1, {n}]}}\nsensors.other_seed={{range=[1, {n}]}}\n")
+    with pytest.raises(SweepError) as err:
+        load_sweep(many_points)
+    assert "[axes]" in str(err.value) and "--allow-large" in str(err.value)
+    assert load_sweep(many_points, allow_large=True).n_points == n * n

@@ -42,7 +42,7 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
               scheduler: str | None = None, workers: int | None = None, serial: bool = False,
               plots: bool = True, progress: bool = True, build: bool = True, allowed_failures: int = 1,
               on_record: Callable[[dict], None] | None = None, kind: str | None = None,
-              native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR) -> SweepResult:
+              native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR, allow_large: bool = False) -> SweepResult:
     """Run every point of a sweep not yet in its journal; write the table and plots.
 
     Parameters
@@ -72,6 +72,8 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
         Called with each new journal record.
     kind : str, optional
         "python" or "native" FMUs (default: the scenario's ``kind``); native ones live in `native_fmu_dir`.
+    allow_large : bool
+        A sweep given by name or path may pass the caps on samples and points (:func:`load_sweep`).
 
     Returns
     -------
@@ -87,7 +89,7 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
     """
     t_start = time.perf_counter()
     if not isinstance(sweep, Sweep):
-        sweep = load_sweep(sweep)
+        sweep = load_sweep(sweep, allow_large=allow_large)
     chain = verify_data_chain()
     kind = kind or sweep.scenario.kind
     plan = plan_sweep(sweep, fmu_dir, build, kind=kind, native_fmu_dir=native_fmu_dir)
@@ -217,7 +219,7 @@ def cli(args) -> int:
         raise SweepError(f"--workers: an integer >= 1, got {args.workers}")
     res = run_sweep(args.sweep, args.out, args.fmu_dir, scheduler=args.scheduler, workers=args.workers,
                     serial=args.serial, plots=not args.no_plots, progress=not args.quiet, kind=args.kind,
-                    native_fmu_dir=args.native_fmu_dir)
+                    native_fmu_dir=args.native_fmu_dir, allow_large=args.allow_large)
     counts = {s: sum(r["status"] == s for r in res.rows) for s in STATUSES}
     sw = res.plan.sweep
     print(f"\n== sweep {sw.name}: {sw.description}")

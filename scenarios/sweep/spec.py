@@ -130,13 +130,16 @@ def sweep_path(name_or_path: str | Path) -> Path:
     return p
 
 
-def load_sweep(name_or_path: str | Path) -> Sweep:
+def load_sweep(name_or_path: str | Path, allow_large: bool = False) -> Sweep:
     """Read and validate a sweep file (structure, base scenario and case, axis values).
 
     Parameters
     ----------
     name_or_path : str or Path
         A sweep name in ``scenarios/sweeps/`` or a path to a sweep file.
+    allow_large : bool
+        Accept more than :data:`MAX_SAMPLES` samples per point and :data:`MAX_POINTS` points
+        (``python -m scenarios sweep --allow-large``; never from the file itself).
 
     Returns
     -------
@@ -184,10 +187,12 @@ def load_sweep(name_or_path: str | Path) -> Sweep:
     case = scenario.cases[keys.index(case_key)]
     if "samples" in sw:
         samples = sw["samples"]
-        _require(samples == "trajectory" or (_is_int(samples) and 1 <= samples <= MAX_SAMPLES),
+        _require(samples == "trajectory" or (_is_int(samples) and 1 <= samples
+                                              and (allow_large or samples <= MAX_SAMPLES)),
                  f"{p.name}: sweep.samples",
                  f"an integer in [1, {MAX_SAMPLES}] or \"trajectory\" (as long as the slew; every point's record is "
-                 f"kept in memory, so a sweep stays under the cap of a scenario run)", samples)
+                 f"kept in memory, so a sweep stays under the cap of a scenario run; --allow-large goes past it)",
+                 samples)
         scenario = replace(scenario, samples=samples)
     axes_doc = doc.get("axes")
     instances = sorted(scenario.fmus)
@@ -226,8 +231,8 @@ def load_sweep(name_or_path: str | Path) -> Sweep:
     _require(len(set(fields)) == len(fields), f"{p.name}: [axes]", "each parameter at most once", fields)
     sweep = Sweep(name, sw.get("description", ""), p, sha256_bytes(raw), scenario, case, axes,
                   content_sha256(doc))
-    _require(sweep.n_points <= MAX_POINTS, f"{p.name}: [axes]", f"at most {MAX_POINTS} points in all",
-             sweep.n_points)
+    _require(allow_large or sweep.n_points <= MAX_POINTS, f"{p.name}: [axes]",
+             f"at most {MAX_POINTS} points in all (--allow-large goes past the cap)", sweep.n_points)
     return sweep
 
 
