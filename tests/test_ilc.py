@@ -201,7 +201,8 @@ def test_scenario_refuses_bad_settling_weights(tmp_path):
                        ("settling_tip_weight", "true"), ("settling_model_payload_mass", "-0.1"),
                        ("settling_q_filter_cutoff_hz", "500.0"), ("evaluate_samples", "3000")):
         scen = tmp_path / "ilc_bad.toml"
-        scen.write_text(SCENARIO.read_text().replace("leak_weight = 1e-3", f"leak_weight = 1e-3\n{key} = {value}"))
+        text = "\n".join(line for line in SCENARIO.read_text().splitlines() if not line.startswith(f"{key} ="))
+        scen.write_text(text.replace("leak_weight = 1e-3", f"leak_weight = 1e-3\n{key} = {value}"))
         with pytest.raises(ScenarioError, match=rf"ilc\.{key}: (a|an) (factor|weight|payload|cut-off|integer) in \["):
             load_ilc(scen)
     scen.write_text(SCENARIO.read_text().replace("leak_weight = 1e-3",
