@@ -83,8 +83,6 @@ INPUT_WEIGHT = 1e-6
 Q_FILTER_ORDER = 2
 #: Q-filter cut-off, Hz (the −3 dB point of one pass; the link modes start at about 8 Hz).
 Q_FILTER_CUTOFF_HZ = 25.0
-#: Time over which the Q-filter passes to the settling's cut-off after t_f (:meth:`NormOptimalIlc.q`), s.
-Q_BLEND_S = 0.05
 #: Spacing of the linearisation points of the lifted model (:data:`flexarm.gain_schedule.SCHEDULES`).
 MODEL_SCHEDULE = "20ms"
 #: Modes above this frequency are left out of the lifted model (the bracket modes), Hz.
@@ -294,8 +292,8 @@ class NormOptimalIlc:
             raise IlcError(f"settling_start: a sample in [0, {model.n_samples}], got {settling_start!r}")
         if settling_q_cutoff_hz is not None and not (np.isfinite(settling_q_cutoff_hz) and settling_q_cutoff_hz >= 0):
             raise IlcError(f"settling_q_cutoff_hz: a cut-off >= 0 Hz (0: no filter), got {settling_q_cutoff_hz!r}")
-        #: From sample `settling_start` on (blended in over :data:`Q_BLEND_S`), the Q-filter's cut-off is
-        #: `settling_q_cutoff_hz` (None: the same filter throughout).
+        #: From sample `settling_start` on the Q-filter's cut-off is `settling_q_cutoff_hz`, each phase filtered on
+        #: its own (None: the same filter throughout).
         self.settling_q_cutoff_hz = settling_q_cutoff_hz if settling_start is not None else None
         self.settling_start = None if settling_q_cutoff_hz is None else settling_start
         self._riccati()
@@ -395,20 +393,18 @@ class NormOptimalIlc:
         return nxt
 
     def q(self, u) -> np.ndarray:
-        """The Q-filter on each column of `u` (shape (N, m)): the zero-phase low-pass, and from ``settling_start``
-        on the settling's (blended over :data:`Q_BLEND_S` with a raised cosine: (1 − b)·Q(u) + b·Q_s(u), b from 0 to
-        1; both filters run over the whole horizon, so the result is linear in u and zero-phase on each side)."""
+        """The Q-filter on each column of `u` (shape (N, m)): the zero-phase low-pass; with ``settling_start`` the
+        samples before it and from it on are filtered each on their own, the latter with the settling's cut-off (so
+        neither phase's correction leaks into the other's through the filter; the torque may step at t_f)."""
         u = np.asarray(u, dtype=float)
         dt = self.model.dt
-        out = q_filter(u, dt, self.q_cutoff_hz, self.q_order)
-        if self.settling_start is None:
-            return out
-        blend = max(int(round(Q_BLEND_S / dt)), 1)
-        k = np.arange(len(u)) - self.settling_start
-        b = 0.5 - 0.5 * np.cos(np.pi * np.clip(k / blend, 0.0, 1.0))
-        b[k < 0] = 0.0
-        settled = q_filter(u, dt, self.settling_q_cutoff_hz, self.q_order)
-        return (1 - b)[:, None] * out + b[:, None] * settled
+        k0 = self.settling_start
+        if k0 is None:
+            return q_filter(u, dt, self.q_cutoff_hz, self.q_order)
+        out = np.empty_like(u)
+        out[:k0] = q_filter(u[:k0], dt, self.q_cutoff_hz, self.q_order) if k0 else u[:0]
+        out[k0:] = q_filter(u[k0:], dt, self.settling_q_cutoff_hz, self.q_order) if k0 < len(u) else u[k0:]
+        return out
 
     # -- dense forms, for small horizons (tests, analysis) -------------------------
     def lifted_matrix(self) -> np.ndarray:

@@ -49,7 +49,7 @@ STUDIES = (
     ("payload model after t_f", {"settling_model_payload_mass": 0.275, "evaluate_cases": ["learn"]}, 20),
     ("Q-filter 20 Hz; after t_f: payload model, Q 3 Hz, tip weight 1e4 m⁻²",
      {"q_filter_cutoff_hz": 20.0, "settling_model_payload_mass": 0.275, "settling_q_filter_cutoff_hz": 3.0,
-      "settling_tip_weight": 1e4, "evaluate_cases": ["learn"]}, 20),
+      "settling_tip_weight": 1e4, "evaluate_cases": ["learn"]}, 50),
     ("the same, learning split at t_f", {"q_filter_cutoff_hz": 20.0, "settling_model_payload_mass": 0.275,
                                          "settling_q_filter_cutoff_hz": 3.0, "settling_tip_weight": 1e4,
                                          "settling_split": True, "evaluate_cases": ["learn"]}, 20),
@@ -160,8 +160,8 @@ def render(summary: dict, studies: list[tuple[str, dict]], floor: dict | None, l
     out += [
             "", "### Where it breaks (the same scenario, settings changed, through the FMUs)", "",
             "| variant | trials | rms pos. ° at trials 0 / 3 / 6 / last | best | peak τ1 / τ2 max, N·m | saturated "
-            "samples, last trial | tip < 1 mm after t_f, last 5 trials, s | the same, final correction, run to the "
-            "evaluation's end | stopped |", "|---|---|---|---|---|---|---|---|---|"]
+            "samples, last trial | ‖e‖₂ measured, last 5 trials, rad | tip < 1 mm after t_f, last 5 trials, s | the "
+            "same, final correction, run to the evaluation's end | stopped |", "|---|---|---|---|---|---|---|---|---|---|"]
     for label, s in studies:
         okk = [r for r in s["trials"] if r.get("metrics")]
         r_ = [met(r, "slew_rms_position_error") for r in okk]
@@ -172,6 +172,7 @@ def render(summary: dict, studies: list[tuple[str, dict]], floor: dict | None, l
         out.append(f"| {label} | {len(okk)} | " + " / ".join(f"{x:.3f}" for x in pick) + f" | {min(r_):.3f} | "
                    f"{max(met(r, 'slew_peak_tau1') for r in okk):.3f} / "
                    f"{max(met(r, 'slew_peak_tau2') for r in okk):.3f} | {met(okk[-1], 'saturated_samples')} | "
+                   + ", ".join(f"{met(r, 'measured_error_2norm_rad'):.2f}" for r in okk[-5:]) + " | "
                    + ", ".join(_fmt(met(r, "tip_within_1mm_after_tf_s"), "{:.2f}") for r in okk[-5:])
                    + f" | {held_text} | {s['stopped'] or 'no'} |")
     out += _render_lqg(lqg) if lqg else []
