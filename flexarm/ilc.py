@@ -473,54 +473,6 @@ def settling_weights(trajectory, n_samples: int, settling_weight: float = 1.0,
     return w, x
 
 
-class SplitIlc:
-    """Two norm-optimal laws, one per phase: the corrections of samples < `start` (the slew) learn from the slew's
-    errors only (`slew`, whose ``time_weight`` should be zero from sample `start` on), the corrections of samples
-    ≥ `start` (after t_f) from the errors after t_f only (`settle`, on the model from `start` on, started at rest).
-
-    What the slew's correction does after t_f is, for the settling law, part of the error it measures, so its
-    learning operator is block-triangular: its spectral radius is the larger of the two phases' (each < 1 as
-    for :class:`NormOptimalIlc`), and the settling's learning is not disturbed by a slew model that mispredicts
-    the arm after t_f. The Q-filter is the slew law's (:meth:`NormOptimalIlc.q`).
-    """
-
-    def __init__(self, slew: NormOptimalIlc, settle: NormOptimalIlc, start: int):
-        start = int(start)
-        if not 0 < start < slew.model.n_samples or settle.model.n_samples != slew.model.n_samples - start:
-            raise IlcError(f"split: the settling law's model must cover samples {start}..{slew.model.n_samples - 1} "
-                           f"of the slew law's, got {settle.model.n_samples} samples")
-        if np.any(slew.time_weight[start:]) or (slew.output_weight is not None and slew.output_weight[start:].any()):
-            raise IlcError("split: the slew law must not weight the errors after its start (time_weight zero there)")
-        self.slew, self.settle, self.start = slew, settle, start
-        self.model, self.learning_gain = slew.model, slew.learning_gain
-
-    def step(self, error, correction=None) -> np.ndarray:
-        """Δu, shape (N, 2): the slew law's for samples < start, the settling law's for the rest."""
-        du = self.slew.step(error, correction)
-        e = np.asarray(error, dtype=float)
-        u = None if correction is None else np.asarray(correction, dtype=float)[self.start:]
-        du[self.start:] = self.settle.step(e[self.start:], u)
-        return du
-
-    def q(self, u) -> np.ndarray:
-        return self.slew.q(u)
-
-    update = NormOptimalIlc.update
-
-    def learning_operator(self) -> np.ndarray:
-        """T, shape (2N, 2N) (sample-major): u_(j+1) = T u_j + const on a plant equal to the slew model (small N)."""
-        G = self.slew.lifted_matrix()
-        n = self.model.n_samples
-        T = np.empty((2 * n, 2 * n))
-        for i in range(2 * n):
-            u = np.zeros(2 * n)
-            u[i] = 1.0
-            u = u.reshape(n, 2)
-            e = -(G @ u.ravel()).reshape(n, -1)
-            T[:, i] = self.q(u + self.learning_gain * self.step(e, u)).ravel()
-        return T
-
-
 # -- measurements -------------------------------------------------------------------
 def measured_angles(q, strain) -> np.ndarray:
     """The 11 reconstructed angles (eqs. 21-31), shape (n, 11), from encoder angles (n, 2) and gauge angles (n, 6)."""

@@ -67,8 +67,6 @@ ILC_KEYS = {
                            "after t_f (0: none)",
     "q_filter_cutoff_hz": "a cut-off in [0, 500) Hz (0: no Q-filter)",
     "q_filter_order": "an integer in [1, 8]",
-    "settling_split": "true or false: the corrections after t_f learn from the errors after t_f only, on the "
-                      "settling's model and weights, the slew's from the slew's errors only (flexarm.ilc.SplitIlc)",
     "settling_q_filter_cutoff_hz": "a cut-off in [0, 500) Hz for the Q-filter at and after t_f (0: none; default "
                                    "q_filter_cutoff_hz)",
     "evaluate_cases": "a list of case keys",
@@ -96,7 +94,6 @@ class IlcSettings:
     q_filter_cutoff_hz: float
     q_filter_order: int
     settling_q_filter_cutoff_hz: float
-    settling_split: bool
     evaluate_cases: list[str]
     evaluate_samples: int
 
@@ -166,7 +163,6 @@ def load_ilc(name) -> tuple[Scenario, IlcSettings]:
                                               lambda v: number(0.0, 499.999)(v))),
         evaluate_cases=list(get("evaluate_cases", [], lambda v: isinstance(v, list) and all(x in keys for x in v))),
         evaluate_samples=0,
-        settling_split=get("settling_split", False, lambda v: isinstance(v, bool)),
     )
     if scenario.samples == "trajectory":
         raise ScenarioError(f"{scenario.path.name}: scenario.samples: an integer number of samples for an ILC "
@@ -368,25 +364,14 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
 
 
 def _law(settings: IlcSettings, model, n_slew: int, time_weight, output_weight):
-    """The learning law of the settings: one norm-optimal law, or with ``settling_split`` one per phase."""
+    """The learning law of the settings (:class:`flexarm.ilc.NormOptimalIlc`)."""
     from flexarm import ilc
 
     q = ({} if settings.settling_q_filter_cutoff_hz == settings.q_filter_cutoff_hz else
          {"settling_q_cutoff_hz": settings.settling_q_filter_cutoff_hz, "settling_start": n_slew})
-    common = (settings.error_weight, settings.input_weight, settings.q_filter_cutoff_hz, settings.q_filter_order,
-              settings.leak_weight)
-    if not settings.settling_split or n_slew >= model.n_samples:
-        return ilc.NormOptimalIlc(model, *common, time_weight=time_weight, learning_gain=settings.learning_gain,
-                                  output_weight=output_weight, **q)
-    slew_weight = time_weight.copy()
-    slew_weight[n_slew:] = 0.0
-    slew = ilc.NormOptimalIlc(model, *common, time_weight=slew_weight, learning_gain=settings.learning_gain,
-                              output_weight=None if output_weight is None else
-                              np.concatenate([output_weight[:n_slew], np.zeros_like(output_weight[n_slew:])]), **q)
-    after = ilc.LtvModel(model.A[n_slew:], model.B[n_slew:], model.C, model.dt)
-    settle = ilc.NormOptimalIlc(after, *common, time_weight=time_weight[n_slew:], learning_gain=settings.learning_gain,
-                                output_weight=None if output_weight is None else output_weight[n_slew:])
-    return ilc.SplitIlc(slew, settle, n_slew)
+    return ilc.NormOptimalIlc(model, settings.error_weight, settings.input_weight, settings.q_filter_cutoff_hz,
+                              settings.q_filter_order, settings.leak_weight, time_weight=time_weight,
+                              learning_gain=settings.learning_gain, output_weight=output_weight, **q)
 
 
 def _with(parameters: dict, inst: str, values: dict) -> dict:

@@ -144,37 +144,6 @@ def test_settling_weighted_sweep_equals_dense_and_contracts(settling_model):
     assert all(b < a for a, b in zip(norms, norms[1:])) and norms[-1] < 0.05 * norms[0]
 
 
-def test_split_learning_is_block_triangular_and_contracts(settling_model):
-    """SplitIlc: the slew's corrections from the slew's errors, the settling's from its own; ρ(T) < 1 and T's block
-    'slew input from settling input' is zero (the slew law does not see what happens after t_f)."""
-    model, w, x = settling_model
-    k0 = 58  # t_f in this horizon
-    ws = w.copy()
-    ws[k0:] = 0.0
-    xs = x.copy()
-    xs[k0:] = 0.0
-    slew = ilc.NormOptimalIlc(model, 1.0, 1e-4, 20.0, 2, 1e-3, time_weight=ws, output_weight=xs,
-                              settling_q_cutoff_hz=3.0, settling_start=k0)
-    after = ilc.LtvModel(model.A[k0:], model.B[k0:], model.C, model.dt)
-    settle = ilc.NormOptimalIlc(after, 1.0, 1e-4, None, 2, 1e-3, time_weight=w[k0:], output_weight=x[k0:])
-    law = ilc.SplitIlc(slew, settle, k0)
-    rng = np.random.default_rng(8)
-    e = rng.normal(scale=1e-3, size=(model.n_samples, 11))
-    u = rng.normal(scale=0.1, size=(model.n_samples, 2))
-    du = law.step(e, u)
-    assert np.array_equal(du[:k0], slew.step(e, u)[:k0]) and np.array_equal(du[k0:], settle.step(e[k0:], u[k0:]))
-    e2 = e.copy()
-    e2[k0:] += 1e-2  # the errors after t_f do not move the slew's corrections
-    assert np.array_equal(law.step(e2, u)[:k0], du[:k0])
-    assert np.abs(np.linalg.eigvals(law.learning_operator())).max() < 1.0
-    # the slew's corrections do not depend on the settling's: T is block-triangular
-    T = law.learning_operator()
-    assert np.abs(T[:2 * k0, 2 * k0:]).max() <= 1e-14 * np.abs(T).max()
-    assert np.abs(T[2 * k0:, :2 * k0]).max() > 1e-3 * np.abs(T).max()  # the slew's correction does act after t_f
-    with pytest.raises(ilc.IlcError, match="must not weight"):
-        ilc.SplitIlc(ilc.NormOptimalIlc(model, 1.0, 1e-4, None, time_weight=w), settle, k0)
-
-
 def test_settling_q_filter_filters_each_phase_on_its_own():
     """Before t_f the slew's Q-filter on the slew's samples alone, from t_f on the settling's on the rest; linear."""
     model = _scalar_model(600, 0.5, 1.0, 2.0)
