@@ -57,6 +57,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import scipy.linalg
 import scipy.signal
 
 from .gain_schedule import (
@@ -174,6 +175,16 @@ def closed_loop_model(n_samples: int, gain_set: str = "gamma0.1", schedule: str 
     return LtvModel(A=closed[mi, gi], B=gamma[mi], C=measurement_map()[:N].copy(), dt=dt)
 
 
+def spliced_model(before: LtvModel, after: LtvModel, k0: int) -> LtvModel:
+    """The LTV model whose samples k < k0 are `before`'s and k ≥ k0 `after`'s (same state coordinates, sample time
+    and horizon): e.g. the unloaded arm's closed loop during the slew and the payload's after it."""
+    if before.A.shape != after.A.shape or before.dt != after.dt or not np.array_equal(before.C, after.C):
+        raise IlcError("spliced_model: the two models need the same horizon, sample time and output map")
+    k0 = int(min(max(k0, 0), before.n_samples))
+    return LtvModel(A=np.concatenate([before.A[:k0], after.A[k0:]]), B=np.concatenate([before.B[:k0], after.B[k0:]]),
+                    C=before.C.copy(), dt=before.dt)
+
+
 def truncated_physical_model(arm, z_bar, tau_bar, dt: float, cutoff_hz: float = MODE_CUTOFF_HZ):
     """ZOH model (Φ, Γ), shapes (22, 22), (22, 2), of the linearisation with the modes above ``cutoff_hz``
     removed (the bracket modes, 5.6-21 kHz: above the sampling rate, and damped by the plant's L-stable
@@ -242,7 +253,8 @@ class NormOptimalIlc:
 
     def __init__(self, model: LtvModel, error_weight: float = ERROR_WEIGHT, input_weight: float = INPUT_WEIGHT,
                  q_cutoff_hz: float | None = Q_FILTER_CUTOFF_HZ, q_order: int = Q_FILTER_ORDER,
-                 leak_weight: float = 0.0, time_weight=None, learning_gain: float = 1.0):
+                 leak_weight: float = 0.0, time_weight=None, learning_gain: float = 1.0, output_weight=None,
+                 settling_q_cutoff_hz: float | None = None, settling_start: int | None = None):
         if not (np.isfinite(error_weight) and error_weight > 0):
             raise IlcError(f"error_weight: a finite weight > 0 rad^-2, got {error_weight!r}")
         if not (np.isfinite(input_weight) and input_weight > 0):
@@ -261,7 +273,29 @@ class NormOptimalIlc:
             raise IlcError(f"time_weight: {model.n_samples} finite weights >= 0 (samples 1..N), got shape {w.shape}")
         #: Per-sample factor of the error weight (sample k + 1 of the errors).
         self.time_weight = w
+        ny = len(model.C)
+        if output_weight is not None:
+            x = np.asarray(output_weight, dtype=float)
+            if x.shape != (model.n_samples, ny, ny) or not np.isfinite(x).all():
+                raise IlcError(f"output_weight: {model.n_samples} finite ({ny}, {ny}) matrices (samples 1..N), "
+                               f"got shape {x.shape}")
+            if np.abs(x - x.transpose(0, 2, 1)).max() > 1e-12 * max(1.0, np.abs(x).max()):
+                raise IlcError("output_weight: each sample's matrix must be symmetric")
+            if np.linalg.eigvalsh(x).min() < -1e-12 * max(1.0, np.abs(x).max()):
+                raise IlcError("output_weight: each sample's matrix must be positive semidefinite")
+            output_weight = x
+        #: Per-sample weight added to error_weight · time_weight · I on the errors (None: none), shape (N, 11, 11):
+        #: the error of sample k + 1 costs eᵀ(error_weight · time_weight[k] · I + output_weight[k])e.
+        self.output_weight = output_weight
         self.q_cutoff_hz, self.q_order = q_cutoff_hz, int(q_order)
+        if settling_start is not None and not 0 <= int(settling_start) <= model.n_samples:
+            raise IlcError(f"settling_start: a sample in [0, {model.n_samples}], got {settling_start!r}")
+        if settling_q_cutoff_hz is not None and not (np.isfinite(settling_q_cutoff_hz) and settling_q_cutoff_hz >= 0):
+            raise IlcError(f"settling_q_cutoff_hz: a cut-off >= 0 Hz (0: no filter), got {settling_q_cutoff_hz!r}")
+        #: From sample `settling_start` on the Q-filter's cut-off is `settling_q_cutoff_hz`, each phase filtered on
+        #: its own (None: the same filter throughout).
+        self.settling_q_cutoff_hz = settling_q_cutoff_hz if settling_start is not None else None
+        self.settling_start = None if settling_q_cutoff_hz is None else settling_start
         self._riccati()
 
     def _riccati(self) -> None:
@@ -275,7 +309,10 @@ class NormOptimalIlc:
         self._G = np.empty((n, 2, N_STATE))
         self._Minv = np.empty((n, 2, 2))
         self._Acl_T = np.empty((n, N_STATE, N_STATE))
-        P = w[n - 1] * CtQC  # cost-to-go of δx_N
+        X = self.output_weight
+        if X is not None:  # the added output weight, carried to the state: CᵀX_kC
+            CtXC = np.einsum("ia,kij,jb->kab", m.C, X, m.C)
+        P = w[n - 1] * CtQC + (CtXC[n - 1] if X is not None else 0.0)  # cost-to-go of δx_N
         for k in range(n - 1, -1, -1):
             A, B = m.A[k], m.B[k]
             PB = P @ B
@@ -287,7 +324,7 @@ class NormOptimalIlc:
             acl = A - B @ K
             self._Acl_T[k] = acl.T
             # the output cost of δx_k (k ≥ 1) plus the cost-to-go through sample k
-            P = (w[k - 1] * CtQC if k > 0 else 0.0) + A.T @ P @ acl
+            P = (w[k - 1] * CtQC + (CtXC[k - 1] if X is not None else 0.0) if k > 0 else 0.0) + A.T @ P @ acl
             P = 0.5 * (P + P.T)
 
     def step(self, error, correction=None) -> np.ndarray:
@@ -307,13 +344,15 @@ class NormOptimalIlc:
             raise IlcError("error: contains non-finite values")
         n = m.n_samples
         s = np.zeros((n + 1, N_STATE))  # adjoint s_k: V_k(x) = xᵀP_k x − 2 s_kᵀ x + c
-        qc = self.error_weight * m.C.T
         # with the leak term 2hᵀΔu_k per sample: s_k = CᵀQe_k + (A−BK)ᵀs_(k+1) + K_kᵀh_k,
         # Δu_k = −K_k x_k + M_k⁻¹(Γ_kᵀ s_(k+1) − h_k)
-        we = e * self.time_weight[:, None]
-        s[n] = qc @ we[n - 1]
+        we = self.error_weight * e * self.time_weight[:, None]
+        if self.output_weight is not None:
+            we = we + np.einsum("kij,kj->ki", self.output_weight, e)
+        ct = m.C.T
+        s[n] = ct @ we[n - 1]
         for k in range(n - 1, 0, -1):
-            s[k] = qc @ we[k - 1] + self._Acl_T[k] @ s[k + 1]
+            s[k] = ct @ we[k - 1] + self._Acl_T[k] @ s[k + 1]
             if h is not None:
                 s[k] += self._K[k].T @ h[k]
         du = np.empty((n, 2))
@@ -346,12 +385,26 @@ class NormOptimalIlc:
         u = np.asarray(correction, dtype=float)
         if u.shape != (self.model.n_samples, 2):
             raise IlcError(f"correction: expected shape ({self.model.n_samples}, 2) N·m, got {u.shape}")
-        nxt = q_filter(u + self.learning_gain * self.step(error, u), self.model.dt, self.q_cutoff_hz, self.q_order)
+        nxt = self.q(u + self.learning_gain * self.step(error, u))
         if limits is not None:
             lim = np.asarray(limits, dtype=float)
             ff = np.zeros_like(nxt) if feedforward is None else np.asarray(feedforward, dtype=float)
             nxt = np.clip(nxt, -lim - ff, lim - ff)
         return nxt
+
+    def q(self, u) -> np.ndarray:
+        """The Q-filter on each column of `u` (shape (N, m)): the zero-phase low-pass; with ``settling_start`` the
+        samples before it and from it on are filtered each on their own, the latter with the settling's cut-off (so
+        neither phase's correction leaks into the other's through the filter; the torque may step at t_f)."""
+        u = np.asarray(u, dtype=float)
+        dt = self.model.dt
+        k0 = self.settling_start
+        if k0 is None:
+            return q_filter(u, dt, self.q_cutoff_hz, self.q_order)
+        out = np.empty_like(u)
+        out[:k0] = q_filter(u[:k0], dt, self.q_cutoff_hz, self.q_order) if k0 else u[:0]
+        out[k0:] = q_filter(u[k0:], dt, self.settling_q_cutoff_hz, self.q_order) if k0 < len(u) else u[k0:]
+        return out
 
     # -- dense forms, for small horizons (tests, analysis) -------------------------
     def lifted_matrix(self) -> np.ndarray:
@@ -373,12 +426,51 @@ class NormOptimalIlc:
         model, e_j = e_0 − G u_j and u_(j+1) = T u_j + Q L e_0."""
         G = self.lifted_matrix()
         n = self.model.n_samples
-        Wq = self.error_weight * np.repeat(self.time_weight, len(self.model.C))
-        H = (G.T * Wq) @ G + (self.input_weight + self.leak_weight) * np.eye(2 * n)
-        L = np.linalg.solve(H, G.T * Wq)
-        Qm = q_filter_matrix(n, self.model.dt, self.q_cutoff_hz, self.q_order) if self.q_cutoff_hz else np.eye(n)
+        W = np.diag(self.error_weight * np.repeat(self.time_weight, len(self.model.C)))
+        if self.output_weight is not None:
+            W += scipy.linalg.block_diag(*self.output_weight)
+        H = G.T @ W @ G + (self.input_weight + self.leak_weight) * np.eye(2 * n)
+        L = np.linalg.solve(H, G.T @ W)
+        Qm = self.q(np.eye(n))
         Q2 = np.kron(Qm, np.eye(2))  # sample-major: the same filter on each channel
         return L, Q2 @ (np.eye(2 * n) - L @ G - self.leak_weight * np.linalg.inv(H))
+
+
+def tip_jacobian(theta, lengths=None) -> np.ndarray:
+    """∂(tip x, y)/∂θ, shape (2, 11), m/rad, at the element angles `theta`: how the 11 angles move the link-2 tip."""
+    from .model import LINK2_TIP_ELEMENT
+    from .parameters import load_parameters
+
+    th = np.asarray(theta, dtype=float)[:N]
+    ell = np.asarray(load_parameters().length if lengths is None else lengths, dtype=float)[:N].copy()
+    ell[LINK2_TIP_ELEMENT + 1:] = 0.0
+    return np.vstack([-ell * np.sin(th), ell * np.cos(th)])
+
+
+def settling_weights(trajectory, n_samples: int, settling_weight: float = 1.0,
+                     tip_weight: float = 0.0) -> tuple[np.ndarray, np.ndarray | None]:
+    """The error weights of :class:`NormOptimalIlc` that stress the settling: ``(time_weight, output_weight)``.
+
+    The errors of the samples at and after t_f (the arm should be at rest on the end point) get the factor
+    `settling_weight` on ``error_weight`` and, added, `tip_weight` (m⁻²) times JᵀJ, J the tip Jacobian at the
+    end configuration (:func:`tip_jacobian`): eᵀJᵀJe is the squared tip deviation, to first order, that the
+    measured angle errors e imply (from the sensors, as the rest of the learning). ``output_weight`` is None
+    when `tip_weight` is 0.
+    """
+    traj = as_trajectory(trajectory)
+    if not (np.isfinite(settling_weight) and settling_weight >= 0):
+        raise IlcError(f"settling_weight: a finite factor >= 0, got {settling_weight!r}")
+    if not (np.isfinite(tip_weight) and tip_weight >= 0):
+        raise IlcError(f"settling_tip_weight: a finite weight >= 0 m^-2, got {tip_weight!r}")
+    n = int(n_samples)
+    after = np.arange(1, n + 1) >= traj.n_samples  # error i is of sample i + 1; sample n_samples is at t_f
+    w = np.where(after, float(settling_weight), 1.0)
+    if not tip_weight:
+        return w, None
+    J = tip_jacobian(desired_states(traj)[-1])
+    x = np.zeros((n, N, N))
+    x[after] = float(tip_weight) * J.T @ J
+    return w, x
 
 
 # -- measurements -------------------------------------------------------------------

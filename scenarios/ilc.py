@@ -41,6 +41,7 @@ from .runner import (
     DEFAULT_NATIVE_FMU_DIR,
     N_EL,
     _relative,
+    desired_states,
     desired_trajectory,
     prepare,
     verify_data_chain,
@@ -55,13 +56,22 @@ ILC_KEYS = {
     "learn_case": "the key of a case in [[cases]]",
     "seed_base": "an integer >= 0 (trial j uses noise seed seed_base + j)",
     "model_payload_mass": "a payload in [0, 10] kg for the learning's model",
+    "settling_model_payload_mass": "a payload in [0, 10] kg for the learning's model at and after t_f "
+                                   "(default: model_payload_mass)",
     "error_weight": "a weight > 0, rad^-2",
     "input_weight": "a weight > 0, (N m)^-2",
     "leak_weight": "a weight >= 0, (N m)^-2",
     "learning_gain": "a step factor in (0, 2)",
+    "settling_weight": "a factor in [0, 1e6] on error_weight for the samples at and after t_f (1: none)",
+    "settling_tip_weight": "a weight in [0, 1e12] m^-2 on the tip deviation the measured angles imply, at and "
+                           "after t_f (0: none)",
     "q_filter_cutoff_hz": "a cut-off in [0, 500) Hz (0: no Q-filter)",
     "q_filter_order": "an integer in [1, 8]",
+    "settling_q_filter_cutoff_hz": "a cut-off in [0, 500) Hz for the Q-filter at and after t_f (0: none; default "
+                                   "q_filter_cutoff_hz)",
     "evaluate_cases": "a list of case keys",
+    "evaluate_samples": "an integer in [scenario.samples, 100000]: the length of the evaluate_cases runs, 1 ms "
+                        "samples (the correction is zero past its own samples; default scenario.samples)",
 }
 #: Tip distance to the end point that counts as arrived, m.
 TIP_TOLERANCE_M = 1e-3
@@ -74,13 +84,18 @@ class IlcSettings:
     learn_case: str
     seed_base: int
     model_payload_mass: float
+    settling_model_payload_mass: float
     error_weight: float
     input_weight: float
     leak_weight: float
     learning_gain: float
+    settling_weight: float
+    settling_tip_weight: float
     q_filter_cutoff_hz: float
     q_filter_order: int
+    settling_q_filter_cutoff_hz: float
     evaluate_cases: list[str]
+    evaluate_samples: int
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -134,17 +149,25 @@ def load_ilc(name) -> tuple[Scenario, IlcSettings]:
         learn_case=get("learn_case", keys[0], lambda v: v in keys),
         seed_base=get("seed_base", 1, integer(0, 2**62)),
         model_payload_mass=float(get("model_payload_mass", 0.0, number(0.0, 10.0))),
+        settling_model_payload_mass=float(get("settling_model_payload_mass", raw.get("model_payload_mass", 0.0),
+                                              number(0.0, 10.0))),
         error_weight=float(get("error_weight", 1.0, number(0.0, 1e12, True))),
         input_weight=float(get("input_weight", 1e-4, number(0.0, 1e12, True))),
         leak_weight=float(get("leak_weight", 0.0, number(0.0, 1e12))),
         learning_gain=float(get("learning_gain", 1.0, lambda v: number(0.0, 1.999999, True)(v))),
+        settling_weight=float(get("settling_weight", 1.0, number(0.0, 1e6))),
+        settling_tip_weight=float(get("settling_tip_weight", 0.0, number(0.0, 1e12))),
         q_filter_cutoff_hz=float(get("q_filter_cutoff_hz", 10.0, lambda v: number(0.0, 499.999)(v))),
         q_filter_order=get("q_filter_order", 2, integer(1, 8)),
+        settling_q_filter_cutoff_hz=float(get("settling_q_filter_cutoff_hz", raw.get("q_filter_cutoff_hz", 10.0),
+                                              lambda v: number(0.0, 499.999)(v))),
         evaluate_cases=list(get("evaluate_cases", [], lambda v: isinstance(v, list) and all(x in keys for x in v))),
+        evaluate_samples=0,
     )
     if scenario.samples == "trajectory":
         raise ScenarioError(f"{scenario.path.name}: scenario.samples: an integer number of samples for an ILC "
                             "scenario (the slew and the settling after it), got \"trajectory\"")
+    s.evaluate_samples = get("evaluate_samples", scenario.samples, integer(scenario.samples, 100_000))
     if abs(scenario.step_size - 1e-3) > 1e-12:
         raise ScenarioError(f"{scenario.path.name}: scenario.step_size_s: 0.001 for an ILC scenario (the learning "
                             f"works on the 1 ms samples), got {scenario.step_size!r}")
@@ -152,14 +175,16 @@ def load_ilc(name) -> tuple[Scenario, IlcSettings]:
 
 
 # -- scoring ----------------------------------------------------------------------------
-def trial_metrics(out: dict, setup, traj, n_slew: int, measured_error_norm: float) -> dict:
+def trial_metrics(out: dict, setup, traj, n_slew: int, measured_error_norm: float, desired=None) -> dict:
     """The table metrics over the slew (samples 0..n_slew, as Table 2) and the whole run, joint and tip errors,
-    the tip's settling after t_f, the peak torques and the 2-norm of the measured error the learning saw."""
+    the tip's settling after t_f (the time after which it stays within 1 mm of the end point to the end of the
+    run), the peak torques and the 2-norm of the measured error the learning saw. `desired`: the desired states
+    of a run longer than ``setup``'s (default ``setup.desired``)."""
     sig, p, d = out["signals"], setup.plant, setup.driver
     theta = np.column_stack([sig[f"{p}.theta{i}"] for i in range(1, N_EL + 1)])
     omega = np.column_stack([sig[f"{p}.omega{i}"] for i in range(1, N_EL + 1)])
     tau = np.column_stack([sig[f"{d}.tau1"], sig[f"{d}.tau2"]])[:-1]  # the last row is never applied
-    des = setup.desired
+    des = setup.desired if desired is None else desired
     slew = table_metrics(tau[:n_slew], theta[:n_slew + 1], omega[:n_slew + 1], des["theta"][:n_slew + 1],
                          des["omega"][:n_slew + 1])
     whole = table_metrics(tau, theta, omega, des["theta"], des["omega"])
@@ -234,9 +259,13 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         n = setup.n_steps
         n_slew = min(traj.n_samples, n)
         model = ilc.closed_loop_model(n, payload_mass=settings.model_payload_mass)
-        law = ilc.NormOptimalIlc(model, settings.error_weight, settings.input_weight, settings.q_filter_cutoff_hz,
-                                 settings.q_filter_order, settings.leak_weight,
-                                 learning_gain=settings.learning_gain)
+        if settings.settling_model_payload_mass != settings.model_payload_mass:
+            # the samples at and after t_f (state x_k, k >= n_slew) move by the arm with the other payload
+            after = ilc.closed_loop_model(n, payload_mass=settings.settling_model_payload_mass)
+            model = ilc.spliced_model(model, after, n_slew)
+        time_weight, output_weight = ilc.settling_weights(traj, n, settings.settling_weight,
+                                                          settings.settling_tip_weight)
+        law = _law(settings, model, n_slew, time_weight, output_weight)
         feedforward = ilc.feedforward_over(traj, n)
         journal = Journal(folder / "journal.jsonl")
         records = journal.read()
@@ -306,16 +335,19 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                 write_atomic(folder / "learned_feedforward.npz", final.read_bytes())
                 write_atomic(folder / "learned_feedforward.json", (corrections / f"trial_{len(rows):03d}.json")
                              .read_bytes())
+                n_eval = settings.evaluate_samples
+                des_eval = desired_states(traj, np.arange(n_eval + 1) * scenario.step_size)
                 for key in settings.evaluate_cases:
                     case = cases[key]
                     evaluation[key] = {}
                     for label, file in (("unlearned", ""), ("learned", str(final))):
                         params = _with(case.parameters, ctrl, {CORRECTION_PARAMETER: file})
                         params = _with(params, sensors[0], {"noise_seed": settings.seed_base + len(rows)})
-                        res = m.run(setup.case_parameters(params), record, n, scenario.step_size)
+                        res = m.run(setup.case_parameters(params), record, n_eval, scenario.step_size)
                         evaluation[key][label] = {"status": res["status"], "message": res["message"]}
                         if res["status"] == "ok":
-                            evaluation[key][label]["metrics"] = trial_metrics(res, setup, traj, n_slew, float("nan"))
+                            evaluation[key][label]["metrics"] = trial_metrics(res, setup, traj, n_slew, float("nan"),
+                                                                              des_eval)
         finally:
             journal.close()
             m.close()
@@ -329,6 +361,17 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         if plots and rows:
             plot_convergence(rows, folder / "convergence.png", scenario.name)
     return summary
+
+
+def _law(settings: IlcSettings, model, n_slew: int, time_weight, output_weight):
+    """The learning law of the settings (:class:`flexarm.ilc.NormOptimalIlc`)."""
+    from flexarm import ilc
+
+    q = ({} if settings.settling_q_filter_cutoff_hz == settings.q_filter_cutoff_hz else
+         {"settling_q_cutoff_hz": settings.settling_q_filter_cutoff_hz, "settling_start": n_slew})
+    return ilc.NormOptimalIlc(model, settings.error_weight, settings.input_weight, settings.q_filter_cutoff_hz,
+                              settings.q_filter_order, settings.leak_weight, time_weight=time_weight,
+                              learning_gain=settings.learning_gain, output_weight=output_weight, **q)
 
 
 def _with(parameters: dict, inst: str, values: dict) -> dict:

@@ -57,6 +57,128 @@ def test_update_equals_a_hand_computed_small_case():
     assert nxt[:, 0] == pytest.approx([0.2, 6 / 26], rel=1e-12)
 
 
+def test_weighted_update_equals_a_hand_computed_small_case():
+    # The same G = [[2, 0], [1, 2]], Ru = 1, e = (1, 1), the second sample's error weighted 4 (W = diag(1, 4)):
+    # Δu = (GᵀWG + I)⁻¹ GᵀWe = [[9, 8], [8, 17]]⁻¹ [6, 8] = [17·6 − 8·8, −8·6 + 9·8] / 89 = [38, 24] / 89.
+    e = np.zeros((2, 11))
+    e[:, 0] = 1.0
+    timed = ilc.NormOptimalIlc(_scalar_model(2, 0.5, 1.0, 2.0), 1.0, 1.0, None, time_weight=[1.0, 4.0])
+    assert timed.step(e)[:, 0] == pytest.approx([38 / 89, 24 / 89], rel=1e-12)
+    # the same weight as an output weight added on sample 2 (1 + 3 on the first output), and on an output the
+    # model does not reach (changes nothing)
+    x = np.zeros((2, 11, 11))
+    x[1, 0, 0] = 3.0
+    x[:, 5, 5] = 7.0
+    added = ilc.NormOptimalIlc(_scalar_model(2, 0.5, 1.0, 2.0), 1.0, 1.0, None, output_weight=x)
+    assert added.step(e)[:, 0] == pytest.approx([38 / 89, 24 / 89], rel=1e-12)
+    for bad, match in ((-x, "positive semidefinite"), (x[:1], "matrices"), (x + np.triu(np.ones((11, 11)), 1),
+                                                                            "symmetric")):
+        with pytest.raises(ilc.IlcError, match=match):
+            ilc.NormOptimalIlc(_scalar_model(2, 0.5, 1.0, 2.0), 1.0, 1.0, None, output_weight=bad)
+
+
+def test_settling_weights_and_the_tip_jacobian():
+    """The factor and the tip term act at and after t_f only; J is the derivative of the plant's tip position."""
+    from flexarm.gain_schedule import desired_states
+    from flexarm.model import ArmModel
+    from flexarm.parameters import load_parameters
+
+    traj = as_trajectory(DEFAULT_TRAJECTORY_FILE)
+    n = traj.n_samples + 10
+    w, x = ilc.settling_weights(traj, n, 5.0, 100.0)
+    assert np.all(w[:traj.n_samples - 1] == 1.0) and np.all(w[traj.n_samples - 1:] == 5.0)
+    assert not x[:traj.n_samples - 1].any() and np.all(x[-1] == x[traj.n_samples - 1])
+    theta = desired_states(traj)[-1][:11]
+    arm, h = ArmModel(load_parameters()), 1e-7
+    numeric = np.array([(arm.tip_position(theta + h * d) - arm.tip_position(theta - h * d)) / (2 * h)
+                        for d in np.eye(11)]).T
+    J = ilc.tip_jacobian(theta)
+    assert np.abs(J - numeric).max() < 1e-8
+    assert np.allclose(x[-1], 100.0 * J.T @ J, rtol=1e-14, atol=0)
+    assert ilc.settling_weights(traj, n)[1] is None and np.all(ilc.settling_weights(traj, n)[0] == 1.0)
+    with pytest.raises(ilc.IlcError, match="settling_tip_weight"):
+        ilc.settling_weights(traj, n, 1.0, -1.0)
+
+
+@pytest.fixture(scope="module")
+def settling_model():
+    """The lifted model over 80 samples across t_f (t_f at its sample 58), with the settling weights there."""
+    traj = as_trajectory(DEFAULT_TRAJECTORY_FILE)
+    end = traj.n_samples + 22
+    m = ilc.closed_loop_model(end)
+    w, x = ilc.settling_weights(traj, end, 30.0, 1e4)
+    return ilc.LtvModel(m.A[-80:], m.B[-80:], m.C, m.dt), w[-80:], x[-80:]
+
+
+def test_settling_weighted_sweep_equals_dense_and_contracts(settling_model):
+    """With the settling factor and the tip term, the sweep equals the dense update and ρ(Q(I − LG − sH⁻¹)) < 1."""
+    model, w, x = settling_model
+    assert w[0] == 1.0 and w[-1] == 30.0 and x[-1].any() and not x[0].any()
+    law = ilc.NormOptimalIlc(model, 1.0, 1e-4, 10.0, 2, 1e-3, time_weight=w, output_weight=x)
+    rng = np.random.default_rng(4)
+    e = rng.normal(scale=1e-3, size=(model.n_samples, 11))
+    u = rng.normal(scale=0.1, size=(model.n_samples, 2))
+    G = law.lifted_matrix()
+    import scipy.linalg
+
+    W = np.diag(np.repeat(w, 11)) + scipy.linalg.block_diag(*x)
+    H = G.T @ W @ G + (1e-4 + 1e-3) * np.eye(G.shape[1])
+    dense = np.linalg.solve(H, G.T @ W @ e.ravel() - 1e-3 * u.ravel()).reshape(-1, 2)
+    assert np.abs(law.step(e, u) - dense).max() <= 1e-9 * np.abs(dense).max()
+    _, T = law.dense_operator()
+    assert np.abs(np.linalg.eigvals(T)).max() < 1.0
+    # and with the Q-filter passing to 3 Hz from t_f on (sample 58 of this horizon)
+    switched = ilc.NormOptimalIlc(model, 1.0, 1e-4, 20.0, 2, 1e-3, time_weight=w, output_weight=x,
+                                  settling_q_cutoff_hz=3.0, settling_start=58)
+    assert np.abs(np.linalg.eigvals(switched.dense_operator()[1])).max() < 1.0
+    # without leak and Q-filter: eigenvalues in (0, 1), and the weighted error falls monotonically on the model
+    plain = ilc.NormOptimalIlc(model, 1.0, 1e-4, None, time_weight=w, output_weight=x)
+    eig = np.linalg.eigvals(plain.dense_operator()[1])
+    assert np.abs(eig.imag).max() < 1e-8 and 0 < eig.real.min() and eig.real.max() < 1.0
+    r = model.simulate(rng.normal(scale=0.2, size=(model.n_samples, 2)))
+    uu, norms = np.zeros((model.n_samples, 2)), []
+    for _ in range(6):
+        err = r - model.simulate(uu)
+        norms.append(float(err.ravel() @ W @ err.ravel()))
+        uu = uu + plain.step(err)
+    assert all(b < a for a, b in zip(norms, norms[1:])) and norms[-1] < 0.05 * norms[0]
+
+
+def test_settling_q_filter_filters_each_phase_on_its_own():
+    """Before t_f the slew's Q-filter on the slew's samples alone, from t_f on the settling's on the rest; linear."""
+    model = _scalar_model(600, 0.5, 1.0, 2.0)
+    law = ilc.NormOptimalIlc(model, 1.0, 1.0, 20.0, 2, settling_q_cutoff_hz=3.0, settling_start=300)
+    u = np.random.default_rng(6).normal(size=(600, 2))
+    out = law.q(u)
+    assert np.array_equal(out[:300], ilc.q_filter(u[:300], 1e-3, 20.0, 2))
+    assert np.array_equal(out[300:], ilc.q_filter(u[300:], 1e-3, 3.0, 2))
+    v = u.copy()
+    v[300:] += 5.0  # the settling's samples do not reach the slew's, and the other way round
+    assert np.array_equal(law.q(v)[:300], out[:300])
+    assert np.allclose(law.q(2 * u + 1), 2 * out + law.q(np.ones_like(u)), rtol=1e-12, atol=1e-12)
+    plain = ilc.NormOptimalIlc(model, 1.0, 1.0, 20.0, 2, settling_q_cutoff_hz=3.0)  # no start: one filter
+    assert np.array_equal(plain.q(u), ilc.q_filter(u, 1e-3, 20.0, 2))
+    with pytest.raises(ilc.IlcError, match="settling_start"):
+        ilc.NormOptimalIlc(model, 1.0, 1.0, 20.0, 2, settling_q_cutoff_hz=3.0, settling_start=601)
+
+
+def test_scenario_refuses_bad_settling_weights(tmp_path):
+    from scenarios.config import ScenarioError
+    from scenarios.ilc import load_ilc
+
+    for key, value in (("settling_weight", "-1.0"), ("settling_weight", "2e6"), ("settling_tip_weight", "-5.0"),
+                       ("settling_tip_weight", "true"), ("settling_model_payload_mass", "-0.1"),
+                       ("settling_q_filter_cutoff_hz", "500.0"), ("evaluate_samples", "3000")):
+        scen = tmp_path / "ilc_bad.toml"
+        text = "\n".join(line for line in SCENARIO.read_text().splitlines() if not line.startswith(f"{key} ="))
+        scen.write_text(text.replace("leak_weight = 1e-3", f"leak_weight = 1e-3\n{key} = {value}"))
+        with pytest.raises(ScenarioError, match=rf"ilc\.{key}: (a|an) (factor|weight|payload|cut-off|integer) in \["):
+            load_ilc(scen)
+    scen.write_text(SCENARIO.read_text().replace("leak_weight = 1e-3",
+                                                 "leak_weight = 1e-3\nsettling_q_filter_cutoff_hz = 3"))
+    assert load_ilc(scen)[1].settling_q_filter_cutoff_hz == 3.0
+
+
 @pytest.mark.parametrize("leak", [0.0, 1e-3])
 def test_riccati_sweep_equals_the_dense_norm_optimal_update(small_model, leak):
     rng = np.random.default_rng(3)
