@@ -21,7 +21,11 @@ The reference (RK4 at 2.5 µs) costs about a hundred times RODAS4: it is timed
 over fewer steps; the exponential scheme over at most 2.5 s of simulated time
 (it refuses to run past 3 s).
 
-Usage: ``python benchmarks/bench_plant_step.py`` (a few seconds, plus a
+``--write`` measures only docs/model.md's cost table (library, Python and native plant FMUs, per scheme) into
+``docs/plant-step-cost.json`` with the date, commit, machine and load average, and renders the table from it
+(:mod:`scenarios.cost_doc`; ``python -m scenarios results-page --check`` checks the render, without re-timing).
+
+Usage: ``python benchmarks/bench_plant_step.py [--write]`` (a few seconds, plus a
 one-off Numba compile of about 20 s if the cache is cold; builds
 ``build/fmus/plant.fmu`` first if it is missing or stale).
 """
@@ -112,6 +116,83 @@ def measure(fmu_path: Path, n_lib: int, n_fmu: int) -> dict:
     return result
 
 
+#: docs/model.md's cost table: (integrator, substeps per ms) per row, the JSON that ``--write`` measures into.
+COST_ROWS = (("rodas4", 2), ("exponential", 2), ("gauss", 2), ("gauss", 4), ("gauss", 32), ("reference", 2))
+COST_JSON = ROOT / "docs" / "plant-step-cost.json"
+
+
+def fmu_step_us(fmu_path: Path, integrator: str, substeps: int, n: int) -> float:
+    """Median µs of doStep + getReal(every output) of a plant FMU (either kind) at 1 ms, torques held."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    from flexarm.integrator import INTEGRATORS
+
+    md = read_model_description(str(fmu_path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    outs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu_path)),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName=f"cost-{integrator}")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.setInteger([vr["integrator"], vr["substeps"]], [INTEGRATORS.index(integrator) + 1, substeps])
+    fmu.exitInitializationMode()
+    fmu.setReal([vr["tau1"], vr["tau2"]], [1.0, 0.3])
+    clock = {"t": 0.0}
+
+    def step():
+        fmu.doStep(clock["t"], DT)
+        fmu.getReal(outs)
+        clock["t"] += DT
+
+    try:
+        return _median_us(step, max(5, n // 10), n)
+    finally:
+        fmu.terminate()
+        fmu.freeInstance()
+
+
+def cost_table(n: int = 2000) -> dict:
+    """Median µs per 1 ms step of every row of :data:`COST_ROWS`: the Numba library call, the Python plant FMU and
+    the native one (both through fmpy, doStep + every output), with the machine and its load, for ``--write``."""
+    import platform
+    from datetime import UTC, datetime
+
+    from flexarm import ArmModel, rigid_configuration
+    from flexarm._kernels import HAVE_NUMBA
+    from flexarm.integrator import advance
+    from flexarm.model import N
+    from flexarm.provenance import git_commit
+    from fmu_build import build_all, build_native_all
+
+    if not HAVE_NUMBA:
+        raise SystemExit("--write measures the Numba kernels: install numba (FLEXARM_NO_NUMBA unset)")
+    python_fmus = build_all(only="plant")
+    fmus = {"python_fmu": python_fmus["plant"], "native_fmu": build_native_all(python_fmus, only="plant")["plant"]}
+    model = ArmModel()
+    load_before = os.getloadavg()
+    rows = {}
+    for integrator, sub in COST_ROWS:
+        # fewer steps for the costly rows; the exponential scheme refuses to run past 3 s of simulated time
+        count = max(200, min(n // max(1, sub // 2) // (10 if integrator == "reference" else 1), 2500))
+        state = {"z": np.concatenate([rigid_configuration(0.0, np.pi / 2), np.zeros(N)])}
+
+        def lib_step(integrator=integrator, sub=sub, state=state):
+            state["z"], _ = advance(model, state["z"], (1.0, 0.3), DT, sub, integrator)
+
+        row = {"library_us": _median_us(lib_step, max(5, count // 10), count)}
+        for kind, path in fmus.items():
+            row[f"{kind}_us"] = fmu_step_us(path, integrator, sub, min(count, 2200))
+        rows[f"{integrator}|{sub}"] = row
+        print(f"  {integrator} {sub}/ms: " + ", ".join(f"{k} {v:.0f} µs" for k, v in row.items()), flush=True)
+    return {"date": datetime.now(UTC).isoformat(timespec="seconds"), "commit": git_commit(),
+            "machine": {"processor": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+                        "python": platform.python_version(), "system": platform.platform()},
+            "load_average_before": list(load_before), "load_average_after": list(os.getloadavg()),
+            "rows": rows}
+
+
 def table2_substeps(steps_ms=(1, 4)) -> list[str]:
     """Lines: RODAS4 substeps taken per ms and library µs per ms of simulated time over table2/none's closed-loop
     torques at each communication step (default plant settings)."""
@@ -163,6 +244,14 @@ def _print(result: dict) -> None:
 def main() -> int:
     if "--child" in sys.argv:  # NumPy-only measurement, run by the parent with FLEXARM_NO_NUMBA=1
         print(json.dumps(measure(Path(sys.argv[sys.argv.index("--child") + 1]), n_lib=400, n_fmu=400)))
+        return 0
+    if "--write" in sys.argv:  # docs/model.md's cost table: measure, write the JSON, render the block
+        from flexarm.provenance import write_atomic
+        from scenarios.cost_doc import write_block
+
+        data = cost_table()
+        write_atomic(COST_JSON, json.dumps(data, indent=1) + "\n")
+        print(f"wrote {COST_JSON.relative_to(ROOT)} and {write_block(data).relative_to(ROOT)}")
         return 0
     from fmu_build import build_all
 

@@ -475,5 +475,5 @@ def _slew_steps(runs: PageRuns) -> str:
     return f"{len(results[0].series['time']) - 1} steps of {sc.step_size * 1e3:g} ms"
 
 
-# docs/findings.md's blocks live beside the code that explains them; importing registers them.
-from . import findings_doc  # noqa: E402,F401
+# docs/findings.md's and docs/model.md's cost blocks live beside the code that explains them; importing registers them.
+from . import cost_doc, findings_doc  # noqa: E402,F401

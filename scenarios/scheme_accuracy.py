@@ -574,8 +574,9 @@ def merge_part(part: str, result: dict) -> dict:
         commits = {part_commit(data, p) for p in PARTS if p in data}
         data["commit"] = commits.pop() if len(commits) == 1 else "mixed (see provenance)"
         data["inputs_sha256"] = prov["inputs_sha256"]
-        write_atomic(JSON_PATH, json.dumps(data, indent=1, sort_keys=True) + "\n")
-    return data
+        text = json.dumps(data, indent=1, sort_keys=True) + "\n"
+        write_atomic(JSON_PATH, text)
+    return json.loads(text)  # as the file holds it (key order too), so the docs render as --check does
 
 
 def main(argv=None) -> int:

@@ -316,7 +316,7 @@ def test_gauss_energy_error_is_bounded_over_10_s(model):
     """Free arm, all nine flexible modes excited, joints turning, τ = 0, ζ = 0, 4 substeps per ms: the relative
     energy error stays below 1e-4 and shows no secular growth (acceptance; the 60 s figure is generated into
     docs/model.md by python -m scenarios.scheme_accuracy). Measured over 3 s: 1.3e-4 at 2 substeps per ms (the
-    aliased bracket modes), 4.9e-5 at 4, 1.1e-5 at 8; RODAS4 loses 5.7e-3 in the first 2 s (bracket modes)."""
+    aliased bracket modes), 4.9e-5 at 4, 1.1e-5 at 8; RODAS4 (error-controlled) loses 2.9e-3 in the first 2 s."""
     z = free_arm(model)
     e0 = model.total_energy(z)
     rel = []

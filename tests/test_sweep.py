@@ -66,6 +66,10 @@ def test_serial_table_and_provenance(small):
     outcome = next(r["outcome"] for r in journal if r["status"] == "error")
     assert outcome["fmu"] == "sensors" and outcome["function"] == "fmi2DoStep" and outcome["fmu_status"] == "error"
     assert "sample_period" in outcome["fmu_message"]  # the FMU's own words, from the status it logged
+    # each point that ran carries the loop check of a scenario run (0.2 s: under 3 e-folds even for γ = 1)
+    ran = [r for r in journal if r["status"] == "ok"]
+    assert {r["loop_stability"]["gain_set"] for r in ran} == {"gamma0.1", "gamma1"}
+    assert all(r["warnings"] == [] and 0 < r["loop_stability"]["e_folds_over_run"] < 1 for r in ran)
     assert all(len(r["fmu_sha256.plant"]) == 64 and r["commit"] for r in rows)
     meta = json.loads((res.folder / "sweep.json").read_text())
     assert meta["sweep_sha256"] and meta["points"] == 16 and meta["sweep_file"] == str(path)

@@ -23,6 +23,7 @@ from flexarm.provenance import sha256_bytes, sha256_file, write_atomic
 
 from ..master import CoSimulationError
 from ..runner import prepare, simulate_case
+from ..stability import loop_stability
 from .plan import Plan, Point
 
 #: Per process: setup key -> (Setup, open Master), least recently used first.
@@ -133,7 +134,8 @@ def run_point(task: dict) -> dict:
         when and which signal diverged; which FMU, function, FMI status and FMU message),
         ``metrics`` (None unless ok), ``wall_time_s`` (the run), ``setup_time_s``
         (loading the FMUs, 0 when they were loaded), ``steps_done``, ``worker``
-        (host:pid), ``fmu_sha256``, ``trajectory_sha256``.
+        (host:pid), ``fmu_sha256``, ``trajectory_sha256``; when the point ran, ``warnings`` and
+        ``loop_stability`` as a scenario run's case JSON (:func:`scenarios.stability.loop_stability`).
     """
     t0 = time.perf_counter()
     rec = {"key": task["key"], "index": task["index"], "status": "error", "message": "", "metrics": None,
@@ -153,6 +155,12 @@ def run_point(task: dict) -> dict:
         outcome = out["outcome"]
         rec.update(status=outcome.status, message=outcome.message, outcome=outcome.as_dict(), metrics=metrics,
                    steps_done=out["steps_done"])
+        # a point whose loop grows in a way its plant scheme cannot show says so, as a scenario run does
+        stab = loop_stability(setup.paths, setup.plant, setup.driver, setup.case_parameters(task["parameters"]),
+                              setup.scenario.step_size, setup.n_steps * setup.scenario.step_size,
+                              setup.scenario.algorithm)
+        rec.update(warnings=list(out.get("warnings", [])) + ([stab["note"]] if stab and stab["note"] else []),
+                   loop_stability=stab)
     except Exception as exc:  # noqa: BLE001 - recorded against the point, never fatal to the sweep
         rec.update(status="error", message=f"{type(exc).__name__}: {exc}", wall_time_s=time.perf_counter() - t0)
         if not isinstance(exc, CoSimulationError) and task["setup_key"] in _LOADED:
