@@ -343,9 +343,15 @@ def plant_states(result) -> np.ndarray:
     return np.column_stack([result.series[f"plant.{v}{i}"] for v in ("theta", "omega") for i in range(1, 12)])
 
 
+#: The converged plant the step-size runs are also compared with: RK4 at 1.25 µs (the closed-loop table's reference).
+STEP_SIZE_REFERENCE = {"integrator": "reference", "substeps": 4}
+
+
 def step_size_part(steps_ms=STEP_SIZES_MS, kinds=("python", "native"), fine: int = 64) -> dict:
     """table2/none at each step: rms over time of (states − 64-substep states), per state, relative to its rms
-    motion (the state minus its start), worst state; and the run's status."""
+    motion (the state minus its start), worst state; and the run's status. Both runs are also compared with the
+    converged plant at the same step (:data:`STEP_SIZE_REFERENCE`, ``vs_reference``: default and 64-substep run):
+    where the sampled loop is unstable (10 ms) the 64-substep run is itself off, and this says by how much."""
     from scenarios.config import load_scenario
     from scenarios.runner import run_scenario
 
@@ -355,17 +361,18 @@ def step_size_part(steps_ms=STEP_SIZES_MS, kinds=("python", "native"), fine: int
         for kind in kinds:
             for ms in steps_ms:
                 runs = {}
-                for sub in (None, fine):
+                for label, plant in ((None, {}), (fine, {"substeps": fine}), ("reference", STEP_SIZE_REFERENCE)):
                     s = copy.deepcopy(base)
-                    s.name = f"acc-step-{kind}-{ms}-{sub}"
+                    s.name = f"acc-step-{kind}-{ms}-{label}"
                     s.cases = [c for c in s.cases if c.key == "none"]
                     s.step_size = ms * 1e-3
                     s.samples = int(math.ceil(len_slew() / ms))
-                    if sub is not None:
-                        s.cases[0].parameters.setdefault("plant", {})["substeps"] = sub
-                    print(f"step size: {kind}, {ms} ms, substeps {sub or 'default'}", flush=True)
-                    (runs[sub],) = run_scenario(s, Path(tmp), progress=False, kind=kind)
-                out[f"{kind}|{ms}"] = step_size_comparison(runs[None], runs[fine])
+                    s.cases[0].parameters.setdefault("plant", {}).update(plant)
+                    print(f"step size: {kind}, {ms} ms, plant {plant or 'default'}", flush=True)
+                    (runs[label],) = run_scenario(s, Path(tmp), progress=False, kind=kind)
+                out[f"{kind}|{ms}"] = {**step_size_comparison(runs[None], runs[fine]),
+                                       "vs_reference": [step_size_comparison(runs[k], runs["reference"])
+                                                        ["relative_rms"] for k in (None, fine)]}
     return out
 
 
@@ -512,6 +519,20 @@ def render(data: dict) -> str:
                              f"{100 * r['worst_relative_rms']:.2g} %; {v[0]:.4g} / {v[1]:.4g})"
                              + ("" if r["status"] == ["ok", "ok"] else f" {r['status']}"))
             lines.append(f"| {kind} | " + " | ".join(cells) + " |")
+        if any("vs_reference" in r for r in st.values()):
+            lines += ["", "The same runs against the converged plant at the same step (RK4 at 1.25 µs): rms "
+                      "difference relative to the rms motion, angles / rates, of the default run and of the "
+                      "64-substep run:", "",
+                      "| kind | " + " | ".join(f"{ms} ms" for ms in STEP_SIZES_MS) + " |",
+                      "|---|" + "---|" * len(STEP_SIZES_MS)]
+            for kind in ("python", "native"):
+                cells = []
+                for ms in STEP_SIZES_MS:
+                    vs = st.get(f"{kind}|{ms}", {}).get("vs_reference")
+                    cells.append("–" if vs is None else " ; ".join(
+                        f"{who} {100 * v['angles']:.2g} % / {100 * v['rates']:.2g} %"
+                        for who, v in zip(("default", "64/ms"), vs)))
+                lines.append(f"| {kind} | " + " | ".join(cells) + " |")
     return "\n".join(lines).rstrip() + "\n"
 
 
