@@ -65,8 +65,8 @@ class CaseResult:
     #: What the run did not do well (e.g. torque saturation, :func:`scenarios.metrics.saturation_warnings`; an
     #: unstable sampled loop the plant scheme cannot show, :func:`scenarios.stability.loop_stability`).
     warnings: list[str] = field(default_factory=list)
-    #: The linearised sampled loop's stability (:func:`scenarios.stability.loop_stability`; None when the check
-    #: does not apply).
+    #: The linearised sampled loop's stability (:func:`scenarios.stability.loop_stability`: the check, or why it
+    #: was not made and whether the plant scheme could show a bracket-mode instability anyway).
     loop_stability: dict | None = None
 
 

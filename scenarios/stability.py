@@ -22,6 +22,16 @@ Calibrated on the closed-loop table of docs/model.md: under 3 e-folds every sche
 converged reference (RODAS4 on γ = 0.1 over the 2.058 s slew, 2.0 e-folds); above it the schemes more than 5 % off
 (RODAS4, Gauss at 2 and 32 substeps per ms) are those whose sampled-loop growth is off by more than 5 % over the
 horizon, and those within it (Gauss at 128 and 256 per ms, the RK4 references) are within 3.6 % of the reference.
+
+The LQG controller with one Kalman filter per schedule point (``controller_lqg``, estimator = kalman, 1 ms, its
+``loop_delay_samples`` equal to the master's delay) is linear too and checked the same way
+(:func:`lqg_loop_growth`: plant, filter, predictor, gain). Every other case is recorded as not checked
+(:func:`unchecked`: the payload bank, a user's controller, a step of no whole number of milliseconds), and its
+run warns when its plant scheme damps or misplaces a bracket mode beyond what the schemes the closed-loop table
+shows within 5 % of the reference do to it (:func:`resolved_envelope`), on an arm whose structural decay of that
+mode is below the growth this project's sampled controllers drive a bracket mode to (:func:`injected_growth`,
+3.40 1/s): a loop that destabilises that mode would look quiet.
+Feedforward only (``controller_ff``) is an open loop: no warning (:data:`OPEN_LOOP`).
 """
 
 from __future__ import annotations
@@ -173,9 +183,10 @@ def judge(exact: dict, plant: dict, duration_s: float, integrator: str, substeps
 
 
 def loop_stability(paths: dict, plant: str, driver: str, params: dict, step_s: float,
-                   duration_s: float, algorithm: str = "gauss-seidel") -> dict | None:
-    """The check for one case, or None when it does not apply (another controller, or a step of no whole number of
-    milliseconds).
+                   duration_s: float, algorithm: str = "gauss-seidel") -> dict:
+    """The check for one case (``checked`` true), or the record of why it was not made (``checked`` false,
+    :func:`unchecked`: a controller with no linear model here, a step of no whole number of milliseconds, the
+    payload bank), whose note warns when this plant scheme could not show a bracket-mode instability anyway.
 
     Parameters
     ----------
@@ -192,32 +203,238 @@ def loop_stability(paths: dict, plant: str, driver: str, params: dict, step_s: f
     algorithm : str
         The master's stepping (:data:`DELAY_STEPS`).
     """
-    prefix = CONTROLLERS.get(Path(str(paths.get(driver, ""))).stem)
-    samples = round(step_s / 1e-3)
-    if prefix is None or samples < 1 or abs(step_s - samples * 1e-3) > 1e-9:
-        return None  # the FMUs refuse a step of no whole number of milliseconds themselves
     if algorithm not in DELAY_STEPS:
         raise ValueError(f"algorithm: must be one of {', '.join(DELAY_STEPS)}, got {algorithm!r}")
+    stem = Path(str(paths.get(driver, ""))).stem
     ctrl, pl = params.get(driver, {}), params.get(plant, {})
-    gain_set = _value(ctrl, "gain_set", 2)
-    gain = GAIN_SET_NAMES.get(int(gain_set), None) if not isinstance(gain_set, str) else gain_set
-    schedule = SCHEDULE_LABELS.get(round(float(_value(ctrl, "schedule_period", 0.2)), 9))
-    if gain is None or schedule is None:
-        return None
     integ = _value(pl, "integrator", 1)
     integrator = INTEGRATOR_NAMES.get(int(integ), str(integ)) if not isinstance(integ, str) else integ
     substeps = int(_value(pl, "substeps", 2))
     ratio, payload = float(_value(pl, "damping_ratio", 0.0)), float(_value(pl, "payload_mass", 0.0))
     delay = DELAY_STEPS[algorithm]
-    args = (prefix + gain, schedule, ratio, payload, samples * 1e-3)
-    exact = sampled_loop_growth(*args, delay=delay)
-    own = sampled_loop_growth(*args, integrator=integrator, substeps=substeps, delay=delay)
-    out = {"gain_set": prefix + gain, "schedule": schedule, "damping_ratio": ratio, "payload_mass": payload,
-           "plant_integrator": integrator, "plant_substeps": substeps, "step_ms": samples,
-           "algorithm": algorithm, "delay_steps": delay, **exact,
+    samples = round(step_s / 1e-3)
+
+    def skip(reason):
+        return unchecked(stem, reason, integrator, substeps, ratio, step_s)
+
+    lqg = stem == "controller_lqg"
+    if stem in OPEN_LOOP:
+        return skip("feedforward only: an open loop, which no scheme can make grow")
+    if stem not in CONTROLLERS and not lqg:
+        return skip("no linear model of this controller here")
+    if samples < 1 or abs(step_s - samples * 1e-3) > 1e-9:
+        return skip(f"a {step_s * 1e3:g} ms step is no whole number of milliseconds")
+    gain_set = _value(ctrl, "gain_set", 2)
+    gain = GAIN_SET_NAMES.get(int(gain_set), None) if not isinstance(gain_set, str) else gain_set
+    schedule = SCHEDULE_LABELS.get(round(float(_value(ctrl, "schedule_period", 0.2)), 9))
+    if gain is None or schedule is None:
+        return skip("gain set or schedule period not among the committed designs")
+    common = {"checked": True, "controller": stem, "damping_ratio": ratio, "payload_mass": payload,
+              "plant_integrator": integrator, "plant_substeps": substeps, "step_ms": samples,
+              "algorithm": algorithm, "delay_steps": delay}
+    if lqg:
+        est = _value(ctrl, "estimator", 1)
+        estimator = {1: "kalman", 2: "payload_bank"}.get(est, str(est)) if not isinstance(est, str) else est
+        loop_delay = int(_value(ctrl, "loop_delay_samples", 0))
+        if estimator != "kalman":
+            return skip(f"estimator = {estimator}, not linear")
+        if samples != 1:
+            return skip(f"the LQG controller at a {samples} ms step (its linear loop is built at 1 ms)")
+        if loop_delay != delay:
+            return skip(f"loop_delay_samples = {loop_delay} where the {algorithm} master delays by {delay}")
+        integral = bool(_value(ctrl, "integral_action", False))
+        gain = gain.removeprefix("dlqr-")
+        args = (gain, schedule, ratio, payload)
+        exact = lqg_loop_growth(*args, delay=delay, integral=integral)
+        own = lqg_loop_growth(*args, integrator=integrator, substeps=substeps, delay=delay, integral=integral)
+        common.update(estimator=estimator, integral_action=integral)
+    else:
+        prefix = CONTROLLERS[stem]
+        gain = prefix + gain
+        args = (gain, schedule, ratio, payload, samples * 1e-3)
+        exact = sampled_loop_growth(*args, delay=delay)
+        own = sampled_loop_growth(*args, integrator=integrator, substeps=substeps, delay=delay)
+    out = {**common, "gain_set": gain, "schedule": schedule, **exact,
            "e_folds_over_run": exact["growth_per_s"] * float(duration_s),
            "plant_growth_per_s": own["growth_per_s"],
            "plant_e_folds_over_run": own["growth_per_s"] * float(duration_s)}
     out["note"], out["predicted_deviation"] = judge(exact, own, float(duration_s), integrator, substeps, samples,
                                                     delay)
     return out
+
+
+# -- what a run cannot check: its plant scheme on the bracket modes ----------------------------------------------
+#: Controllers whose loop is open (feedforward only): nothing feeds the bracket modes back, and every scheme gives
+#: the open-loop plant's own growth along the slew (at most +1.98 1/s, a slow joint mode of the frozen
+#: linearisation; +1.74 with the 0.275 kg payload) to within 1e-5 1/s (1e-3 on near-zero rates: round-off;
+#: tests/test_loop_warning.py), so no warning.
+OPEN_LOOP = ("controller_ff",)
+
+
+def bracket_mode_errors(integrator: str, substeps: int, damping_ratio: float = 0.0, dt: float = 1e-3) -> dict:
+    """Per bracket mode (the arm's three kHz modes, docs/model.md's damping table): its frequency (Hz), its
+    structural decay rate ζω (1/s), the decay rate the scheme adds to it (1/s, −ln|R(hλ)^n|/dt − ζω) and the
+    scheme's relative frequency error on it (arg R(hλ)^n / (ω_d·dt) − 1, phase per substep unwrapped), from the
+    scheme's own stability function at `substeps` per ms over a step `dt` (exponential: exact on linear modes)."""
+    from flexarm.integrator import substep_count
+
+    out = {}
+    for name, f in _bracket_frequencies().items():
+        w = 2 * math.pi * f
+        lam = complex(-damping_ratio * w, w * math.sqrt(max(1.0 - damping_ratio ** 2, 0.0)))
+        if integrator in ("exact", "exponential"):
+            decay, freq = 0.0, 0.0
+        else:
+            n = substep_count(dt, substeps, integrator)
+            r = complex(stability_matrix(np.array([[lam * dt / n]]), integrator)[0, 0])
+            decay = -n * math.log(max(abs(r), 1e-300)) / dt + lam.real
+            freq = n * float(np.angle(r)) / (lam.imag * dt) - 1.0
+        out[name] = {"frequency_hz": f, "structural_decay_per_s": -lam.real, "numerical_decay_per_s": decay,
+                     "frequency_error": freq}
+    return out
+
+
+@functools.lru_cache(maxsize=1)
+def _bracket_frequencies() -> dict:
+    from .scheme_accuracy import mode_frequencies
+
+    return {k: v for k, v in mode_frequencies().items() if k.startswith("bracket")}
+
+
+#: (integrator, substeps per ms) of the schemes the closed-loop table (docs/scheme-accuracy.json, ``loops``) shows
+#: within :data:`DEVIATION` of the reference at every horizon on every loop: Gauss at 128 and 256 per ms, RK4 at
+#: 2.5, 1.25 and 0.625 µs. Written here because an installed package has no docs/; tests/test_loop_warning.py
+#: derives the set from the table and checks it equals this one.
+RESOLVING_SCHEMES = (("gauss", 128), ("gauss", 256), ("reference", 2), ("reference", 4), ("reference", 8))
+
+
+@functools.lru_cache(maxsize=1)
+def resolved_envelope() -> dict:
+    """Per bracket mode, the largest numerical decay rate and |relative frequency error| of the
+    :data:`RESOLVING_SCHEMES`: what a scheme may do to a bracket mode and still give the reference's result."""
+    env = {m: {"numerical_decay_per_s": 0.0, "frequency_error": 0.0} for m in _bracket_frequencies()}
+    for integrator, sub in RESOLVING_SCHEMES:
+        for m, e in bracket_mode_errors(integrator, sub).items():
+            env[m]["numerical_decay_per_s"] = max(env[m]["numerical_decay_per_s"], e["numerical_decay_per_s"])
+            env[m]["frequency_error"] = max(env[m]["frequency_error"], abs(e["frequency_error"]))
+    return env
+
+
+@functools.lru_cache(maxsize=1)
+def injected_growth() -> dict:
+    """The largest growth (1/s) a 1 ms sampled controller of this project drives a bracket mode to on the undamped
+    arm: the exact sampled loops of every committed LQR gain schedule (``gamma*``, ``eq32``, their ``dlqr-``
+    designs; 200 ms, 20 ms, single), Gauss-Seidel. The scale against which a bracket mode's structural decay
+    ζω counts as little (3.40 1/s, eq. 32 at 20 ms, the 5.7 kHz mode; the LQG loops inject none)."""
+    lowest = min(_bracket_frequencies().values())
+    worst = {"growth_per_s": 0.0}
+    for gain in GAIN_SET_NAMES.values():
+        for prefix in set(CONTROLLERS.values()):
+            for schedule in SCHEDULE_LABELS.values():
+                g = sampled_loop_growth(prefix + gain, schedule, 0.0, 0.0)
+                if g["mode_frequency_hz"] > lowest / 2 and g["growth_per_s"] > worst["growth_per_s"]:
+                    worst = dict(g, gain_set=prefix + gain, schedule=schedule)
+    return worst
+
+
+def unresolved_bracket_modes(integrator: str, substeps: int, damping_ratio: float, dt: float = 1e-3) -> dict:
+    """The bracket modes this plant scheme damps or misplaces beyond what the agreeing schemes of the table do
+    (:func:`resolved_envelope`, 1e-9 relative slack for round-off) on an arm whose structural decay of that mode,
+    ζω, is below the growth a sampled controller here drives a bracket mode to (:func:`injected_growth`): with
+    more damping than that the structure, not the scheme, keeps such a loop stable. {mode: errors}."""
+    env = resolved_envelope()
+    out = {}
+    for m, e in bracket_mode_errors(integrator, substeps, damping_ratio, dt).items():
+        lim = env[m]
+        off = (abs(e["numerical_decay_per_s"]) > lim["numerical_decay_per_s"] * (1 + 1e-9) + 1e-9
+               or abs(e["frequency_error"]) > lim["frequency_error"] * (1 + 1e-9) + 1e-12)
+        if off and e["structural_decay_per_s"] < injected_growth()["growth_per_s"]:
+            out[m] = e
+    return out
+
+
+def unchecked(controller: str, reason: str, integrator: str, substeps: int, damping_ratio: float,
+              step_s: float) -> dict:
+    """The record of a case whose loop is not checked here, with its note: "" when the controller is open-loop
+    (:data:`OPEN_LOOP`) or the plant scheme resolves the bracket modes (:func:`unresolved_bracket_modes`), else
+    one warning naming the controller, what this plant cannot show and the cure."""
+    modes = {} if controller in OPEN_LOOP else unresolved_bracket_modes(integrator, substeps, damping_ratio, step_s)
+    note = ""
+    if modes:
+        es = list(modes.values())
+        freqs = "/".join(f"{e['frequency_hz'] / 1e3:.1f}" for e in es)
+        damping = "/".join(f"{e['numerical_decay_per_s']:+.2g}" if abs(e["numerical_decay_per_s"]) > 1e-6 else "0"
+                           for e in es)  # Gauss: round-off only
+        shift = "/".join(f"{100 * e['frequency_error']:+.2g}" for e in es)
+        note = (f"loop not checked ({controller}: {reason}); the {integrator} plant at {substeps} substeps/ms would "
+                f"hide or misplace a bracket-mode instability (ζ = {damping_ratio:g}; {freqs} kHz modes: damping "
+                f"{damping} 1/s, frequency {shift} %); rerun with plant integrator = reference, substeps = 4")
+    return {"checked": False, "controller": controller, "reason": reason, "plant_integrator": integrator,
+            "plant_substeps": substeps, "damping_ratio": damping_ratio, "unresolved_bracket_modes": modes,
+            "note": note}
+
+
+# -- the LQG loop (Kalman filter, predictor, discrete LQR): linear too --------------------------------------------
+def lqg_closed_loop(phi_p, gam_p, phi_c, gam_c, M, C, K, K_xi=None, delay: int = 0, dt: float = 1e-3):
+    """The sampled LQG loop of :class:`flexarm.lqg.LqgController` at one schedule point as one matrix: the plant
+    (Φp, Γp: exact or the run's scheme) measured `delay` samples late (the controller's ``loop_delay_samples``
+    equal to the master's delay), the controller's filter (Φc, Γc, M, C), its predictor across the delay, its gain
+    K and, with integral action, K_ξ. State: plant errors e_k .. e_{k−delay}, the filter's posterior of sample
+    k − delay − 1, the torque deviations of samples k − 1 − delay .. k − 1, and ξ (with integral action)."""
+    nx, d = len(phi_p), int(delay)
+    sizes = [nx * (d + 1), nx, 2 * (d + 1), 2 if K_xi is not None else 0]
+    n = sum(sizes)
+    eye = np.eye(n)
+    o = np.cumsum([0] + sizes)
+    hist = [eye[o[0] + nx * i: o[0] + nx * (i + 1)] for i in range(d + 1)]  # e_k, e_{k-1}, ...
+    xp, du = eye[o[1]:o[2]], [eye[o[2] + 2 * i: o[2] + 2 * (i + 1)] for i in range(d + 1)]
+    xi = eye[o[3]:o[4]]
+    x = phi_c @ xp + gam_c @ du[0]  # time update with the torque of sample k − delay − 1
+    post = x + M @ (C @ hist[d] - C @ x)  # the measurement of e_{k − delay}
+    now = post
+    for i in range(1, d + 1):
+        now = phi_c @ now + gam_c @ du[i]
+    u = -K @ now - (K_xi @ xi if K_xi is not None else 0)
+    rows = [phi_p @ hist[0] + gam_p @ u, *hist[:d], post, *du[1:], u]
+    if K_xi is not None:
+        rows.append(xi + dt * (C[0:2] @ now))
+    return np.vstack(rows)
+
+
+@functools.lru_cache(maxsize=64)
+def lqg_loop_growth(gain_name: str, schedule: str, damping_ratio: float, payload_mass: float,
+                    integrator: str = "exact", substeps: int = 2, delay: int = 0, integral: bool = False) -> dict:
+    """As :func:`sampled_loop_growth` for the LQG controller with one Kalman filter per schedule point
+    (estimator = kalman) at 1 ms, along the design's operating points."""
+    from flexarm.lqg_design import LqgDesign
+    from flexarm.model import ArmModel, numpy_kernels
+    from flexarm.parameters import load_parameters
+    from flexarm.trajectory import load_trajectory
+    from flexarm.trajectory.io import SAMPLE_TIME
+
+    dt = 1e-3
+    traj = load_trajectory()
+    design = LqgDesign.load(schedule)
+    w = design.weight_index(gain_name)
+    kernels = numpy_kernels()
+    model = ArmModel(load_parameters(payload_mass=payload_mass), damping_ratio=damping_ratio, kernels=kernels)
+    worst = {"growth_per_s": -np.inf}
+    for i, t_k in enumerate(design.times):
+        k = min(int(round(t_k / SAMPLE_TIME)), traj.n_samples)
+        A, B = model.linearize(traj.state(k))
+        phi, gam = plant_zoh(A, B, dt, integrator, substeps, expm=kernels.expm)
+        if integral:
+            K, K_xi = design.K_integral[i, w, :, :len(A)], design.K_integral[i, w, :, len(A):]
+        else:
+            K, K_xi = design.K[i, w], None
+        loop = lqg_closed_loop(phi, gam, design.Phi[i], design.Gamma[i], design.M[i], design.C, K, K_xi, delay, dt)
+        ev, vec = np.linalg.eig(loop)
+        j = int(np.argmax(np.abs(ev)))
+        rate = float(np.log(np.abs(ev[j])) / dt)
+        if rate > worst["growth_per_s"]:
+            lam, modes = np.linalg.eig(A)
+            weight = np.abs(np.linalg.lstsq(modes, vec[:len(A), j], rcond=None)[0])
+            worst = {"growth_per_s": rate, "at_time_s": float(t_k),
+                     "aliased_frequency_hz": float(abs(np.angle(ev[j])) / (2 * np.pi * dt)),
+                     "mode_frequency_hz": float(abs(lam[int(np.argmax(weight))].imag) / (2 * np.pi))}
+    return worst

@@ -79,4 +79,5 @@ def test_the_check_follows_the_communication_step():
     assert abs(at4["plant_growth_per_s"] / at4["growth_per_s"] - 1) < 0.01  # RODAS4 resolves the 190 Hz mode
     at1 = loop_stability(paths, "plant", "controller", params, 0.001, 5.0)
     assert at1["mode_frequency_hz"] > 5000 and "does not show the growth" in at1["note"]
-    assert loop_stability(paths, "plant", "controller", params, 0.0015, 5.0) is None  # no whole millisecond
+    odd = loop_stability(paths, "plant", "controller", params, 0.0015, 5.0)  # no whole millisecond: not checked,
+    assert not odd["checked"] and "whole number" in odd["reason"] and "reference" in odd["note"]  # and said so
