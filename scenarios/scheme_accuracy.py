@@ -431,6 +431,28 @@ def part_commit(data: dict, part: str) -> str:
     return data.get("provenance", {}).get(part, {}).get("commit", data.get("commit", "unknown"))
 
 
+def _step_table(st: dict, cell) -> list[str]:
+    """The communication-step table: a row per FMU kind, a column per step, `cell(result)` in each (– if none)."""
+    rows = ["| kind | " + " | ".join(f"{ms} ms" for ms in STEP_SIZES_MS) + " |", "|---|" + "---|" * len(STEP_SIZES_MS)]
+    for kind in ("python", "native"):
+        cells = [("–" if st.get(f"{kind}|{ms}") is None else cell(st[f"{kind}|{ms}"])) for ms in STEP_SIZES_MS]
+        rows.append(f"| {kind} | " + " | ".join(cells) + " |")
+    return rows
+
+
+def _step_cell(r: dict) -> str:
+    v = r["rms_velocity_error"]
+    return (f"{100 * r['relative_rms_states']:.2g} % ({r['worst_state']} {100 * r['worst_relative_rms']:.2g} %; "
+            f"{v[0]:.4g} / {v[1]:.4g})" + ("" if r["status"] == ["ok", "ok"] else f" {r['status']}"))
+
+
+def _step_cell_vs_reference(r: dict) -> str:
+    if "vs_reference" not in r:
+        return "–"
+    return " ; ".join(f"{who} {100 * v['angles']:.2g} % / {100 * v['rates']:.2g} %"
+                      for who, v in zip(("default", "64/ms"), r["vs_reference"]))
+
+
 def render(data: dict) -> str:
     """The markdown block of docs/model.md from the JSON (what --check compares)."""
     commits = {part_commit(data, p) for p in PARTS if p in data}
@@ -505,34 +527,11 @@ def render(data: dict) -> str:
                   "against a 64-substep-per-ms run at the same step: rms difference of the plant states relative "
                   "to their rms motion (angles and rates, the worse of the two); in brackets the worst single "
                   "state against its own motion, and the run's rms velocity error (deg/s, 2 / 64 substeps):", "",
-                  "| kind | " + " | ".join(f"{ms} ms" for ms in STEP_SIZES_MS) + " |",
-                  "|---|" + "---|" * len(STEP_SIZES_MS)]
-        for kind in ("python", "native"):
-            cells = []
-            for ms in STEP_SIZES_MS:
-                r = st.get(f"{kind}|{ms}")
-                if r is None:
-                    cells.append("–")
-                    continue
-                v = r["rms_velocity_error"]
-                cells.append(f"{100 * r['relative_rms_states']:.2g} % ({r['worst_state']} "
-                             f"{100 * r['worst_relative_rms']:.2g} %; {v[0]:.4g} / {v[1]:.4g})"
-                             + ("" if r["status"] == ["ok", "ok"] else f" {r['status']}"))
-            lines.append(f"| {kind} | " + " | ".join(cells) + " |")
+                  *_step_table(st, _step_cell)]
         if any("vs_reference" in r for r in st.values()):
             lines += ["", "The same runs against the converged plant at the same step (RK4 at 1.25 µs): rms "
                       "difference relative to the rms motion, angles / rates, of the default run and of the "
-                      "64-substep run:", "",
-                      "| kind | " + " | ".join(f"{ms} ms" for ms in STEP_SIZES_MS) + " |",
-                      "|---|" + "---|" * len(STEP_SIZES_MS)]
-            for kind in ("python", "native"):
-                cells = []
-                for ms in STEP_SIZES_MS:
-                    vs = st.get(f"{kind}|{ms}", {}).get("vs_reference")
-                    cells.append("–" if vs is None else " ; ".join(
-                        f"{who} {100 * v['angles']:.2g} % / {100 * v['rates']:.2g} %"
-                        for who, v in zip(("default", "64/ms"), vs)))
-                lines.append(f"| {kind} | " + " | ".join(cells) + " |")
+                      "64-substep run:", "", *_step_table(st, _step_cell_vs_reference)]
     return "\n".join(lines).rstrip() + "\n"
 
 

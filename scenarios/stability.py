@@ -112,6 +112,21 @@ def closed_loop(phi, gam, gain, delay: int = 0) -> np.ndarray:
     return m
 
 
+def _growth_at(worst: dict, loop: np.ndarray, A: np.ndarray, dt: float, t_k: float) -> dict:
+    """`worst`, or the growth of the sampled `loop` (its state starting with the arm's, A's) at operating point
+    `t_k` when it grows faster: rate (1/s), time, aliased frequency and the arm mode that carries it."""
+    ev, vec = np.linalg.eig(loop)
+    i = int(np.argmax(np.abs(ev)))
+    rate = float(np.log(np.abs(ev[i])) / dt)
+    if rate <= worst["growth_per_s"]:
+        return worst
+    lam, modes = np.linalg.eig(A)
+    weight = np.abs(np.linalg.lstsq(modes, vec[:len(A), i], rcond=None)[0])
+    return {"growth_per_s": rate, "at_time_s": float(t_k),
+            "aliased_frequency_hz": float(abs(np.angle(ev[i])) / (2 * np.pi * dt)),
+            "mode_frequency_hz": float(abs(lam[int(np.argmax(weight))].imag) / (2 * np.pi))}
+
+
 @functools.lru_cache(maxsize=128)
 def sampled_loop_growth(gain_name: str, schedule: str, damping_ratio: float, payload_mass: float,
                         dt: float = 1e-3, integrator: str = "exact", substeps: int = 2, delay: int = 0) -> dict:
@@ -136,15 +151,7 @@ def sampled_loop_growth(gain_name: str, schedule: str, damping_ratio: float, pay
         k = min(int(round(t_k / SAMPLE_TIME)), traj.n_samples)  # the trajectory's sample at t_k
         A, B = model.linearize(traj.state(k))
         phi, gam = plant_zoh(A, B, dt, integrator, substeps, expm=kernels.expm)
-        ev, vec = np.linalg.eig(closed_loop(phi, gam, effective_gain(gain), delay))
-        i = int(np.argmax(np.abs(ev)))
-        rate = float(np.log(np.abs(ev[i])) / dt)
-        if rate > worst["growth_per_s"]:
-            lam, modes = np.linalg.eig(A)
-            weight = np.abs(np.linalg.lstsq(modes, vec[:len(A), i], rcond=None)[0])
-            worst = {"growth_per_s": rate, "at_time_s": float(t_k),
-                     "aliased_frequency_hz": float(abs(np.angle(ev[i])) / (2 * np.pi * dt)),
-                     "mode_frequency_hz": float(abs(lam[int(np.argmax(weight))].imag) / (2 * np.pi))}
+        worst = _growth_at(worst, closed_loop(phi, gam, effective_gain(gain), delay), A, dt, t_k)
     return worst
 
 
@@ -428,13 +435,5 @@ def lqg_loop_growth(gain_name: str, schedule: str, damping_ratio: float, payload
         else:
             K, K_xi = design.K[i, w], None
         loop = lqg_closed_loop(phi, gam, design.Phi[i], design.Gamma[i], design.M[i], design.C, K, K_xi, delay, dt)
-        ev, vec = np.linalg.eig(loop)
-        j = int(np.argmax(np.abs(ev)))
-        rate = float(np.log(np.abs(ev[j])) / dt)
-        if rate > worst["growth_per_s"]:
-            lam, modes = np.linalg.eig(A)
-            weight = np.abs(np.linalg.lstsq(modes, vec[:len(A), j], rcond=None)[0])
-            worst = {"growth_per_s": rate, "at_time_s": float(t_k),
-                     "aliased_frequency_hz": float(abs(np.angle(ev[j])) / (2 * np.pi * dt)),
-                     "mode_frequency_hz": float(abs(lam[int(np.argmax(weight))].imag) / (2 * np.pi))}
+        worst = _growth_at(worst, loop, A, dt, t_k)
     return worst

@@ -113,3 +113,32 @@ def clean_env() -> dict:
 
 def wine_env() -> dict:
     return {**os.environ, "WINEDEBUG": "-all"}
+
+
+# -- the state fuzz harness (tests/native_host/state_fuzz.c), shared by the native and the Python kind's tests ----
+STATE_FUZZ_SANITIZE = ("-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer", "-g")
+STATE_FUZZ_CHECKS = {"serialised_bit_flips_and_lengths", "in_memory_bit_flips", "foreign_state_bytes_instance",
+                     "freed_or_null_state", "sound_state_refused", "freed_instance"}
+
+
+def run_state_fuzz(specs: list[str], folder: Path, env: dict, n_fmus: int) -> list[list[str]]:
+    """Build the harness under the sanitizers, run it on `specs` ('LIB,DIR,GUID[,BYTES]') and check that no
+    sanitizer reported, every attack of every check was refused (0 accepted) for each of the `n_fmus` FMUs, and
+    each FMU's state went to every other; the rows '<fmu> <check> <tried> <accepted>'."""
+    harness = folder / "state_fuzz"
+    subprocess.run(["gcc", "-std=c11", *STATE_FUZZ_SANITIZE, "-O1", "-I", str(FMI_HEADERS), "-o", str(harness),
+                    str(ROOT / "tests" / "native_host" / "state_fuzz.c"), "-ldl"], check=True, capture_output=True,
+                   text=True)
+    env = {**env, "UBSAN_OPTIONS": "halt_on_error=1:print_stacktrace=1"}
+    run = subprocess.run([str(harness), *specs], capture_output=True, text=True, env=env, timeout=900, cwd=folder)
+    assert "Sanitizer" not in run.stderr and "runtime error" not in run.stderr, run.stderr[-4000:]
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    rows = [line.split() for line in run.stdout.splitlines() if not line.startswith("messages")]
+    seen: dict[str, set[str]] = {}
+    for fmu, check, tried, accepted in rows:
+        assert int(tried) > 0 and int(accepted) == 0, (fmu, check, tried, accepted)
+        seen.setdefault(fmu, set()).add(check)
+    assert len(seen) == n_fmus and all(checks == STATE_FUZZ_CHECKS for checks in seen.values()), seen
+    # each FMU's state given to each of the others
+    assert sum(check == "foreign_state_bytes_instance" for _, check, _, _ in rows) == n_fmus * (n_fmus - 1)
+    return rows
