@@ -51,6 +51,7 @@ import numpy as np
 
 from . import _kernels as kern
 from .model import N_STATE, ArmModel, N
+from .substeps import substep_count
 
 #: Default substeps per millisecond of a step (every scheme; docs/model.md: accuracy).
 DEFAULT_SUBSTEPS = 2
@@ -59,8 +60,6 @@ MAX_SUBSTEPS = 256
 #: The integration schemes, in the order of the plant FMU's ``integrator`` enumeration (1, 2, 3, 4).
 INTEGRATORS = ("rodas4", "exponential", "gauss", "reference")
 DEFAULT_INTEGRATOR = "rodas4"
-#: RK4 steps per millisecond of the reference scheme, per unit of ``substeps`` (default 2: 400/ms, 2.5 µs).
-REFERENCE_STEPS_PER_SUBSTEP = 200
 #: The exponential scheme refuses to integrate past this time (s): within 2 % of the converged reference up to
 #: 3 s on the γ = 1 loop, 6 % at 4 s, 56 % at 5 s, and unbounded energy growth on the free arm (issue 24).
 EXPONENTIAL_HORIZON_S = 3.0
@@ -82,17 +81,6 @@ def check_horizon(integrator: str, t_end: float) -> None:
             f"integrator: exponential is only correct up to t = {EXPONENTIAL_HORIZON_S:g} s (its energy error grows "
             f"without bound: +56 % on the gamma = 1 loop at 5 s), asked for t = {t_end:.6g} s; use gauss "
             "(no numerical damping, bounded energy error) or reference (RK4 at 2.5 us) for longer runs")
-
-
-def substep_count(dt: float, substeps: int, integrator: str = DEFAULT_INTEGRATOR) -> int:
-    """Number of equal substeps for a step of dt seconds at `substeps` per millisecond (at least one).
-
-    A step within 1e-6 of a whole number of substeps counts as that number (no extra sliver substep from
-    round-off, e.g. dt = 0.004000000000000001). The reference scheme takes
-    :data:`REFERENCE_STEPS_PER_SUBSTEP` RK4 steps per substep.
-    """
-    per_ms = int(substeps) * (REFERENCE_STEPS_PER_SUBSTEP if integrator == "reference" else 1)
-    return max(1, math.ceil(dt / 1e-3 * per_ms - 1e-6))
 
 
 def check_integrator(integrator: str) -> str:

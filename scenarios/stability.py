@@ -61,7 +61,9 @@ DELAY_STEPS = {"gauss-seidel": 0, "jacobi": 2, "fmpy-ssp": 2}
 def stability_matrix(X: np.ndarray, integrator: str) -> np.ndarray:
     """R(X): the scheme's one-substep map of the linear system y' = (X/h) y (X = h·M), its stability function
     evaluated on a matrix. All terms are polynomials in X, so they commute and the scalar formulas carry over."""
-    from flexarm import _kernels as kern
+    from flexarm.model import numpy_kernels
+
+    kern = numpy_kernels()  # RODAS4's coefficients, without loading Numba at a run's start
 
     eye = np.eye(len(X))
     if integrator == "gauss":  # 2-stage Gauss-Legendre: the (2,2) Padé approximant of exp
@@ -87,8 +89,8 @@ def plant_zoh(A, B, dt: float, integrator: str = "exact", substeps: int = 2, exp
     """(Φ, Γ) of the linear plant over one step `dt` with the torque held: exact (``exact``, and ``exponential``,
     which is exact on linear dynamics) or the scheme's own map at its nominal substep (RODAS4's error control only
     ever shortens it)."""
-    from flexarm.integrator import substep_count
     from flexarm.lqr import zoh
+    from flexarm.substeps import substep_count
 
     if integrator in ("exact", "exponential"):
         return zoh(A, B, dt, expm=expm)
@@ -283,7 +285,7 @@ def bracket_mode_errors(integrator: str, substeps: int, damping_ratio: float = 0
     structural decay rate ζω (1/s), the decay rate the scheme adds to it (1/s, −ln|R(hλ)^n|/dt − ζω) and the
     scheme's relative frequency error on it (arg R(hλ)^n / (ω_d·dt) − 1, phase per substep unwrapped), from the
     scheme's own stability function at `substeps` per ms over a step `dt` (exponential: exact on linear modes)."""
-    from flexarm.integrator import substep_count
+    from flexarm.substeps import substep_count
 
     out = {}
     for name, f in _bracket_frequencies().items():
@@ -303,9 +305,17 @@ def bracket_mode_errors(integrator: str, substeps: int, damping_ratio: float = 0
 
 @functools.lru_cache(maxsize=1)
 def _bracket_frequencies() -> dict:
-    from .scheme_accuracy import mode_frequencies
+    """The three bracket modes' frequencies (Hz) at rest at q = (0, 90°), named as
+    :func:`scenarios.scheme_accuracy.mode_frequencies` names them, from NumPy alone (its modal analysis loads
+    Numba and scipy.linalg: about a second of a run's start)."""
+    from flexarm.model import ArmModel, N, numpy_kernels, rigid_configuration
+    from flexarm.parameters import load_parameters
 
-    return {k: v for k, v in mode_frequencies().items() if k.startswith("bracket")}
+    model = ArmModel(load_parameters(), kernels=numpy_kernels())
+    z = np.concatenate([rigid_configuration(0.0, np.pi / 2), np.zeros(N)])
+    omega_sq = -np.linalg.eigvals(model.jacobian(z)[N:, :N]).real  # at rest: θ̈ = A_θ θ, eigenvalues −ω²
+    freqs = np.sort(np.sqrt(np.maximum(omega_sq, 0.0))) / (2 * np.pi)
+    return {f"bracket mode {i + 1}": float(f) for i, f in enumerate(freqs[-3:])}
 
 
 #: (integrator, substeps per ms) of the schemes the closed-loop table (docs/scheme-accuracy.json, ``loops``) shows
@@ -355,7 +365,10 @@ def unresolved_bracket_modes(integrator: str, substeps: int, damping_ratio: floa
         lim = env[m]
         off = (abs(e["numerical_decay_per_s"]) > lim["numerical_decay_per_s"] * (1 + 1e-9) + 1e-9
                or abs(e["frequency_error"]) > lim["frequency_error"] * (1 + 1e-9) + 1e-12)
-        if off and e["structural_decay_per_s"] < injected_growth()["growth_per_s"]:
+        # ζ = 0: no structural decay, below the (positive, tested) injected growth without computing it (24 loop
+        # analyses, about a second of the run's start)
+        if off and (e["structural_decay_per_s"] == 0.0
+                    or e["structural_decay_per_s"] < injected_growth()["growth_per_s"]):
             out[m] = e
     return out
 

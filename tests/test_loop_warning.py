@@ -309,3 +309,18 @@ def test_the_lqg_check_predicts_the_run():
     early = t <= 3.0
     fitted = envelope_growth(t[early], velocity_errors(r, traj)[early], 2.2)
     assert abs(fitted / stab["growth_per_s"] - 1) < 0.2 and fitted == pytest.approx(0.88, abs=0.02), fitted
+
+
+def test_the_loop_check_at_a_runs_start_loads_neither_numba_nor_scipy_linalg():
+    """Every run checks its loop before the first step; Numba and scipy.linalg cost about a second of start-up
+    (issue 23), and the check needs NumPy only (flexarm.model.numpy_kernels, flexarm.substeps)."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom scenarios.stability import loop_stability\n"
+            "for stem in ('controller', 'controller_lqg', 'my_controller'):\n"
+            "    loop_stability({'c': f'x/{stem}.fmu'}, 'p', 'c', {}, 1e-3, 2.058)\n"
+            "print(sorted(m for m in ('numba', 'scipy.linalg') if m in sys.modules))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "[]", proc.stdout

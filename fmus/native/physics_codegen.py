@@ -24,7 +24,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from flexarm.integrator import EXPONENTIAL_HORIZON_S, REFERENCE_STEPS_PER_SUBSTEP
+from flexarm.integrator import EXPONENTIAL_HORIZON_S
 from flexarm.model import DAMPING_CONFIGURATION, ArmModel, numpy_kernels
 from flexarm.parameters import (
     JOINT2_PAIR,
@@ -35,6 +35,7 @@ from flexarm.parameters import (
     ArmParameters,
     load_parameters,
 )
+from flexarm.substeps import REFERENCE_STEPS_PER_SUBSTEP
 
 #: The resource file of the plant FMU.
 ARM_RESOURCE = "arm_parameters.txt"
