@@ -5,6 +5,7 @@ import os
 import shutil
 import sys
 import time
+from pathlib import Path
 
 import cloudpickle
 import pytest
@@ -243,3 +244,11 @@ def test_sweep_caps_are_refused_and_allow_large_passes_them(tmp_path):
         load_sweep(many_points)
     assert "[axes]" in str(err.value) and "--allow-large" in str(err.value)
     assert load_sweep(many_points, allow_large=True).n_points == n * n
+
+
+def test_the_sweep_caps_in_the_docs_are_the_code_s():
+    from scenarios.config import MAX_SAMPLES
+    from scenarios.sweep.spec import MAX_POINTS
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "sweeps.md").read_text()
+    assert f"more than {MAX_SAMPLES} samples per point or {MAX_POINTS} points need `--allow-large`" in text
