@@ -436,26 +436,15 @@ class NormOptimalIlc:
         return L, Q2 @ (np.eye(2 * n) - L @ G - self.leak_weight * np.linalg.inv(H))
 
 
-def tip_jacobian(theta, lengths=None) -> np.ndarray:
-    """∂(tip x, y)/∂θ, shape (2, 11), m/rad, at the element angles `theta`: how the 11 angles move the link-2 tip."""
-    from .model import LINK2_TIP_ELEMENT
-    from .parameters import load_parameters
-
-    th = np.asarray(theta, dtype=float)[:N]
-    ell = np.asarray(load_parameters().length if lengths is None else lengths, dtype=float)[:N].copy()
-    ell[LINK2_TIP_ELEMENT + 1:] = 0.0
-    return np.vstack([-ell * np.sin(th), ell * np.cos(th)])
-
-
 def settling_weights(trajectory, n_samples: int, settling_weight: float = 1.0,
                      tip_weight: float = 0.0) -> tuple[np.ndarray, np.ndarray | None]:
     """The error weights of :class:`NormOptimalIlc` that stress the settling: ``(time_weight, output_weight)``.
 
     The errors of the samples at and after t_f (the arm should be at rest on the end point) get the factor
     `settling_weight` on ``error_weight`` and, added, `tip_weight` (m⁻²) times JᵀJ, J the tip Jacobian at the
-    end configuration (:func:`tip_jacobian`): eᵀJᵀJe is the squared tip deviation, to first order, that the
-    measured angle errors e imply (from the sensors, as the rest of the learning). ``output_weight`` is None
-    when `tip_weight` is 0.
+    end configuration (:meth:`flexarm.model.ArmModel.tip_jacobian`): eᵀJᵀJe is the squared tip deviation, to
+    first order, that the measured angle errors e imply (from the sensors, as the rest of the learning).
+    ``output_weight`` is None when `tip_weight` is 0.
     """
     traj = as_trajectory(trajectory)
     if not (np.isfinite(settling_weight) and settling_weight >= 0):
@@ -467,7 +456,10 @@ def settling_weights(trajectory, n_samples: int, settling_weight: float = 1.0,
     w = np.where(after, float(settling_weight), 1.0)
     if not tip_weight:
         return w, None
-    J = tip_jacobian(desired_states(traj)[-1])
+    from .model import ArmModel
+    from .parameters import load_parameters
+
+    J = ArmModel(load_parameters()).tip_jacobian(desired_states(traj)[-1])
     x = np.zeros((n, N, N))
     x[after] = float(tip_weight) * J.T @ J
     return w, x

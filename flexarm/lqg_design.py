@@ -109,17 +109,6 @@ def measurement_covariance(settings: SensorSettings | None = None) -> np.ndarray
     return np.diag(half**2 / 3.0)
 
 
-def tip_jacobian(model: ArmModel, theta, h: float = 1e-7) -> np.ndarray:
-    """∂(tip x, y)/∂θ, shape (2, 11), m/rad (central differences of the exact kinematics)."""
-    theta = np.asarray(theta, dtype=float)
-    jac = np.zeros((2, N))
-    for i in range(N):
-        d = np.zeros(N)
-        d[i] = h
-        jac[:, i] = (model.tip_position(theta + d) - model.tip_position(theta - d)) / (2 * h)
-    return jac
-
-
 def rms_tip_acceleration(model: ArmModel, traj) -> float:
     """rms over the slew of the tip acceleration magnitude, m/s² (finite differences of the tip velocity)."""
     vel = np.array([model.tip_velocity(th, om) for th, om in zip(traj.theta, traj.omega)])
@@ -139,7 +128,7 @@ def force_input_matrix(model: ArmModel, z_bar) -> tuple[np.ndarray, np.ndarray]:
         ``"tip"``, ``"motor"`` or ``"element"`` per column.
     """
     theta = np.asarray(z_bar, dtype=float)[:N]
-    gen = np.hstack([tip_jacobian(model, theta).T, model.input_matrix(), np.eye(N)])
+    gen = np.hstack([model.tip_jacobian(theta).T, model.input_matrix(), np.eye(N)])
     B_d = np.zeros((N_STATE, gen.shape[1]))
     B_d[N:] = np.linalg.solve(model.mass_matrix(theta), gen)
     return B_d, ("tip",) * 2 + ("motor",) * 2 + ("element",) * N

@@ -237,6 +237,13 @@ class ArmModel:
         """Tip of link 2 (x, y), m."""
         return self.point_position(theta, LINK2_TIP_ELEMENT)
 
+    def tip_jacobian(self, theta) -> np.ndarray:
+        """∂(tip x, y)/∂θ at the element angles `theta`, shape (2, 11), m/rad: the map :meth:`tip_velocity`
+        applies to the element rates (elements past the link-2 tip do not move it)."""
+        th = _f(theta)[:N]
+        ell = np.where(np.arange(N) <= LINK2_TIP_ELEMENT, self.length[:N], 0.0)
+        return np.vstack([-ell * np.sin(th), ell * np.cos(th)])
+
     def link1_tip_position(self, theta) -> np.ndarray:
         """Tip of link 1 (x, y), m (the link-1 accelerometer)."""
         return self.point_position(theta, LINK1_TIP_ELEMENT)

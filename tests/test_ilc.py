@@ -92,7 +92,7 @@ def test_settling_weights_and_the_tip_jacobian():
     arm, h = ArmModel(load_parameters()), 1e-7
     numeric = np.array([(arm.tip_position(theta + h * d) - arm.tip_position(theta - h * d)) / (2 * h)
                         for d in np.eye(11)]).T
-    J = ilc.tip_jacobian(theta)
+    J = arm.tip_jacobian(theta)
     assert np.abs(J - numeric).max() < 1e-8
     assert np.allclose(x[-1], 100.0 * J.T @ J, rtol=1e-14, atol=0)
     assert ilc.settling_weights(traj, n)[1] is None and np.all(ilc.settling_weights(traj, n)[0] == 1.0)
