@@ -181,8 +181,13 @@ def test_the_unresolved_bracket_modes_follow_the_table():
 def test_feedforward_only_cannot_be_misrepresented_by_the_scheme():
     """Open loop: along the slew (every 100 ms, no payload and 0.275 kg) the undamped plant's own growth (a slow
     joint mode of the frozen linearisation, up to +1.98 1/s) is the same under every scheme's one-step map to 1e-5
-    1/s where it exceeds 0.01 1/s (to 1e-3 below: round-off on the near-double zero of the rigid-body modes): no
-    warning for controller_ff."""
+    1/s where it exceeds 0.01 1/s: no warning for controller_ff.
+
+    Below 0.01 1/s the rate is round-off on the defective double eigenvalue 1 of the rigid-body modes: a perturbation
+    delta of phi moves a 2x2 Jordan block's eigenvalue by about sqrt(delta * dt), i.e. a rate of about
+    sqrt(n * eps * ||phi||_1 / dt) (about 1e-3 1/s here, ||phi||_1 ~ 2e5 from the stiff bracket modes), and each
+    scheme's own rounding differs. The bound there is ten times that estimate (0.01 1/s): still only 0.1 e-fold over a
+    10 s run, 30 times below the 3-e-fold warning, so no scheme can turn it into a growth the check would report."""
     import numpy as np
 
     from flexarm.model import ArmModel, numpy_kernels
@@ -196,11 +201,12 @@ def test_feedforward_only_cannot_be_misrepresented_by_the_scheme():
         model = ArmModel(load_parameters(payload_mass=payload), kernels=kern)
         for k in range(0, traj.n_samples + 1, 100):
             A, B = model.linearize(traj.state(k))
-            rate = {}
+            rate, roundoff = {}, 0.0
             for integrator, sub in (("exact", 2), ("rodas4", 2), ("gauss", 2), ("gauss", 32), ("reference", 2)):
                 phi, _ = plant_zoh(A, B, 1e-3, integrator, sub, expm=kern.expm)
                 rate[integrator, sub] = np.log(np.abs(np.linalg.eigvals(phi)).max()) / 1e-3
-            tol = 1e-5 if rate["exact", 2] > 0.01 else 1e-3
+                roundoff = max(roundoff, np.sqrt(len(A) * np.finfo(float).eps * np.linalg.norm(phi, 1) / 1e-3))
+            tol = 1e-5 if rate["exact", 2] > 0.01 else 10 * roundoff
             assert max(abs(r - rate["exact", 2]) for r in rate.values()) < tol, (payload, k, rate)
             largest[payload] = max(largest.get(payload, -1.0), rate["exact", 2])
     assert largest[0.0] == pytest.approx(1.98, abs=0.01) and largest[0.275] == pytest.approx(1.74, abs=0.01)
