@@ -16,7 +16,7 @@ Prints, in one run:
     python -m benchmarks.bench_native [--steps N] [--repeats N]
 
 Builds what it needs into a temporary folder (the Python FMUs with build_fmus, the native ones with
-fmus.native.build_native, linux64 only). Figures on a shared machine are noisy: take the best of repeats.
+fmu_build.native_build, linux64 only). Figures on a shared machine are noisy: take the best of repeats.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from fmpy.fmi2 import FMU2Slave
 from flexarm.integrator import advance
 from flexarm.model import ArmModel
 from flexarm.trajectory import load_trajectory
-from fmus.native.build_native import build_native_fmus
+from fmu_build.native_build import build_native_fmus
 
 
 def _open(fmu: Path, folder: Path):

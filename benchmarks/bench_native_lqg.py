@@ -29,8 +29,8 @@ from fmpy.fmi2 import FMU2Slave
 
 from flexarm.lqg import lqg_controller
 from flexarm.lqg_bank import bank_controller
-from fmus.native.build_native import build_native_fmus
-from fmus.native.lqg_resources import bank_resource
+from fmu_build.native_build import build_native_fmus
+from fmu_build.native_resources import bank_resource
 
 MEASURED = ("q1_m", "q2_m", "qd1_m", "qd2_m", "eps1_m", "eps2_m", "eps3_m", "eps4_m", "eps5_m", "eps6_m")
 

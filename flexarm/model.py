@@ -46,7 +46,7 @@ def numpy_kernels():
 
     For a few evaluations in a process that has not loaded Numba (the start-up check of a run's sampled loop,
     :mod:`scenarios.stability`, costs a third of a second more with it), and for symbolic arrays (CasADi,
-    :mod:`fmus.native.physics_codegen`). Loaded once per process.
+    :mod:`fmu_build.native_codegen`). Loaded once per process.
     """
     global _NUMPY_KERNELS
     if _NUMPY_KERNELS is None:

@@ -4,7 +4,7 @@ Modules: :mod:`~fmu_build.registry` (one entry per FMU, source and output folder
 :mod:`~fmu_build.compile` (the C front end), :mod:`~fmu_build.package` (stage, build,
 finish, validate), :mod:`~fmu_build.docs` (each FMU's documentation/index.html),
 :mod:`~fmu_build.interface_doc` (the variable tables of docs/fmu-interface.md),
-:mod:`~fmu_build.native` (the native kind: up-to-date checks around fmus.native.build_native) and
+:mod:`~fmu_build.native` (the native kind: up-to-date checks around fmu_build.native_build) and
 :mod:`~fmu_build.cli` (``python -m fmu_build`` / ``python build_fmus.py``).
 
 Add an FMU: write its slave script under ``fmus/<kind>/`` (a :class:`FlexarmSlave`

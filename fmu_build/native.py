@@ -1,10 +1,11 @@
 """The native (plain C) kind of the FMUs, built beside the Python kind with up-to-date checks.
 
-The native build itself is :mod:`fmus.native.build_native` (CasADi code generation, Zig's C
+The native build itself is :mod:`fmu_build.native_build` (CasADi code generation, Zig's C
 cross-compiler); this module decides what needs building: a native FMU is rebuilt when it is
 older than its Python twin (whose interface it copies) or than any source of the native build
-(``fmus/native/**``, the ``flexarm`` package and its data, this module). The native FMUs have the
-file names of the Python ones, in their own folder (default ``build/fmus-native``).
+(``fmus/native/**``, the ``flexarm`` package and its data, this module and the build modules
+beside it). The native FMUs have the file names of the Python ones, in their own folder (default
+``build/fmus-native``).
 """
 
 from __future__ import annotations
@@ -30,9 +31,9 @@ def default_native_out_dir() -> Path:
 
 
 def _build_module():
-    """:mod:`fmus.native.build_native`, or BuildError saying what to install."""
+    """:mod:`fmu_build.native_build`, or BuildError saying what to install."""
     try:
-        from fmus.native import build_native
+        from . import native_build as build_native
     except ImportError as exc:  # fmpy or casadi missing: the message names the module
         raise BuildError(f"the native build cannot be imported: {exc}") from exc
     return build_native
@@ -56,7 +57,8 @@ def check_native_toolchain() -> None:
 def _newest_source() -> float:
     files = [p for p in NATIVE_SOURCES.rglob("*") if p.is_file() and "__pycache__" not in p.parts]
     files += [p for p in FLEXARM_DIR.rglob("*") if p.is_file() and "__pycache__" not in p.parts]
-    files.append(Path(__file__))
+    here = Path(__file__).parent  # this module and the build, code generation and resource writers beside it
+    files += [here / f for f in ("native.py", "native_build.py", "native_codegen.py", "native_resources.py")]
     return max(p.stat().st_mtime for p in files)
 
 

@@ -86,15 +86,15 @@ def known_fmu_names() -> list[str]:
 
 
 def native_fmu_names() -> list[str] | None:
-    """The FMU names that have a native build (``fmus.native.build_native.NATIVE_FMUS``); None if unknown here."""
+    """The FMU names that have a native build (``fmu_build.native_build.NATIVE_FMUS``); None if unknown here."""
     try:
-        from fmus.native.build_native import NATIVE_FMUS
+        from fmu_build.native_build import NATIVE_FMUS
     except ImportError:
         return None
     return list(NATIVE_FMUS)
 
 
-#: generationTool of a native FMU's model description (fmus/native/build_native.py) starts with this.
+#: generationTool of a native FMU's model description (fmu_build/native_build.py) starts with this.
 NATIVE_GENERATION_TOOL = "flexarm-fmi native build"
 
 

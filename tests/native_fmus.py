@@ -16,7 +16,7 @@ from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmu_harness import built_fmus
 
-from fmus.native.build_native import NATIVE_FMUS, PLATFORMS, build_native_fmus
+from fmu_build.native_build import NATIVE_FMUS, PLATFORMS, build_native_fmus
 
 ROOT = Path(__file__).resolve().parents[1]
 HOST_SOURCE = ROOT / "tests" / "native_host" / "fmi2_host.c"
@@ -51,7 +51,7 @@ def compile_host(out: Path, target: str | None = None) -> Path:
         exe = out / "fmi2_host"
         cmd = ["gcc", "-std=c11", "-O2", "-I", str(FMI_HEADERS), "-o", str(exe), str(HOST_SOURCE), "-ldl", "-lm"]
     else:
-        from fmus.native.build_native import zig_command
+        from fmu_build.native_build import zig_command
 
         exe = out / "fmi2_host.exe"
         cmd = [*zig_command(), "-target", PLATFORMS[target][0], "-O2", "-g0", "-s", "-I", str(FMI_HEADERS),

@@ -20,7 +20,7 @@ import pytest
 from fmpy import read_model_description
 from native_fmus import FMI_HEADERS, HOST_SOURCE, native_fmus, read_host_csv, unpack_alone
 
-from fmus.native.build_native import CPU_TYPES, FAT_MAGIC, MH_MAGIC_64
+from fmu_build.native_build import CPU_TYPES, FAT_MAGIC, MH_MAGIC_64
 
 N_STEPS = 300
 EXPORTS = (b"_fmi2Instantiate", b"_fmi2DoStep", b"_fmi2GetReal", b"_fmi2SetFMUstate")

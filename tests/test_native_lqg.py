@@ -195,7 +195,7 @@ def test_native_lqg_state_reset_and_errors(tmp_path):
 
 def test_native_lqg_interface_and_resources():
     """The Python FMU's variables exactly; the matrices travel as resources, written from flexarm/data/lqg."""
-    from fmus.native.lqg_resources import SCHEDULES, TRAJECTORY_RESOURCE, bank_resource, design_resource
+    from fmu_build.native_resources import SCHEDULES, TRAJECTORY_RESOURCE, bank_resource, design_resource
 
     native = native_fmus()["controller_lqg"]
     md, py_md = read_model_description(str(native)), read_model_description(str(built_fmus()["controller_lqg"]))

@@ -103,7 +103,7 @@ def test_cli_runs_table2_native_with_the_python_sets_table(tmp_path):
 def test_cli_refuses_a_name_without_a_native_build_before_anything_runs(tmp_path, monkeypatch, capsys):
     """As if controller_ff had no native build: ``run table2 compare_ff_fb --native`` exits 2 naming it, before
     table2 (which has every native FMU) runs."""
-    from fmus.native import build_native
+    from fmu_build import native_build as build_native
     from scenarios.__main__ import main
 
     monkeypatch.setattr(build_native, "NATIVE_FMUS", {k: v for k, v in build_native.NATIVE_FMUS.items()
@@ -139,7 +139,7 @@ def test_build_fmus_both_kinds_up_to_date_and_refusals(tmp_path, monkeypatch, ca
     stale.write_bytes(native["plant"].read_bytes())
     os.utime(stale, ns=(python["plant"].stat().st_mtime_ns - 10**9,) * 2)  # older than its Python twin
     assert not native_is_up_to_date(stale, python["plant"])
-    from fmus.native import build_native
+    from fmu_build import native_build as build_native
 
     with monkeypatch.context() as m:  # as if controller_ff had no native build
         m.setattr(build_native, "NATIVE_FMUS", {k: v for k, v in build_native.NATIVE_FMUS.items()

@@ -197,7 +197,7 @@ def test_simulate_ssp_runs_a_case_off_the_defaults_from_the_baked_values(table2_
 def test_export_refuses_a_case_without_a_native_fmu(tmp_path, folders, monkeypatch):
     """As if controller_ff had no native build: compare_ff_fb (whose ff cases swap it in) is refused naming it,
     and no archive is written, not even those of the cases that have every native FMU."""
-    from fmus.native import build_native
+    from fmu_build import native_build as build_native
 
     monkeypatch.setattr(build_native, "NATIVE_FMUS", {k: v for k, v in build_native.NATIVE_FMUS.items()
                                                       if k != "controller_ff"})

@@ -18,7 +18,7 @@ from pathlib import Path
 from fmpy import read_model_description
 from native_fmus import STATE_FUZZ_SANITIZE, native_fmus, run_state_fuzz, unpack_alone
 
-from fmus.native.build_native import NATIVE_FMUS
+from fmu_build.native_build import NATIVE_FMUS
 
 SANITIZE = [*STATE_FUZZ_SANITIZE, "-O1"]
 

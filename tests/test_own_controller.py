@@ -52,7 +52,7 @@ def reference_fmu() -> Path:
 
 @pytest.fixture(scope="module")
 def native_reference_fmu(reference_fmu, tmp_path_factory) -> Path:
-    from fmus.native.build_native import build_native_fmus
+    from fmu_build.native_build import build_native_fmus
 
     return build_native_fmus(tmp_path_factory.mktemp("native"), {"reference": reference_fmu}, only=["reference"],
                              platforms=("linux64",))["reference"]

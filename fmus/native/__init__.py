@@ -1,1 +1,1 @@
-"""Native (plain C) FMUs: build (build_native), generated physics and resources (physics_codegen), C sources."""
+"""Native (plain C) FMUs: C sources only (built by fmu_build.native_build, physics by fmu_build.native_codegen)."""

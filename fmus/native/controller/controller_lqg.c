@@ -21,7 +21,7 @@
  *          initialisation. A measurement at sample s < d (of the plant before t = 0) does not exist: the filter
  *          gets the desired measurement of t = 0 (zero innovation), so the start depends on no master.
  * A step of 0 samples (within 1e-9 s) does nothing. The
- * resources (lqg_resources.py): the trajectory and the designs of the three schedules, IEEE-754 bit patterns,
+ * resources (fmu_build/native_resources.py): the trajectory and the designs of the three schedules, IEEE-754 bit patterns,
  * SHA-256 checked by the glue.
  *
  * estimator = 2 (payload_bank) runs the bank of lqg_bank.c (flexarm.lqg_bank.BankController) instead of the

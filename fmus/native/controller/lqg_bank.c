@@ -12,7 +12,7 @@
  *      filter stands in for the unloaded model
  *   5. integral action: xi += dt C_q sum_f w_f x_now_f, only in a sample whose torque does not saturate
  * The drift d_j = psi(point of j) delta_acceleration_j is formed here at instantiation, as
- * flexarm.lqg_bank.drift_along_path does. Resource: lqg_bank_<schedule>.txt (fmus/native/lqg_resources.py).
+ * flexarm.lqg_bank.drift_along_path does. Resource: lqg_bank_<schedule>.txt (fmu_build/native_resources.py).
  */
 #include <math.h>
 #include <stdlib.h>

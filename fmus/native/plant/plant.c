@@ -3,7 +3,7 @@
  *
  * The physics is not written here: flexarm_physics.c is generated at build time
  * by CasADi from flexarm._kernels itself (its NumPy path evaluated on symbols,
- * fmus/native/physics_codegen.py): the mass matrix M(θ), the right-hand side
+ * fmu_build/native_codegen.py): the mass matrix M(θ), the right-hand side
  * S(θ, θ̇), the input forces B̄τ and the tangent matrices ∂(S − Mθ̈)/∂θ, ∂S/∂θ̇, all
  * from cos θ and sin θ (computed once per state here, shared by every use). This file
  * holds the numerical methods of flexarm._kernels (RODAS4 with the reduced stage system,

@@ -1,7 +1,7 @@
 /*
  * Small dense linear algebra of the native plant (n = 11, and 23 for the exponential scheme), as
  * flexarm._kernels (the n = 11 factorisation and solves of every stage are generated straight-line code
- * instead: physics_codegen.py), arranged for short dependency chains: independent elements are computed side
+ * instead: fmu_build/native_codegen.py), arranged for short dependency chains: independent elements are computed side
  * by side (the compiler may use SIMD; no reassociation, -ffp-contract=off), so every platform gives
  * the same bits. Header-only and static so that the compiler inlines the hot ones with n known.
  * Included by plant.c only.

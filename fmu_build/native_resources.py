@@ -2,7 +2,7 @@
 
 Nothing here is copied by hand: the numbers come from :func:`flexarm.lqg.lqg_controller` (trajectory,
 desired measurements as the law forms them) and :meth:`flexarm.lqg_design.LqgDesign.load` (which checks
-the design files' data chain), written as IEEE-754 bit patterns (:func:`physics_codegen.write_resource`),
+the design files' data chain), written as IEEE-754 bit patterns (:func:`fmu_build.native_codegen.write_resource`),
 exact on every platform. ``fmus/native/controller/controller_lqg.c`` reads them.
 
 * ``lqg_trajectory.txt``: ``n_steps``, ``dt`` (s), ``feedforward_torque`` ((n_steps + 1) x 2, N·m) and
@@ -34,7 +34,7 @@ from flexarm.lqg_bank import BANK_SCHEDULES, POSTERIOR_FLOOR, QUIET_RESEED_BELOW
 from flexarm.lqg_design import DEFAULT_LQG_DIR, LqgDesign
 from flexarm.provenance import sha256_file
 
-from .physics_codegen import GAIN_SETS, write_resource
+from .native_codegen import GAIN_SETS, write_resource
 
 TRAJECTORY_RESOURCE = "lqg_trajectory.txt"
 #: The schedules, in the order of the C's SCHEDULE_LABELS (schedule_period 0.2, 0.02, 0).
@@ -82,7 +82,7 @@ def write_bank_resource(path: Path, schedule: str, desired_measurements: np.ndar
                     for name in ("S_inv", "log_det_S", "psi", "delta_acceleration")})
     npz = DEFAULT_LQG_DIR / f"bank_{schedule}.npz"
     write_resource(path, entries,
-                   f"flexarm LQG payload bank {schedule} (IEEE-754 hex bit patterns), fmus/native/lqg_resources.py\n"
+                   f"flexarm LQG payload bank {schedule} (IEEE-754 hex bit patterns), fmu_build/native_resources.py\n"
                    f"source: {npz.name} sha256 {sha256_file(npz)}\n"
                    f"filters: payload masses {bank.masses.tolist()} kg, then the quiet filter; posterior floor "
                    f"{POSTERIOR_FLOOR:g}, quiet filter re-seeded below p_0 = {QUIET_RESEED_BELOW:g}")
@@ -99,7 +99,7 @@ def write_lqg_resources(directory: Path) -> list[Path]:
     write_resource(out[0], {
         "n_steps": [law.n_steps], "dt": [law.dt], "feedforward_torque": law.trajectory.tau,
         "desired_measurements": law.z @ law.design.C.T,  # the law's y_d, the same expression
-    }, "flexarm LQG controller: trajectory (IEEE-754 hex bit patterns), fmus/native/lqg_resources.py\n"
+    }, "flexarm LQG controller: trajectory (IEEE-754 hex bit patterns), fmu_build/native_resources.py\n"
        f"source: {traj_file.name} sha256 {sha256_file(traj_file)}")
     for schedule in SCHEDULES:
         design = LqgDesign.load(schedule)
@@ -107,7 +107,7 @@ def write_lqg_resources(directory: Path) -> list[Path]:
         write_resource(path, {
             "count": [len(design.times)], "times": design.times, "Phi": design.Phi, "Gamma": design.Gamma,
             "M": design.M, "C": design.C, "K": design.K, "K_integral": design.K_integral,
-        }, f"flexarm LQG design {schedule} (IEEE-754 hex bit patterns), fmus/native/lqg_resources.py\n"
+        }, f"flexarm LQG design {schedule} (IEEE-754 hex bit patterns), fmu_build/native_resources.py\n"
            f"source: lqg_{schedule}.npz sha256 {sha256_file(DEFAULT_LQG_DIR / f'lqg_{schedule}.npz')}\n"
            f"weights (gain_set 1..4): {', '.join(WEIGHT_NAMES)}")
         out.append(path)
