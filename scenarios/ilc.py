@@ -467,8 +467,29 @@ def plot_convergence(rows: list[dict], path: Path, name: str) -> Path:
     return path
 
 
+def refuse_run_options(args) -> None:
+    """ScenarioError (exit 2) for a ``run`` option an ILC scenario does not honour, naming it and why.
+
+    An ILC run learns the feedforward of its own controller FMU on its own cases and parameters, and writes what
+    it learnt under the scenario's name: running it with a user's controller, another case or a changed parameter
+    while reporting the scenario's figures would present our controller's numbers as the user's. Refused, never
+    ignored.
+    """
+    given = [(flag, value) for flag, value in (("--controller", getattr(args, "controller", None)),
+                                               ("--set", getattr(args, "sets", None)),
+                                               ("--case", getattr(args, "cases", None))) if value]
+    if given:
+        flags = ", ".join(f"{flag} {' '.join(map(str, v)) if isinstance(v, list) else v}" for flag, v in given)
+        raise ScenarioError(
+            f"run {args.scenario_name}: {flags}: an ILC scenario learns the feedforward of its own controller on "
+            "the cases and parameters of its file, so these options would not apply to what it runs and reports; "
+            "copy the scenario file, edit its [fmus], [parameters] or [ilc] learn_case / evaluate_cases, and run "
+            "that file instead")
+
+
 def cli(args) -> int:
     """``python -m scenarios run`` for an ILC scenario (called by :mod:`scenarios.__main__`)."""
+    refuse_run_options(args)
     summary = run_ilc(args.scenario_name, args.out, args.fmu_dir, args.kind, args.native_fmu_dir,
                       plots=not args.no_plots, progress=lambda s: print(s, flush=True))
     for key, ev in summary["evaluation"].items():

@@ -477,3 +477,19 @@ def test_run_all_says_it_leaves_the_ilc_scenarios_out(capsys):
     assert main(["run", "all", "--case", "no_such_case"]) != 0
     lines = [x for x in capsys.readouterr().err.splitlines() if "ILC" in x]
     assert len(lines) == 1 and "ilc_payload" in lines[0] and "ilc_lqg_jacobi" in lines[0], lines
+
+
+@pytest.mark.parametrize("options, named", [
+    (["--controller", "my/MyController.fmu"], "--controller my/MyController.fmu"),
+    (["--set", "plant.payload_mass=0.2"], "--set plant.payload_mass=0.2"),
+    (["--case", "learn"], "--case learn"),
+])
+def test_an_ilc_scenario_refuses_the_options_it_would_not_honour(tmp_path, capsys, options, named):
+    """`--controller`, `--set` and `--case` on an ILC scenario: exit 2 with a sentence naming the option and why, before
+    anything runs or is written; never our controller's figures under the user's name (issue 32 item 6)."""
+    from scenarios.__main__ import EXIT_REFUSED, main
+
+    code = main(["run", "ilc_payload", "--out", str(tmp_path / "out"), "--quiet", "--no-plots", *options])
+    err = capsys.readouterr().err
+    assert code == EXIT_REFUSED == 2 and named in err and "learns the feedforward of its own controller" in err, err
+    assert not (tmp_path / "out").exists()
