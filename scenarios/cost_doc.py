@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 
-from .results_page import _MARKED, REPO, PageRuns, block, splice_blocks
+from .page_blocks import _MARKED, REPO, PageRuns, block, splice_blocks
 
 COST_JSON = REPO / "docs" / "plant-step-cost.json"
 DOC = REPO / "docs" / "model.md"

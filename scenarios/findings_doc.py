@@ -1,6 +1,6 @@
 """The generated blocks of docs/findings.md (issue 24 item 4): every figure there comes from a run.
 
-Registered with :func:`scenarios.results_page.block`, so ``python -m scenarios results-page`` writes them and
+Registered with :func:`scenarios.page_blocks.block`, so ``python -m scenarios results-page`` writes them and
 ``--check`` (CI) fails when one differs. Their figures come from three places, none typed by hand:
 
 * the results page's own fresh runs (Tables 1-3, eq. 32, the schedule comparison: RODAS4, ζ = 0);
@@ -25,7 +25,7 @@ from flexarm.provenance import sha256_file
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
 
 from .metrics import METRICS
-from .results_page import REPO, PageRuns, ResultsPageError, _m, _paper, block
+from .page_blocks import REPO, PageRuns, ResultsPageError, _m, _paper, block
 
 FINDINGS_DATA = REPO / "docs" / "findings-data.json"
 SCHEME_ACCURACY = REPO / "docs" / "scheme-accuracy.json"

@@ -78,3 +78,21 @@ def saturation_warnings(tau, limits, fraction: float = SATURATION_WARN_FRACTION)
             out.append(f"torque saturation: tau{j + 1} at or beyond its motor's limit ({limits[j]:g} N·m) on {k} "
                        f"of {n} samples ({100.0 * k / n:.1f} % > {100.0 * fraction:g} %): figures of a saturated loop")
     return out
+
+
+def velocity_errors(result, traj) -> np.ndarray:
+    """The 11 element rates' errors of a run against the trajectory, deg/s, shape (n, 11).
+
+    Parameters
+    ----------
+    result : CaseResult
+        A run that recorded ``plant.omega1`` .. ``plant.omega11`` (rad/s) at 1 ms samples from t = 0.
+    traj : Trajectory
+        The desired slew; past its end the desired rates are zero (the arm holds the end point).
+    """
+    s = result.series
+    omega = np.column_stack([s[f"plant.omega{i}"] for i in range(1, 12)])
+    n = len(omega)
+    idx = np.minimum(np.arange(n), traj.n_samples)
+    desired = traj.omega[idx] * (np.arange(n) < traj.n_samples + 1)[:, None]
+    return np.degrees(omega - desired)

@@ -32,7 +32,7 @@ from flexarm.parameters import DEFAULT_PARAMETER_FILE
 from flexarm.provenance import git_commit, refuse_outside_checkout, sha256_file, write_atomic
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
 from scenarios.config import SCENARIO_DIR, load_scenario
-from scenarios.metrics import METRICS
+from scenarios.metrics import METRICS, velocity_errors
 from scenarios.runner import run_scenario
 
 REPO = Path(__file__).resolve().parent.parent
@@ -107,15 +107,6 @@ def envelope_growth(time_s, vel_err_deg_s, start=0.5) -> float:
     if len(mids) < 3:
         return float("nan")
     return float(np.polyfit(mids, np.log(peaks), 1)[0])
-
-
-def velocity_errors(result, traj) -> np.ndarray:
-    s = result.series
-    omega = np.column_stack([s[f"plant.omega{i}"] for i in range(1, 12)])
-    n = len(omega)
-    idx = np.minimum(np.arange(n), traj.n_samples)
-    desired = traj.omega[idx] * (np.arange(n) < traj.n_samples + 1)[:, None]
-    return np.degrees(omega - desired)
 
 
 def variant(scenario, scheme: str, ratio: float, samples=None, name=None):

@@ -238,7 +238,7 @@ def _variant(scenario, integrator: str, substeps: int, samples=None, step_s=None
 
 def _velocity_error_peaks(result, marks) -> dict:
     from flexarm.trajectory import load_trajectory
-    from scenarios.reexamine import velocity_errors
+    from scenarios.metrics import velocity_errors
 
     err = np.max(np.abs(velocity_errors(result, load_trajectory())), axis=1)
     t = result.series["time"]

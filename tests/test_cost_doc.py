@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from scenarios.cost_doc import COST_JSON, DOC, render
-from scenarios.results_page import _MARKED
+from scenarios.page_blocks import _MARKED
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
