@@ -9,13 +9,12 @@ import pytest
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
-from fmu_harness import Slave
+from fmu_harness import Slave, built_fmus
 
 from flexarm.control import TrackingController, tracking_errors
 from flexarm.lqr import DEFAULT_GAIN_DIR, GainSchedule, as_trajectory, default_trajectory_path, desired_states
 from flexarm.model import N, joint_angles, joint_velocities, strain_gauge_angles
 from flexarm.sensors import MEASURED_SIGNAL_NAMES
-from fmu_build import build_all
 from scenarios.values import parse_choices
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -31,8 +30,8 @@ pytestmark = pytest.mark.skipif(
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory) -> dict[str, Path]:
-    return build_all(tmp_path_factory.mktemp("fmus"), only=[*CONTROLLERS, "plant", "sensors"], force=True)
+def fmus() -> dict[str, Path]:
+    return built_fmus()  # the test process's one build of every FMU (tests/fmu_harness.py)
 
 
 @pytest.fixture(scope="module")

@@ -13,14 +13,13 @@ import pytest
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
-from fmu_harness import Slave
+from fmu_harness import Slave, built_fmus
 
 from flexarm import ArmModel, joint_angles, joint_velocities, rigid_configuration, strain_gauge_angles
 from flexarm.integrator import DEFAULT_SUBSTEPS, simulate
 from flexarm.model import N
 from flexarm.modes import modal_analysis
 from flexarm.parameters import load_parameters
-from fmu_build import build_all
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,8 +27,8 @@ DT = 1e-3
 
 
 @pytest.fixture(scope="module")
-def fmu_path(tmp_path_factory) -> Path:
-    return build_all(tmp_path_factory.mktemp("fmus"), only="plant", force=True)["plant"]
+def fmu_path() -> Path:
+    return built_fmus()["plant"]  # the test process's one build of every FMU (tests/fmu_harness.py)
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from fmpy.fmi2 import (
     FMU2Slave,
 )
 from fmpy.validation import validate_fmu
-from fmu_harness import Slave
+from fmu_harness import Slave, built_fmus
 
 from flexarm.sensors import (
     MEASURED_SIGNAL_NAMES,
@@ -21,7 +21,6 @@ from flexarm.sensors import (
     SensorBank,
     SensorSettings,
 )
-from fmu_build import build_all
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,8 +33,8 @@ ALL_OFF = dict(noise_enabled=False, strain_gauge_filter=False, accelerometer_fil
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory) -> dict[str, Path]:
-    return build_all(tmp_path_factory.mktemp("fmus"), only=["sensors", "plant"], force=True)
+def fmus() -> dict[str, Path]:
+    return built_fmus()  # the test process's one build of every FMU (tests/fmu_harness.py)
 
 
 @pytest.fixture(scope="module")
