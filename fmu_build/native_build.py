@@ -37,6 +37,7 @@ from pathlib import Path
 
 import fmpy
 
+from .progress import say
 from .registry import SOURCES
 
 #: The native FMUs' C sources (the installed ``fmus/native`` folder; the code that builds them lives here).
@@ -463,10 +464,12 @@ def build_native_fmu(name: str, python_fmu: Path, out_dir: Path, platforms=tuple
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=f"flexarm-native-{name}-") as tmp:
         staging = Path(tmp) / "fmu"
+        say(f"native {name}.fmu: generating its C sources and resources")
         model_identifier, guid, sources = _stage_sources(name, staging, Path(python_fmu))
         (staging / "modelDescription.xml").write_bytes(_model_description(
             interface_description(_read_description(Path(python_fmu))), model_identifier, guid, sources))
-        for platform in platforms:
+        for platform in platforms:  # a line per step: the first build of Zig's C libraries takes minutes, silently
+            say(f"native {name}.fmu: compiling for {platform}")
             compile_binary(staging / "sources", model_identifier, platform, staging)
         tmp_fmu = Path(tmp) / f"{name}.fmu"
         with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
