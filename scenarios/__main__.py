@@ -10,6 +10,7 @@ disk full); 130 interrupted (Ctrl-C; nothing recorded as a result); 143 terminat
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import sys
@@ -27,9 +28,10 @@ from .config import (
     parse_assignment,
     select_cases,
 )
+from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S
 from .master import CoSimulationError
 from .outdir import OutputError, describe_os_error
-from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, check_kind, format_table, run_scenario
+from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, ISOLATE, check_kind, format_table, run_scenario
 
 EXIT_OK, EXIT_ERROR, EXIT_REFUSED, EXIT_OUTPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader left
@@ -103,6 +105,7 @@ def main(argv=None) -> int:
     run.add_argument("--allow-large", action="store_true",
                      help=f"run past the caps of {MAX_SAMPLES} communication steps per case and {MAX_CASES} cases "
                           "per scenario (each case's record is kept in memory)")
+    _isolation_options(run)
     sweep = sub.add_parser("sweep", help="run a sweep / Monte Carlo on Dask: a name in scenarios/sweeps/ or a file")
     sweep.add_argument("sweep", help="a sweep name in scenarios/sweeps/ (robustness, schedule) or a sweep file")
     sweep.add_argument("--out", type=Path, default=DEFAULT_OUT / "sweeps",
@@ -118,6 +121,7 @@ def main(argv=None) -> int:
     sweep.add_argument("--allow-large", action="store_true",
                        help=f"run past the caps of {MAX_SAMPLES} samples per point and of the points per sweep "
                             "(each point's record is kept in memory)")
+    _isolation_options(sweep)
     ssp = sub.add_parser("export-ssp", help="write a scenario's cases as SSP 1.0 packages (one .ssp per case)")
     ssp.add_argument("scenario", help="a shipped scenario (see: python -m scenarios list) or a path to a scenario file")
     ssp.add_argument("--out", type=Path, default=Path("build") / "ssp",
@@ -132,6 +136,10 @@ def main(argv=None) -> int:
     _reserve_stdio()
     args = ap.parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
+    # A process started in the background by a non-interactive shell (`cmd &` in a script, CI) inherits SIGINT
+    # ignored, and Python then installs no KeyboardInterrupt: a sweep waiting on Dask ran on through a Ctrl-C and
+    # exited 0. A Ctrl-C (SIGINT) means the same here however the process was started.
+    previous_int = signal.signal(signal.SIGINT, signal.default_int_handler) if _main_thread() else None
     try:
         return _dispatch(args)
     except KeyboardInterrupt:
@@ -158,6 +166,8 @@ def main(argv=None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+        if previous_int is not None:
+            signal.signal(signal.SIGINT, previous_int)
 
 
 def _kind_options(parser) -> None:
@@ -169,6 +179,28 @@ def _kind_options(parser) -> None:
                       help="use the Python FMUs, whatever the scenario's kind says")
     parser.add_argument("--native-fmu-dir", type=Path, default=DEFAULT_NATIVE_FMU_DIR,
                         help="where built native FMUs live (their Python twins live in --fmu-dir)")
+
+
+def _isolation_options(parser) -> None:
+    """--isolate and --step-timeout: which FMUs run in a process of their own, and how long a call may take."""
+    parser.add_argument("--isolate", choices=ISOLATE, default="foreign",
+                        help="run these FMUs each in a process of their own, where a crash, a hang or an exit ends "
+                             "only its case (as error): foreign (default: those given as a .fmu path) or all; the "
+                             "others run in this process, at full speed")
+    parser.add_argument("--step-timeout", type=_seconds, default=DEFAULT_STEP_TIMEOUT_S, metavar="SECONDS",
+                        help="the longest one call of an FMU in its own process may take before the process is "
+                             f"killed and the case ends as error (default {DEFAULT_STEP_TIMEOUT_S:g} s, above the "
+                             "Python plant's first step, which compiles its kernels)")
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"a number of seconds > 0, got {text!r}")
+    return value
 
 
 def _main_thread() -> bool:
@@ -234,7 +266,7 @@ def _dispatch(args) -> int:
     for sc, kind in zip(scenarios, kinds):
         results = run_scenario(sc, args.out, args.fmu_dir, controller, progress=progress,
                                plots=not args.no_plots, kind=kind, native_fmu_dir=args.native_fmu_dir,
-                               overrides=overrides)
+                               overrides=overrides, isolate=args.isolate, step_timeout=args.step_timeout)
         written.append(args.out / sc.name)
         lines = [f"\n== {sc.name}: {sc.description} [{kind} FMUs]",
                  format_table(results, paper.get(sc.paper_table) if sc.paper_table else None)]

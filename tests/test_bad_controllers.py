@@ -1,0 +1,187 @@
+"""Issue 35: a controller that is not ours raises, hangs or exits; the master survives it, says so and goes on.
+
+The bad controllers (tests/bad_controllers.py) are small pythonfmu FMUs built here, run through the command
+line as a user would (``--controller X.fmu``). They run in a process of their own (scenarios/fmu_proxy.py):
+each case they break ends ``error`` with exit code 1, naming the FMU, the FMI call, the time and the status.
+Every subprocess has a generous timeout: a hang guard only, never a measure of speed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from bad_controllers import build_bad_controller
+from fmu_harness import built_fmus
+
+from scenarios import runner
+from scenarios.config import SCENARIO_DIR, load_scenario
+from scenarios.master import Master
+
+#: Hang guard for one command: far above a run's minute on a loaded machine, far below a hang's forever.
+GUARD_S = 600
+
+
+@pytest.fixture(scope="module")
+def bad(tmp_path_factory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("bad")
+    return {kind: build_bad_controller(kind, folder) for kind in ("raise", "hang", "exit")}
+
+
+@pytest.fixture(scope="module")
+def fmu_dir() -> Path:
+    return next(iter(built_fmus().values())).parent  # the FMUs this test process built
+
+
+def run_cli(args: list[str], fmu_dir: Path, **kwargs) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "scenarios", *args, "--fmu-dir", str(fmu_dir)],
+                          capture_output=True, text=True, timeout=GUARD_S, **kwargs)
+
+
+def case_json(out: Path, key: str = "none") -> dict:
+    return json.loads((out / "table2" / f"{key}.json").read_text())
+
+
+@pytest.mark.parametrize("kind, status, says", [
+    ("raise", "fatal", "fmi2DoStep returned fatal"),  # pythonfmu returns fmi2Fatal for an exception in do_step
+    ("exit", "crashed", "fmi2DoStep did not return: its process ended with exit code 7"),
+])
+def test_a_raising_or_exiting_controller_ends_its_case_with_exit_1_naming_it(tmp_path, bad, fmu_dir, kind, status,
+                                                                              says):
+    out = tmp_path / "out"
+    res = run_cli(["run", "table2", "--case", "none", "--controller", str(bad[kind]), "--out", str(out),
+                   "--no-plots", "--quiet"], fmu_dir)
+    assert res.returncode == 1, res.stderr  # never the FMU's own exit code (7), never a crash (139)
+    assert "Traceback" not in res.stderr
+    line = next(x for x in res.stdout.splitlines() if x.strip().startswith("none: error"))
+    assert "t = 1.000 s" in line and "controller" in line and says in line
+    o = case_json(out)["outcome"]
+    assert (o["status"], o["fmu"], o["function"], o["fmu_status"]) == ("error", "controller", "fmi2DoStep", status)
+    if kind == "raise":
+        assert "a bug in the controller" in o["fmu_message"]  # the FMU's own logged message
+
+
+def test_a_hanging_controller_ends_its_case_after_the_step_timeout(tmp_path, bad, fmu_dir):
+    out = tmp_path / "out"
+    res = run_cli(["run", "table2", "--case", "none", "--case", "noise", "--controller", str(bad["hang"]),
+                   "--out", str(out), "--no-plots", "--quiet", "--step-timeout", "2"], fmu_dir)
+    assert res.returncode == 1, res.stderr
+    for key in ("none", "noise"):  # the first case's hang does not keep the second from running (and failing)
+        o = case_json(out, key)["outcome"]
+        assert (o["fmu"], o["function"], o["fmu_status"]) == ("controller", "fmi2DoStep", "timeout")
+        assert "did not return within 2 s" in o["message"] and "t = 1.000 s" in o["message"]
+
+
+def _alive(pid: int) -> bool:
+    """Whether process `pid` runs (a zombie, dead but not yet reaped, does not)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+
+
+def _children(pid: int) -> list[int]:
+    tasks = Path(f"/proc/{pid}/task")
+    return [int(c) for t in tasks.iterdir() for c in (t / "children").read_text().split()] if tasks.is_dir() else []
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_signal_during_the_hang_ends_the_run_with_its_code(tmp_path, bad, fmu_dir, sig, code):
+    """fail_at = 0: the controller hangs in the probe's first step, inside an FMU call, with no step timeout near."""
+    proc = subprocess.Popen([sys.executable, "-m", "scenarios", "run", "table2", "--case", "none", "--controller",
+                             str(bad["hang"]), "--set", "controller.fail_at=0", "--out", str(tmp_path / "out"),
+                             "--no-plots", "--quiet", "--step-timeout", "3000", "--fmu-dir", str(fmu_dir)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        t0 = time.monotonic()
+        while not _children(proc.pid):  # the controller's own process: loaded, then hanging in the probe
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() - t0 < GUARD_S, "the controller's process never started"
+            time.sleep(0.05)
+        child = _children(proc.pid)[0]
+        time.sleep(3.0)  # into the hang: load and instantiate take well under this (and a signal before is fine too)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=120)  # hang guard: without the fix it waits for 3000 s
+    finally:
+        proc.kill()
+    assert proc.returncode == code, err
+    assert "Traceback" not in err
+    assert not _alive(child)  # the hung controller's process went with the run
+    assert not (tmp_path / "out" / "table2").exists()  # nothing of the interrupted run is recorded
+
+
+def test_a_sweep_point_with_a_hanging_controller_is_recorded_as_failed_and_the_sweep_goes_on(tmp_path, bad,
+                                                                                          fmu_dir):
+    scenario = (SCENARIO_DIR / "table2.toml").read_text().replace('name = "table2"', 'name = "swap"')
+    start = scenario.index("[parameters.controller]")  # our controllers' gains: the swapped-in ones have none
+    (tmp_path / "swap.toml").write_text(scenario[:start] + scenario[scenario.index("[[cases]]"):])
+    sweep = tmp_path / "three.toml"
+    sweep.write_text("[sweep]\nname = 'three'\nscenario = 'swap.toml'\ncase = 'none'\nsamples = 1500\n"
+                     f"[axes]\nfmus.controller = ['controller', '{bad['hang']}', 'controller_ff']\n")
+    res = run_cli(["sweep", str(sweep), "--serial", "--quiet", "--no-plots", "--out", str(tmp_path / "out"),
+                   "--step-timeout", "2"], fmu_dir)
+    assert res.returncode == 1, res.stderr
+    records = [json.loads(x) for x in (tmp_path / "out" / "three" / "journal.jsonl").read_text().splitlines()]
+    assert len(records) == 3 and sorted(r["status"] for r in records) == ["error", "ok", "ok"], records
+    failed = next(r for r in records if r["status"] == "error")
+    assert (failed["outcome"]["fmu"], failed["outcome"]["fmu_status"]) == ("controller", "timeout")
+    assert "t = 1.000 s" in failed["message"]
+
+
+def test_after_fmi2fatal_nothing_more_is_called_and_the_next_run_starts_afresh(bad):
+    """FMI 2.0: after fmi2Fatal no function of the FMU may be called; the next run gets a new process."""
+    with Master({"c": bad["raise"]}, ["c"], [], isolate=["c"], step_timeout=60) as m:
+        first = m.run({"c": {"fail_at": 0.002}}, [("c", "tau1")], 5)
+        process = m.units["c"].slave
+        second = m.run({"c": {"fail_at": 1.0}}, [("c", "tau1")], 5)
+        assert m.units["c"].slave is not process and process.gone == "not called after fatal"
+    assert (first["outcome"].fmu_status, first["steps_done"]) == ("fatal", 2)
+    assert second["status"] == "ok" and second["steps_done"] == 5
+
+
+def test_isolated_fmus_give_the_same_numbers_as_in_process(fmu_dir):
+    """Values cross the process boundary as IEEE doubles: Table 2's closed loop, bit for bit the same run."""
+    setup = runner.prepare(load_scenario("table2"), fmu_dir, build=False)
+    params = setup.case_parameters({"sensors": {"noise_enabled": True}})
+    runs = []
+    for isolate in ([], list(setup.paths)):
+        setup.isolate = isolate
+        with setup.open_master() as m:
+            runs.append(m.run(params, setup.record, 300))
+    assert runs[0]["status"] == runs[1]["status"] == "ok"
+    for name in runs[0]["signals"]:
+        assert runs[0]["signals"][name].tobytes() == runs[1]["signals"][name].tobytes(), name
+
+
+def test_a_step_timeout_that_is_no_number_of_seconds_is_refused(tmp_path, fmu_dir):
+    for bad_value in ("0", "-1", "nan", "inf", "soon"):
+        res = run_cli(["run", "table2", "--step-timeout", bad_value, "--out", str(tmp_path)], fmu_dir)
+        assert res.returncode == 2 and "--step-timeout: a number of seconds > 0" in res.stderr
+
+
+def test_children_stop_when_the_master_is_killed(tmp_path, bad):
+    """A hung FMU's process does not outlive a master killed outright (SIGKILL): it dies with its parent."""
+    code = ("import sys; from pathlib import Path; from scenarios.master import Master\n"
+            f"m = Master({{'c': Path({str(bad['hang'])!r})}}, ['c'], [], isolate=['c'])\n"
+            "print('loaded', flush=True)\n"
+            "m.run({'c': {'fail_at': 0.0}}, [('c', 'tau1')], 3)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    try:
+        assert proc.stdout.readline().strip() == "loaded"
+        child = _children(proc.pid)[0]
+        time.sleep(1.0)
+        proc.kill()
+        proc.wait(timeout=60)
+        t0 = time.monotonic()
+        while _alive(child) and time.monotonic() - t0 < 60:
+            time.sleep(0.05)
+    finally:
+        proc.kill()
+    assert not _alive(child)
