@@ -185,3 +185,42 @@ def test_children_stop_when_the_master_is_killed(tmp_path, bad):
     finally:
         proc.kill()
     assert not _alive(child)
+
+
+def test_a_folder_named_fmus_in_the_current_directory_hides_nothing(tmp_path):
+    """``python -m`` puts the current directory first; with an editable install (its finder after the path) a
+    user's ``fmus/`` folder (no __init__.py) became our ``fmus`` package: a TypeError in fmu_build/registry.py."""
+    root = Path(__file__).resolve().parents[1]
+    (tmp_path / "fmus").mkdir()
+    (tmp_path / "fmus" / "TheirController.fmu").write_bytes(b"")
+    code = f"""
+import importlib.machinery, os, runpy, sys
+class Editable:  # what `pip install -e` adds: this checkout's packages, found after sys.path
+    @classmethod
+    def find_spec(cls, name, path=None, target=None):
+        if name in ("flexarm", "fmus", "fmu_build", "scenarios"):
+            return importlib.machinery.PathFinder.find_spec(name, [{str(root)!r}])
+        return None
+sys.meta_path.insert(sys.meta_path.index(importlib.machinery.PathFinder) + 1, Editable)
+sys.path.insert(0, os.getcwd())
+sys.argv = ["scenarios", "run", "table2", "--controller", "controller_xyz", "--out", "out"]
+runpy.run_module("scenarios", run_name="__main__", alter_sys=True)
+"""
+    res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=GUARD_S,
+                         env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"})
+    assert "Traceback" not in res.stderr and res.returncode == 2, res.stderr
+    assert "an FMU name of this project" in res.stderr  # it got as far as our fmu_build's list of names
+
+
+def test_a_zip_without_a_model_description_is_refused_in_one_plain_sentence(tmp_path, capsys):
+    import zipfile
+
+    from scenarios.__main__ import main
+
+    fmu = tmp_path / "empty.fmu"
+    with zipfile.ZipFile(fmu, "w") as z:
+        z.writestr("binaries/linux64/readme.txt", "no model description here")
+    code = main(["run", "table2", "--controller", str(fmu), "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert err == f"error: fmus.controller: {fmu}: not an FMU (a zip archive without modelDescription.xml)"
