@@ -224,3 +224,29 @@ def test_a_zip_without_a_model_description_is_refused_in_one_plain_sentence(tmp_
     err = capsys.readouterr().err.strip()
     assert code == 2
     assert err == f"error: fmus.controller: {fmu}: not an FMU (a zip archive without modelDescription.xml)"
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_signal_ends_the_run_even_inside_an_fmu_call_in_this_process_that_never_returns(tmp_path, bad, sig, code):
+    """An FMU in the master's own process hangs (here the hanging controller, not isolated): the signal cannot
+    be acted on between steps, so the watchdog ends the process after its grace period, with the signal's code,
+    and removes the unpacked FMUs."""
+    unpack = tmp_path / "unpack"
+    script = ("import signal, sys; from pathlib import Path; from scenarios.master import Master\n"
+              "signal.signal(signal.SIGTERM, lambda *a: sys.exit(143))  # as python -m scenarios does\n"
+              f"m = Master({{'c': Path({str(bad['hang'])!r})}}, ['c'], [])\n"
+              "print('loaded', flush=True)\n"
+              "m.run({'c': {'fail_at': 0.0}}, [('c', 'tau1')], 3)\n")
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]),
+                                 "FLEXARM_UNPACK_DIR": str(unpack)})
+    try:
+        assert proc.stdout.readline().strip() == "loaded"
+        time.sleep(1.0)  # into the hang (a signal before it would end the run all the same)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=120)  # hang guard: without the watchdog it never ends
+    finally:
+        proc.kill()
+    assert proc.returncode == code, err
+    assert "did not return within" in err and "Traceback" not in err
+    assert list((unpack / "flexarm-fmus").iterdir()) == []
