@@ -2,9 +2,11 @@
 results-page``.
 
 Exit codes (docs/outcomes.md): 0 every case or point finished, ok or unbounded (both are results);
-1 some case or point ended with an FMU error (recorded as such); 2 refused before anything ran (bad
-input, named field and allowed values); 3 the results folder cannot be used or written (busy, permission,
-disk full); 130 interrupted (Ctrl-C; nothing recorded as a result); 143 terminated (SIGTERM).
+1 some case or point ended with an FMU error (recorded as such; a crash, exit or hang of an FMU in a process
+of its own too); 2 refused before anything ran (bad input, named field and allowed values); 3 the results
+folder cannot be used or written (busy, permission, disk full); 4 results written, standard output
+unwritable; 130 interrupted (Ctrl-C; nothing recorded as a result); 141 standard output's reader left;
+143 terminated (SIGTERM).
 """
 
 from __future__ import annotations
@@ -80,7 +82,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m scenarios", description="Run the paper's experiments on our FMUs.",
                                  epilog="Exit codes: 0 ok or unbounded, 1 FMU error in a case, 2 refused input, "
                                         "3 results folder unusable, 4 results written but standard output "
-                                        "unwritable, 130 interrupted (see docs/outcomes.md).")
+                                        "unwritable, 130 interrupted, 141 reader of standard output left, "
+                                        "143 terminated (see docs/outcomes.md).")
     sub = ap.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list the shipped scenarios")
     run = sub.add_parser("run", help="run scenarios: shipped names (see list), all, or scenario files")
