@@ -635,6 +635,9 @@ class Master:
                             raise unit.error("fmi2DoStep", st)
                     if progress is not None and ((k + 1) % every_pct == 0 or k + 1 == n):
                         progress(k + 1, n)
+                for unit in self.units.values():  # an isolated FMU's fmi2SetReal status comes with its next call
+                    if unit.isolated and unit.slave is not None:
+                        unit.slave.sync()
             except FMUError as exc:
                 data[gathered + 1:] = np.nan  # a partly gathered row is no sample
                 outcome = Outcome.from_error(exc, f"step {k} (t = {time[k]:.3f} s)")

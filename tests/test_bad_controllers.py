@@ -250,3 +250,17 @@ def test_a_signal_ends_the_run_even_inside_an_fmu_call_in_this_process_that_neve
     assert proc.returncode == code, err
     assert "did not return within" in err and "Traceback" not in err
     assert list((unpack / "flexarm-fmus").iterdir()) == []
+
+
+def test_an_isolated_fmus_error_status_reads_as_in_process_and_it_is_reset_for_the_next_run(fmu_dir):
+    """fmi2Error from an FMU in its own process: the same outcome, FMU message included; then fmi2Reset (FMI
+    2.0.5 allows it after fmi2Error, fmi2Terminate it does not) and the next run is ok."""
+    setup = runner.prepare(load_scenario("table2"), fmu_dir, build=False)
+    setup.isolate = ["sensors", "controller"]  # the sensors refuse the step; the controller's sets are pipelined
+    with setup.open_master() as m:
+        bad = m.run(setup.case_parameters({"sensors": {"sample_period": 0.0015}}), setup.record, 50)
+        good = m.run(setup.case_parameters({}), setup.record, 50)
+    o = bad["outcome"]
+    assert (o.status, o.fmu, o.function, o.fmu_status) == ("error", "sensors", "fmi2DoStep", "error")
+    assert "sample_period" in o.fmu_message and o.fmu_message in bad["message"]
+    assert good["status"] == "ok" and good["steps_done"] == 50
