@@ -30,7 +30,7 @@ from .config import (
     parse_assignment,
     select_cases,
 )
-from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S
+from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S, START_TIMEOUT_S
 from .master import CoSimulationError
 from .outdir import OutputError, describe_os_error
 from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, ISOLATE, check_kind, format_table, run_scenario
@@ -191,9 +191,9 @@ def _isolation_options(parser) -> None:
                              "only its case (as error): foreign (default: those given as a .fmu path) or all; the "
                              "others run in this process, at full speed")
     parser.add_argument("--step-timeout", type=_seconds, default=DEFAULT_STEP_TIMEOUT_S, metavar="SECONDS",
-                        help="the longest one call of an FMU in its own process may take before the process is "
-                             f"killed and the case ends as error (default {DEFAULT_STEP_TIMEOUT_S:g} s, above the "
-                             "Python plant's first step, which compiles its kernels)")
+                        help="the longest one communication step of an FMU in its own process may take before the "
+                             f"process is killed and the case ends as error (default {DEFAULT_STEP_TIMEOUT_S:g} s; "
+                             f"loading, initialising and a run's first step get at least {START_TIMEOUT_S:g} s)")
 
 
 def _seconds(text: str) -> float:

@@ -29,14 +29,15 @@ import time
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 
-#: The longest a call may take before its FMU's process is killed, s, unless the run says otherwise
-#: (``--step-timeout``): longer than any step of ours, including the Python plant's first, which compiles its
-#: Numba kernels (about 20 s on an idle machine, several times that on a loaded one).
-DEFAULT_STEP_TIMEOUT_S = 300.0
+#: The longest a communication step (and a get or set) may take before its FMU's process is killed, s, unless
+#: the run says otherwise (``--step-timeout``): a step of a 1 ms loop takes milliseconds, so this is a hang.
+DEFAULT_STEP_TIMEOUT_S = 60.0
+#: ... and the longest for what FMUs do lazily: loading, instantiating, initialising, resetting, freeing, and
+#: the first step of a run (the Python plant compiles its Numba kernels there: about 20 s on an idle machine,
+#: several times that on a loaded one), s, or the step timeout if longer.
+START_TIMEOUT_S = 300.0
 #: How often a wait for a reply looks for a pending signal, s (Ctrl-C and SIGTERM act within this).
 _POLL_S = 0.05
-#: The child's own start (Python, fmpy) and the FMU's loading are bounded by this or the step timeout.
-_START_TIMEOUT_S = 120.0
 
 
 class _Status(Exception):
@@ -71,6 +72,8 @@ class RemoteSlave:
                  on_log: Callable[[int, str], None], failure: Callable[[str, str, str], Exception],
                  should_stop: Callable[[], bool]):
         self.timeout, self.on_log, self.failure, self.should_stop = float(timeout), on_log, failure, should_stop
+        self.slow = max(self.timeout, START_TIMEOUT_S)  # the bound of lazy work (START_TIMEOUT_S)
+        self._stepped = False  # a step since (re)start: the first one may be slow
         self.name = instance_name
         self.gone: str | None = None  # why the process is no more (then every call fails with it)
         ours, theirs = socket.socketpair()
@@ -89,18 +92,20 @@ class RemoteSlave:
         self._vrs: dict[int, tuple] = {}
         self._unanswered: list[str] = []  # calls sent without waiting for their reply (fmi2SetReal)
         self._call("fmi2Instantiate (loading the FMU in its own process)",
-                   ("load", unzipdir, guid, model_identifier, instance_name), max(self.timeout, _START_TIMEOUT_S))
+                   ("load", unzipdir, guid, model_identifier, instance_name), self.slow)
 
     # ---------------------------------------------------------------- what _Unit calls on an FMU2Slave
 
     def instantiate(self, callbacks=None, loggingOn: bool = True) -> None:  # noqa: N803 - fmpy's names
-        self._call("fmi2Instantiate", ("method", "instantiate", (), {"loggingOn": loggingOn}))
+        self._lazy("fmi2Instantiate", ("method", "instantiate", (), {"loggingOn": loggingOn}))
 
     def __getattr__(self, name: str):
         if name in ("setupExperiment", "enterInitializationMode", "exitInitializationMode", "reset", "terminate",
                     "freeInstance", "setReal", "setInteger", "setBoolean", "setString"):
             function = "fmi2" + name[0].upper() + name[1:]
-            return lambda *args, **kwargs: self._call(function, ("method", name, args, kwargs))
+            if name in ("setReal", "setInteger", "setBoolean", "setString"):
+                return lambda *args, **kwargs: self._call(function, ("method", name, args, kwargs))
+            return lambda *args, **kwargs: self._lazy(function, ("method", name, args, kwargs))
         raise AttributeError(name)
 
     def raw_functions(self) -> tuple:
@@ -127,7 +132,15 @@ class RemoteSlave:
             self._call("fmi2SetReal", ("ping",))
 
     def _do_step(self, component, t, h, no_set_prior) -> int:
-        return self._call("fmi2DoStep", ("do_step", float(t), float(h), int(no_set_prior)))
+        status = self._call("fmi2DoStep", ("do_step", float(t), float(h), int(no_set_prior)),
+                            None if self._stepped else self.slow)
+        self._stepped = True
+        return status
+
+    def _lazy(self, function: str, request: tuple):
+        """A call of the FMU's lifecycle (bounded by :data:`START_TIMEOUT_S`); the next step is a first one."""
+        self._stepped = False
+        return self._call(function, request, self.slow)
 
     def _refs(self, vrs) -> list[int]:
         cached = self._vrs.get(id(vrs))
@@ -178,8 +191,9 @@ class RemoteSlave:
                     self.kill(f"a signal came while {function} ran; its process was killed")
                     raise self.failure(function, "interrupted", self.gone)
                 if time.monotonic() > deadline:
-                    self.kill(f"{function} did not return within {timeout:g} s (the step timeout, "
-                              "--step-timeout); its process was killed")
+                    bound = ("the step timeout, --step-timeout" if timeout == self.timeout else
+                             "the bound on loading, initialising and a run's first step")
+                    self.kill(f"{function} did not return within {timeout:g} s ({bound}); its process was killed")
                     raise self.failure(function, "timeout", self.gone)
             kind, value, logs = self.conn.recv()
         except (EOFError, OSError):

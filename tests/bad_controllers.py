@@ -5,7 +5,8 @@ until ``fail_at`` (s, default 1 s); from the first ``fmi2DoStep`` that starts at
 
 * ``raise``: ``do_step`` raises (pythonfmu returns fmi2Fatal);
 * ``hang``: ``do_step`` never returns;
-* ``exit``: ``do_step`` ends its process with ``os._exit(7)``.
+* ``exit``: ``do_step`` ends its process with ``os._exit(7)``;
+* ``slow``: every ``do_step`` takes 2 s.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-KINDS = {"raise": "Raising", "hang": "Hanging", "exit": "Exiting"}
+KINDS = {"raise": "Raising", "hang": "Hanging", "exit": "Exiting", "slow": "Slow"}
 
 _SOURCE = '''\
 import ctypes
@@ -51,6 +52,7 @@ _ACTIONS = {
     "raise": 'raise RuntimeError(f"a bug in the controller at t = {current_time}")',
     "hang": "while True:\n                time.sleep(0.05)",
     "exit": "os._exit(7)",
+    "slow": "time.sleep(2.0)",
 }
 
 

@@ -31,7 +31,7 @@ GUARD_S = 600
 @pytest.fixture(scope="module")
 def bad(tmp_path_factory) -> dict[str, Path]:
     folder = tmp_path_factory.mktemp("bad")
-    return {kind: build_bad_controller(kind, folder) for kind in ("raise", "hang", "exit")}
+    return {kind: build_bad_controller(kind, folder) for kind in ("raise", "hang", "exit", "slow")}
 
 
 @pytest.fixture(scope="module")
@@ -264,3 +264,13 @@ def test_an_isolated_fmus_error_status_reads_as_in_process_and_it_is_reset_for_t
     assert (o.status, o.fmu, o.function, o.fmu_status) == ("error", "sensors", "fmi2DoStep", "error")
     assert "sample_period" in o.fmu_message and o.fmu_message in bad["message"]
     assert good["status"] == "ok" and good["steps_done"] == 50
+
+
+def test_the_step_timeout_bounds_every_step_but_a_runs_first(bad):
+    """FMUs do lazy work in their first step (our Python plant compiles its kernels): it gets START_TIMEOUT_S;
+    every later step the step timeout. A controller whose every step takes 2 s, with a step timeout of 1 s."""
+    with Master({"c": bad["slow"]}, ["c"], [], isolate=["c"], step_timeout=1.0) as m:
+        out = m.run({"c": {"fail_at": 0.0}}, [("c", "tau1")], 3)
+    o = out["outcome"]
+    assert (o.fmu, o.function, o.fmu_status, out["steps_done"]) == ("c", "fmi2DoStep", "timeout", 1)
+    assert "step 1 (t = 0.001 s)" in o.message and "within 1 s (the step timeout, --step-timeout)" in o.message
