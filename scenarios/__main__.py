@@ -2,14 +2,17 @@
 results-page``.
 
 Exit codes (docs/outcomes.md): 0 every case or point finished, ok or unbounded (both are results);
-1 some case or point ended with an FMU error (recorded as such); 2 refused before anything ran (bad
-input, named field and allowed values); 3 the results folder cannot be used or written (busy, permission,
-disk full); 130 interrupted (Ctrl-C; nothing recorded as a result); 143 terminated (SIGTERM).
+1 some case or point ended with an FMU error (recorded as such; a crash, exit or hang of an FMU in a process
+of its own too); 2 refused before anything ran (bad input, named field and allowed values); 3 the results
+folder cannot be used or written (busy, permission, disk full); 4 results written, standard output
+unwritable; 130 interrupted (Ctrl-C; nothing recorded as a result); 141 standard output's reader left;
+143 terminated (SIGTERM).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import sys
@@ -27,9 +30,10 @@ from .config import (
     parse_assignment,
     select_cases,
 )
+from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S, START_TIMEOUT_S
 from .master import CoSimulationError
 from .outdir import OutputError, describe_os_error
-from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, check_kind, format_table, run_scenario
+from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, ISOLATE, check_kind, format_table, run_scenario
 
 EXIT_OK, EXIT_ERROR, EXIT_REFUSED, EXIT_OUTPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader left
@@ -78,7 +82,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m scenarios", description="Run the paper's experiments on our FMUs.",
                                  epilog="Exit codes: 0 ok or unbounded, 1 FMU error in a case, 2 refused input, "
                                         "3 results folder unusable, 4 results written but standard output "
-                                        "unwritable, 130 interrupted (see docs/outcomes.md).")
+                                        "unwritable, 130 interrupted, 141 reader of standard output left, "
+                                        "143 terminated (see docs/outcomes.md).")
     sub = ap.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list the shipped scenarios")
     run = sub.add_parser("run", help="run scenarios: shipped names (see list), all, or scenario files")
@@ -103,6 +108,7 @@ def main(argv=None) -> int:
     run.add_argument("--allow-large", action="store_true",
                      help=f"run past the caps of {MAX_SAMPLES} communication steps per case and {MAX_CASES} cases "
                           "per scenario (each case's record is kept in memory)")
+    _isolation_options(run)
     sweep = sub.add_parser("sweep", help="run a sweep / Monte Carlo on Dask: a name in scenarios/sweeps/ or a file")
     sweep.add_argument("sweep", help="a sweep name in scenarios/sweeps/ (robustness, schedule) or a sweep file")
     sweep.add_argument("--out", type=Path, default=DEFAULT_OUT / "sweeps",
@@ -118,6 +124,7 @@ def main(argv=None) -> int:
     sweep.add_argument("--allow-large", action="store_true",
                        help=f"run past the caps of {MAX_SAMPLES} samples per point and of the points per sweep "
                             "(each point's record is kept in memory)")
+    _isolation_options(sweep)
     ssp = sub.add_parser("export-ssp", help="write a scenario's cases as SSP 1.0 packages (one .ssp per case)")
     ssp.add_argument("scenario", help="a shipped scenario (see: python -m scenarios list) or a path to a scenario file")
     ssp.add_argument("--out", type=Path, default=Path("build") / "ssp",
@@ -132,6 +139,10 @@ def main(argv=None) -> int:
     _reserve_stdio()
     args = ap.parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
+    # A process started in the background by a non-interactive shell (`cmd &` in a script, CI) inherits SIGINT
+    # ignored, and Python then installs no KeyboardInterrupt: a sweep waiting on Dask ran on through a Ctrl-C and
+    # exited 0. A Ctrl-C (SIGINT) means the same here however the process was started.
+    previous_int = signal.signal(signal.SIGINT, signal.default_int_handler) if _main_thread() else None
     try:
         return _dispatch(args)
     except KeyboardInterrupt:
@@ -158,6 +169,8 @@ def main(argv=None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+        if previous_int is not None:
+            signal.signal(signal.SIGINT, previous_int)
 
 
 def _kind_options(parser) -> None:
@@ -169,6 +182,28 @@ def _kind_options(parser) -> None:
                       help="use the Python FMUs, whatever the scenario's kind says")
     parser.add_argument("--native-fmu-dir", type=Path, default=DEFAULT_NATIVE_FMU_DIR,
                         help="where built native FMUs live (their Python twins live in --fmu-dir)")
+
+
+def _isolation_options(parser) -> None:
+    """--isolate and --step-timeout: which FMUs run in a process of their own, and how long a call may take."""
+    parser.add_argument("--isolate", choices=ISOLATE, default="foreign",
+                        help="run these FMUs each in a process of their own, where a crash, a hang or an exit ends "
+                             "only its case (as error): foreign (default: those given as a .fmu path) or all; the "
+                             "others run in this process, at full speed")
+    parser.add_argument("--step-timeout", type=_seconds, default=DEFAULT_STEP_TIMEOUT_S, metavar="SECONDS",
+                        help="the longest one communication step of an FMU in its own process may take before the "
+                             f"process is killed and the case ends as error (default {DEFAULT_STEP_TIMEOUT_S:g} s; "
+                             f"loading, initialising and a run's first step get at least {START_TIMEOUT_S:g} s)")
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"a number of seconds > 0, got {text!r}")
+    return value
 
 
 def _main_thread() -> bool:
@@ -234,7 +269,7 @@ def _dispatch(args) -> int:
     for sc, kind in zip(scenarios, kinds):
         results = run_scenario(sc, args.out, args.fmu_dir, controller, progress=progress,
                                plots=not args.no_plots, kind=kind, native_fmu_dir=args.native_fmu_dir,
-                               overrides=overrides)
+                               overrides=overrides, isolate=args.isolate, step_timeout=args.step_timeout)
         written.append(args.out / sc.name)
         lines = [f"\n== {sc.name}: {sc.description} [{kind} FMUs]",
                  format_table(results, paper.get(sc.paper_table) if sc.paper_table else None)]

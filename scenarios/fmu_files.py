@@ -35,11 +35,14 @@ def read_description(path: str | os.PathLike):
     if not path.is_file():
         raise NotAnFmuError(f"{path}: no such FMU file")
     try:
+        with zipfile.ZipFile(path) as archive:
+            if "modelDescription.xml" not in archive.namelist():
+                raise NotAnFmuError(f"{path}: not an FMU (a zip archive without modelDescription.xml)")
         return read_model_description(str(path))
     except zipfile.BadZipFile as exc:
         raise NotAnFmuError(f"{path}: not an FMU (not a zip archive: {exc})") from exc
-    except KeyError as exc:
-        raise NotAnFmuError(f"{path}: not an FMU (no {exc} in the archive)") from exc
+    except NotAnFmuError:
+        raise
     except Exception as exc:  # noqa: BLE001 - lxml and fmpy raise many kinds for a broken description
         raise NotAnFmuError(f"{path}: not an FMU (modelDescription.xml unreadable: {exc})") from exc
 

@@ -51,8 +51,6 @@ from __future__ import annotations
 import functools
 import itertools
 import shutil
-import signal
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -71,10 +69,14 @@ from fmpy.fmi2 import (
 
 from .compat import fmu2_raw_functions
 from .fmu_files import read_description, unpack
+from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S, RemoteSlave
+from .interrupts import DeferSignals, RunInterrupted  # noqa: F401 - RunInterrupted: raised by Master.run, imported from here
 from .values import parse_choices
 
 ALGORITHMS = ("gauss-seidel", "jacobi", "fmpy-ssp")
 _STATUS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
+#: What can happen to an FMU run in a process of its own (scenarios.fmu_proxy) besides an FMI status.
+PROCESS_FAILURES = ("timeout", "crashed", "interrupted")
 #: The outcomes of a run, in the order docs/outcomes.md explains them.
 OUTCOMES = ("ok", "unbounded", "error", "interrupted")
 
@@ -91,16 +93,15 @@ class FMUError(CoSimulationError):
     FMI logger callback received it; "" when it logged none).
     """
 
-    def __init__(self, instance: str, function: str, status: int, fmu_message: str):
+    def __init__(self, instance: str, function: str, status: int | str, fmu_message: str, what: str = ""):
         self.instance, self.function = instance, function
         self.status = _STATUS.get(status, str(status))
         self.fmu_message = fmu_message
+        if what:  # a process failure (PROCESS_FAILURES): what happened, and the FMU's last word if any
+            super().__init__(f"{instance}: {what}" + (f" (its last message: {fmu_message})" if fmu_message else ""))
+            return
         super().__init__(f"{instance}: {function} returned {self.status}"
                          + (f": {fmu_message}" if fmu_message else " (the FMU logged no message)"))
-
-
-class RunInterrupted(KeyboardInterrupt):
-    """Ctrl-C during a run: the run stopped after its current step and its values are no result."""
 
 
 @dataclass
@@ -167,25 +168,43 @@ def logging_callbacks(logger) -> fmi2CallbackFunctions:
     return cb
 
 
-class _Unit:
-    """One loaded FMU: its slave, variable references by name, raw FMI functions."""
+#: In-process FMUs that returned fmi2Fatal, with their callbacks: FMI 2.0 allows no further call (not even
+#: fmi2FreeInstance) and the library may still call back, so they are kept, never freed or unloaded.
+_ABANDONED: list = []
 
-    def __init__(self, name: str, path: Path, messages: list[str]):
-        self.name = name
+
+class _Unit:
+    """One loaded FMU: its slave, variable references by name, raw FMI functions.
+
+    `isolated`: run it in a process of its own (:class:`scenarios.fmu_proxy.RemoteSlave`), each call bounded
+    by `timeout` seconds. After a failure only what FMI 2.0 (2.0.5) allows is called: after fmi2Error or
+    fmi2Discard, fmi2Reset or fmi2FreeInstance (never fmi2Terminate); after fmi2Fatal nothing at all (an
+    in-process instance is abandoned and the FMU unpacked and loaded afresh for the next run; a process of
+    its own is killed); a process that timed out, crashed or was interrupted is replaced by a new one.
+    """
+
+    def __init__(self, name: str, path: Path, messages: list[str], isolated: bool = False,
+                 timeout: float = DEFAULT_STEP_TIMEOUT_S):
+        self.name, self.path, self.isolated, self.timeout = name, Path(path), isolated, timeout
         self.md = read_description(path)
         self.vars = {v.name: v for v in self.md.modelVariables}
         self.slave = None
         #: The last message this FMU logged with status discard or worse (reset by :meth:`Master.run`).
         self.last_error = ""
+        #: The worst failure since the FMU was last (re)started: None, an fmi2Status name or a PROCESS_FAILURES.
+        self.failed: str | None = None
         self.unzipdir = unpack(path)
 
-        def logger(component, instance_name, status, category, message):
-            text = message.decode(errors="replace") if isinstance(message, bytes) else str(message)
+        def log(status: int, text: str) -> None:
             label = _STATUS.get(status, str(status))
             messages.append(f"[{name}] {text}" if status == 0 else f"[{name}] {label}: {text}")
             if status >= 2:  # fmi2Discard, fmi2Error, fmi2Fatal: kept by status, never by searching the text
                 self.last_error = text
 
+        def logger(component, instance_name, status, category, message):
+            log(status, message.decode(errors="replace") if isinstance(message, bytes) else str(message))
+
+        self._log = log
         self._callbacks = logging_callbacks(logger)
         try:
             self.instantiate()
@@ -193,14 +212,21 @@ class _Unit:
             shutil.rmtree(self.unzipdir, ignore_errors=True)
             raise
 
-    def error(self, function: str, status: int) -> FMUError:
-        """The :class:`FMUError` for `function` returning `status`, with this FMU's logged message."""
-        return FMUError(self.name, function, status, self.last_error)
+    def error(self, function: str, status: int | str, what: str = "") -> FMUError:
+        """The :class:`FMUError` for `function` returning `status`, with this FMU's logged message (and what
+        happened, for a process failure); records the failure for what may be called next."""
+        exc = FMUError(self.name, function, status, self.last_error, what)
+        rank = [*_STATUS.values(), *PROCESS_FAILURES]
+        if self.failed is None or rank.index(exc.status) > rank.index(self.failed):
+            self.failed = exc.status
+        return exc
 
     def call(self, function: str, fn, *args, **kwargs):
         """Call one of fmpy's FMU2Slave methods; an fmi2 status of discard or worse becomes :class:`FMUError`."""
         try:
             return fn(*args, **kwargs)
+        except FMUError:  # a process failure of an isolated FMU, already told as such
+            raise
         except Exception as exc:  # fmpy raises FMICallException(function, status)
             status = getattr(exc, "status", None)
             if status is None:
@@ -208,16 +234,36 @@ class _Unit:
             raise self.error(getattr(exc, "function", function), status) from exc
 
     def instantiate(self) -> None:
-        self.slave = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzipdir,
-                               modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=self.name)
+        self.failed = None
+        args = dict(guid=self.md.guid, unzipDirectory=self.unzipdir,
+                    modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=self.name)
+        if self.isolated:
+            self.slave = RemoteSlave(self.unzipdir, self.md.guid, args["modelIdentifier"], self.name,
+                                     timeout=self.timeout, on_log=self._log,
+                                     failure=lambda fn, status, what: self.error(fn, status, what),
+                                     should_stop=DeferSignals.pending)
+            self.slave.instantiate(loggingOn=True)
+            self.get_real, self.set_real, self.do_step = self.slave.raw_functions()
+            return
+        self.slave = FMU2Slave(**args)
         self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
-        # fmpy's getReal/setReal allocate arrays and log each call; the stepping
-        # loop calls the library functions directly with preallocated buffers.
+        # fmpy's getReal/setReal allocate arrays and log each call; the stepping loop calls the library
+        # functions directly with preallocated buffers.
         self.get_real, self.set_real, self.do_step = fmu2_raw_functions(self.slave)
 
-    def reinstantiate(self) -> None:
-        """Free the instance and make a new one (after an FMU failed and refuses reset)."""
+    def restart(self) -> None:
+        """Ready the FMU for a new run: fmi2Reset, or after a failure only what FMI allows (class docstring)."""
+        if self.failed in (None, "warning", "discard", "error"):
+            try:
+                self.slave.reset()
+                self.failed = None
+                return
+            except Exception:  # noqa: BLE001 - it refuses fmi2Reset: free it (allowed) and start it afresh
+                self.failed = self.failed or "error"
+        fresh_library = self.failed == "fatal" and not self.isolated
         self._free_instance()
+        if fresh_library:  # the abandoned library stays loaded: a new copy of the files is a new library image
+            self.unzipdir = unpack(self.path)
         self.instantiate()
 
     def vr(self, var: str) -> int:
@@ -254,11 +300,22 @@ class _Unit:
         if self.slave is None:
             return
         slave, self.slave = self.slave, None
+        if self.isolated and self.failed in ("fatal", *PROCESS_FAILURES):
+            slave.kill(f"not called after {self.failed}")  # nothing may be called; its process goes with it
+            return
+        if self.failed == "fatal":
+            _ABANDONED.append((slave, self._callbacks))
+            return
         try:
-            slave.terminate()
-        except Exception:  # noqa: BLE001 - an FMU that failed may refuse; free it all the same
-            pass
-        slave.freeInstance()
+            if self.failed in (None, "warning"):  # fmi2Terminate only from a working instance
+                try:
+                    slave.terminate()
+                except Exception:  # noqa: BLE001 - it refuses: free it all the same
+                    pass
+            slave.freeInstance()
+        finally:
+            if self.isolated:
+                slave.close()
 
     def free(self) -> None:
         try:
@@ -315,6 +372,12 @@ class Master:
         Real-valued output -> input wiring.
     algorithm : {"gauss-seidel", "jacobi"}
         How values are exchanged at a communication point.
+    isolate : collection of str
+        Instances run each in a process of their own (:mod:`scenarios.fmu_proxy`): a crash, a hang or an
+        ``os._exit`` there ends only the run, as ``error``. The others run in this process, at full speed.
+    step_timeout : float
+        Seconds any call of an isolated FMU may take before its process is killed (the run then ends as
+        ``error``, status ``timeout``).
 
     Use as a context manager, or call :meth:`close`. Between two runs every
     FMU is reset with ``fmi2Reset`` (an FMU that refuses is instantiated
@@ -322,9 +385,14 @@ class Master:
     """
 
     def __init__(self, fmus: dict[str, Path], order: list[str], connections: list[Connection],
-                 algorithm: str = "gauss-seidel"):
+                 algorithm: str = "gauss-seidel", isolate=(), step_timeout: float = DEFAULT_STEP_TIMEOUT_S):
         if algorithm not in ALGORITHMS:
             raise CoSimulationError(f"algorithm: one of {ALGORITHMS}, got {algorithm!r}")
+        if not step_timeout > 0:
+            raise CoSimulationError(f"step timeout: a number of seconds > 0, got {step_timeout!r}")
+        unknown = sorted(set(isolate) - set(fmus))
+        if unknown:
+            raise CoSimulationError(f"isolate: instances of this system {sorted(fmus)}, got {unknown}")
         missing = sorted(set(order) ^ set(fmus))
         if missing:
             raise CoSimulationError(f"order: must list every FMU instance exactly once (mismatch: {missing})")
@@ -332,10 +400,10 @@ class Master:
         self.messages: list[str] = []
         self.units: dict[str, _Unit] = {}
         self._used = False
-        with _DeferSignals() as interrupted:  # FMU code runs while loading: Ctrl-C is acted on afterwards
+        with DeferSignals() as interrupted:  # FMU code runs while loading: Ctrl-C is acted on afterwards
             try:
                 for name in self.order:
-                    self.units[name] = _Unit(name, fmus[name], self.messages)
+                    self.units[name] = _Unit(name, fmus[name], self.messages, name in isolate, step_timeout)
                     if interrupted.is_set():
                         break
                 self._wire(connections)
@@ -439,7 +507,7 @@ class Master:
         """Terminate and free every FMU and delete the unpacked files."""
         units, self.units = self.units, {}
         failures = []
-        with _DeferSignals() as interrupted:  # fmi2Terminate/fmi2FreeInstance run FMU code: never cut them short
+        with DeferSignals() as interrupted:  # fmi2Terminate/fmi2FreeInstance run FMU code: never cut them short
             for unit in units.values():
                 try:
                     unit.free()
@@ -454,10 +522,7 @@ class Master:
         for name, unit in self.units.items():
             unit.last_error = ""
             if self._used:
-                try:
-                    unit.slave.reset()
-                except Exception:  # noqa: BLE001 - a failed FMU may refuse fmi2Reset; start it afresh
-                    unit.reinstantiate()
+                unit.restart()
             unit.call("fmi2SetupExperiment", unit.slave.setupExperiment, startTime=0.0)
             for var, value in parameters.get(name, {}).items():
                 unit.call(f"fmi2Set ({var} = {value!r})", unit.set, var, value)
@@ -539,7 +604,7 @@ class Master:
         gathers = [(port, _as_index(cols), _as_index(pos)) for port, cols, pos in gathers.values()]
         every_pct = max(1, n // 100)
         outcome, k, gathered = Outcome("ok"), 0, -1
-        with _DeferSignals() as interrupted:
+        with DeferSignals() as interrupted:
             try:
                 self._initialise(parameters or {})
             except FMUError as exc:
@@ -570,9 +635,12 @@ class Master:
                             raise unit.error("fmi2DoStep", st)
                     if progress is not None and ((k + 1) % every_pct == 0 or k + 1 == n):
                         progress(k + 1, n)
+                for unit in self.units.values():  # an isolated FMU's fmi2SetReal status comes with its next call
+                    if unit.isolated and unit.slave is not None:
+                        unit.slave.sync()
             except FMUError as exc:
                 data[gathered + 1:] = np.nan  # a partly gathered row is no sample
-                outcome = Outcome.from_error(exc, f"step {k} (t = {time[k]:.6g} s)")
+                outcome = Outcome.from_error(exc, f"step {k} (t = {time[k]:.3f} s)")
             interrupted.raise_pending(f"at step {k} (t = {time[max(k, 0)]:.6g} s)")
         return {"time": time, "signals": {name: data[:, i] for i, name in enumerate(names)},
                 "outcome": outcome, "status": outcome.status, "message": outcome.message,
@@ -585,48 +653,6 @@ class Master:
         refuses a step returns fmi2Error from fmi2DoStep, with its reason in the log).
         """
         return self.run(parameters, [], 1, step_size)["outcome"]
-
-
-class _DeferSignals:
-    """While active (main thread only), Ctrl-C (and SIGTERM, when Python handles it) sets a flag instead of
-    raising inside FMU code.
-
-    An FMU written in Python runs in this interpreter: a KeyboardInterrupt or SystemExit raised in its code
-    would be caught there and returned as fmi2Error, i.e. reported as the FMU failing. The flag is checked
-    between steps (:meth:`raise_pending`); a second signal while the flag is set raises at once.
-    """
-
-    def __enter__(self) -> _DeferSignals:
-        self.signum = None
-        self.previous = {}
-        if threading.current_thread() is threading.main_thread():
-            def handler(signum, frame):
-                if self.signum is not None:
-                    self._raise(signum, "twice")
-                self.signum = signum
-
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                if sig == signal.SIGINT or callable(signal.getsignal(sig)):  # never replace SIGTERM's default kill
-                    self.previous[sig] = signal.signal(sig, handler)
-        return self
-
-    def is_set(self) -> bool:
-        return self.signum is not None
-
-    def raise_pending(self, where: str) -> None:
-        """Raise what the deferred signal would have raised (RunInterrupted for Ctrl-C), if one came."""
-        if self.signum is not None:
-            self._raise(self.signum, where)
-
-    def _raise(self, signum: int, where: str) -> None:
-        previous = self.previous.get(signum)
-        if signum != signal.SIGINT and callable(previous):
-            previous(signum, None)  # e.g. the command line's SIGTERM handler: SystemExit(143)
-        raise RunInterrupted(f"interrupted {where}")
-
-    def __exit__(self, *exc) -> None:
-        for sig, handler in self.previous.items():
-            signal.signal(sig, handler)
 
 
 def _as_index(positions: list[int]) -> slice | np.ndarray:

@@ -12,7 +12,16 @@ from pathlib import Path
 from flexarm.provenance import sha256_bytes
 
 from ..config import ScenarioError
-from ..runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, known_fmu_names, prepare, read_descriptions, resolve_fmus
+from ..fmu_proxy import DEFAULT_STEP_TIMEOUT_S
+from ..runner import (
+    DEFAULT_FMU_DIR,
+    DEFAULT_NATIVE_FMU_DIR,
+    foreign_instances,
+    known_fmu_names,
+    prepare,
+    read_descriptions,
+    resolve_fmus,
+)
 from ..values import check_parameters, check_value, check_variable
 from .spec import Axis, Sweep, SweepError, _require, toml_content_sha256
 
@@ -51,13 +60,18 @@ class Plan:
     fmu_sets: dict[str, FmuSet]  # FmuSet.key -> set
     point_set: dict[str, str]  # point key -> FmuSet.key
     scenario_sha256: str
+    #: Which FMUs run in a process of their own and how long a call may take (scenarios.runner.Setup.isolating).
+    isolate: str = "foreign"
+    step_timeout: float = DEFAULT_STEP_TIMEOUT_S
 
     def task(self, point: Point) -> dict:
         """The picklable description of one point that :func:`run_point` runs."""
         fs = self.fmu_sets[self.point_set[point.key]]
         return {"key": point.key, "index": point.index, "scenario": self.sweep.scenario, "fmu_names": fs.names,
                 "fmu_sha256": fs.sha256, "parameters": point.parameters,
-                "setup_key": f"{self.scenario_sha256[:16]}-{self.sweep.scenario.samples}-{fs.key}"}
+                "isolate": self.isolate, "step_timeout": self.step_timeout,
+                "setup_key": f"{self.scenario_sha256[:16]}-{self.sweep.scenario.samples}-{fs.key}-{self.isolate}-"
+                             f"{self.step_timeout:g}"}
 
 
 def _check_axis(sweep: Sweep, axis: Axis, md, fmu_path: Path) -> None:
@@ -84,7 +98,8 @@ def point_key(scenario_sha: str, samples, fmus: dict, parameters: dict, kind: st
 
 
 def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True, probe: bool = True,
-               kind: str | None = None, native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR) -> Plan:
+               kind: str | None = None, native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR, isolate: str = "foreign",
+               step_timeout: float = DEFAULT_STEP_TIMEOUT_S) -> Plan:
     """Resolve (and build) the FMUs of every FMU set, check every value against them, list the points.
 
     Parameters
@@ -101,6 +116,9 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
     kind : str, optional
         "python" or "native" FMUs (default: the scenario's ``kind``); native ones are found (and built) in
         `native_fmu_dir` (:func:`scenarios.runner.resolve_fmus`).
+    isolate, step_timeout
+        Which FMUs run in a process of their own ("foreign": those given as a .fmu path; "all") and how long
+        one call of theirs may take, s (:meth:`scenarios.runner.Setup.isolating`), in the probe and the points.
 
     Returns
     -------
@@ -143,7 +161,7 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
         shas = {inst: sha256_bytes(b) for inst, b in blobs.items()}
         fs = FmuSet(names, paths, shas, blobs)
         if probe and fs.key not in fmu_sets:
-            _probe(sweep, fs)
+            _probe(sweep, fs, isolate, step_timeout)
         fmu_sets.setdefault(fs.key, fs)
         by_combo[combo] = fs.key
     points, point_set = [], {}
@@ -158,12 +176,14 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
         key = point_key(scenario_sha, scenario.samples, names, params, kind)
         points.append(Point(index, key, values, names, params))
         point_set[key] = fs_key
-    return Plan(sweep, points, fmu_sets, point_set, scenario_sha)
+    return Plan(sweep, points, fmu_sets, point_set, scenario_sha, isolate, step_timeout)
 
 
-def _probe(sweep: Sweep, fs: FmuSet) -> None:
+def _probe(sweep: Sweep, fs: FmuSet, isolate: str, step_timeout: float) -> None:
     """Initialise the base point on this FMU set and step once; a refusal is a :class:`SweepError`."""
     setup = prepare(sweep.scenario, names={k: str(v) for k, v in fs.paths.items()}, build=False)
+    setup.isolate = foreign_instances(sweep.scenario, names=fs.names)  # by the names given, not the files' paths
+    setup.isolating(isolate, step_timeout)
     with setup.open_master() as m:  # with a reference FMU added; stepping as the scenario does
         outcome = m.probe(setup.case_parameters(sweep.case.parameters), sweep.scenario.step_size)
     if outcome.status == "error":

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from flexarm.provenance import git_commit, package_version, write_json
 
+from ..fmu_proxy import DEFAULT_STEP_TIMEOUT_S
 from ..master import RunInterrupted
 from ..outdir import check_writable, folder_lock, remove_stale
 from ..runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, verify_data_chain
@@ -42,7 +43,8 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
               scheduler: str | None = None, workers: int | None = None, serial: bool = False,
               plots: bool = True, progress: bool = True, build: bool = True, allowed_failures: int = 1,
               on_record: Callable[[dict], None] | None = None, kind: str | None = None,
-              native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR, allow_large: bool = False) -> SweepResult:
+              native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR, allow_large: bool = False, isolate: str = "foreign",
+              step_timeout: float = DEFAULT_STEP_TIMEOUT_S) -> SweepResult:
     """Run every point of a sweep not yet in its journal; write the table and plots.
 
     Parameters
@@ -74,6 +76,9 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
         "python" or "native" FMUs (default: the scenario's ``kind``); native ones live in `native_fmu_dir`.
     allow_large : bool
         A sweep given by name or path may pass the caps on samples and points (:func:`load_sweep`).
+    isolate, step_timeout
+        Which FMUs run in a process of their own and how long one call may take (:func:`plan_sweep`): a point
+        whose FMU crashes, hangs or exits is recorded as ``error`` and the sweep goes on.
 
     Returns
     -------
@@ -92,7 +97,8 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
         sweep = load_sweep(sweep, allow_large=allow_large)
     chain = verify_data_chain()
     kind = kind or sweep.scenario.kind
-    plan = plan_sweep(sweep, fmu_dir, build, kind=kind, native_fmu_dir=native_fmu_dir)
+    plan = plan_sweep(sweep, fmu_dir, build, kind=kind, native_fmu_dir=native_fmu_dir, isolate=isolate,
+                      step_timeout=step_timeout)
     out = Path(out_dir)
     folder = out / sweep.name
     with ExitStack() as stack:
@@ -172,8 +178,8 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
                         bar.update(rec)
                         if on_record is not None:
                             on_record(rec)
-                except KeyboardInterrupt as exc:
-                    interrupted = exc
+                except (KeyboardInterrupt, SystemExit) as exc:  # Ctrl-C, SIGTERM (SystemExit(143)): the table
+                    interrupted = exc  # is written from the journal before the exception goes on
                 finally:
                     if hasattr(results, "close"):
                         results.close()  # a generator's finally cancels the pending futures
@@ -187,6 +193,8 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
                                            "interrupted": interrupted is not None,
                                            "status_counts": {st: sum(r["status"] == st for r in rows)
                                                              for st in STATUSES}})
+        if isinstance(interrupted, SystemExit):
+            raise interrupted
         if interrupted is not None:
             raise RunInterrupted(f"sweep {sweep.name}: interrupted after {ran} new point(s); "
                                  f"{len(rows)} of {len(plan.points)} in {journal.path}; rerun to resume") \
@@ -219,7 +227,8 @@ def cli(args) -> int:
         raise SweepError(f"--workers: an integer >= 1, got {args.workers}")
     res = run_sweep(args.sweep, args.out, args.fmu_dir, scheduler=args.scheduler, workers=args.workers,
                     serial=args.serial, plots=not args.no_plots, progress=not args.quiet, kind=args.kind,
-                    native_fmu_dir=args.native_fmu_dir, allow_large=args.allow_large)
+                    native_fmu_dir=args.native_fmu_dir, allow_large=args.allow_large, isolate=args.isolate,
+                    step_timeout=args.step_timeout)
     counts = {s: sum(r["status"] == s for r in res.rows) for s in STATUSES}
     sw = res.plan.sweep
     print(f"\n== sweep {sw.name}: {sw.description}")
