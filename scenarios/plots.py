@@ -69,7 +69,7 @@ def plot_scenario(name: str, results, desired: dict, traj, plant: str, driver: s
 
     fig, axes = _figure(2, 1, figsize=(8, 6), sharex=True)
     for r in results:
-        if r.status != "ok":
+        if r.metrics is None:  # a run that stopped early (unbounded, error): no errors to draw
             continue
         th = np.column_stack([r.series[f"{plant}.theta{i}"] for i in range(1, 12)])
         om = np.column_stack([r.series[f"{plant}.omega{i}"] for i in range(1, 12)])
