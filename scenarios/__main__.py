@@ -1,8 +1,8 @@
 """Command line: ``python -m scenarios list | run NAME|PATH|all [--case KEY] | sweep NAME|PATH | export-ssp NAME |
 results-page``.
 
-Exit codes (docs/outcomes.md): 0 every case or point finished, ok or unbounded (both are results);
-1 some case or point ended with an FMU error (recorded as such); 2 refused before anything ran (bad
+Exit codes (docs/outcomes.md): 0 every case or point finished, ok, diverging, saturated or unbounded
+(all results); 1 some case or point ended with an FMU error (recorded as such); 2 refused before anything ran (bad
 input, named field and allowed values); 3 the results folder cannot be used or written (busy, permission,
 disk full); 130 interrupted (Ctrl-C; nothing recorded as a result); 143 terminated (SIGTERM).
 """
@@ -76,9 +76,9 @@ def _err(text: str) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m scenarios", description="Run the paper's experiments on our FMUs.",
-                                 epilog="Exit codes: 0 ok or unbounded, 1 FMU error in a case, 2 refused input, "
-                                        "3 results folder unusable, 4 results written but standard output "
-                                        "unwritable, 130 interrupted (see docs/outcomes.md).")
+                                 epilog="Exit codes: 0 ok, diverging, saturated or unbounded, 1 FMU error in a case, "
+                                        "2 refused input, 3 results folder unusable, 4 results written but standard "
+                                        "output unwritable, 130 interrupted (see docs/outcomes.md).")
     sub = ap.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list the shipped scenarios")
     run = sub.add_parser("run", help="run scenarios: shipped names (see list), all, or scenario files")

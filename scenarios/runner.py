@@ -759,7 +759,7 @@ def format_table(results: list[CaseResult], paper: dict | None) -> str:
     blocks = []
     for start in range(0, len(results), CASES_PER_BLOCK):
         chunk = results[start:start + CASES_PER_BLOCK]
-        head = f"{'':32s}" + "".join(f"{r.key:>28s}" for r in chunk)
+        head = f"{'':32s}" + "".join(f"{r.key + ('' if r.status == 'ok' else f' [{r.status}]'):>28s}" for r in chunk)
         sub = f"{'':32s}" + "".join(f"{'ours':>10s}{'paper':>9s}{'ratio':>9s}" for _ in chunk)
         lines = [head, sub]
         for i, m in enumerate(METRICS):
