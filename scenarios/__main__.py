@@ -1,5 +1,5 @@
-"""Command line: ``python -m scenarios list | run NAME|PATH|all [--case KEY] | sweep NAME|PATH | export-ssp NAME |
-results-page``.
+"""Command line: ``python -m scenarios list | run NAME|PATH|all [--case KEY] | sweep NAME|PATH | score CONTROLLER |
+export-ssp NAME | results-page``.
 
 Exit codes (docs/outcomes.md): 0 every case or point finished, ok, diverging, saturated or unbounded
 (all results); 1 some case or point ended with an FMU error (recorded as such); 2 refused before anything ran (bad
@@ -129,6 +129,9 @@ def main(argv=None) -> int:
     page.add_argument("--check", action="store_true",
                       help="do not write: exit 1 with a diff if the committed files differ from a fresh run")
     page.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
+    from .score.cli import add_parser as add_score
+
+    add_score(sub, DEFAULT_OUT, DEFAULT_FMU_DIR, _kind_options)
     _reserve_stdio()
     args = ap.parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
@@ -182,6 +185,10 @@ def _dispatch(args) -> int:
         from .sweep import cli as sweep_cli
 
         return sweep_cli(args)
+    if args.command == "score":
+        from .score.cli import main as score_main
+
+        return score_main(args)
     if args.command == "export-ssp":
         from .ssp import SSPExportError, export_ssp
 
