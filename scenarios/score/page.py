@@ -12,7 +12,7 @@ import numpy as np
 from flexarm.provenance import write_atomic, write_json
 
 from ..metrics import METRICS, UNITS
-from ..plots import _figure, _legend, _save
+from ..plots import _figure, _legend, _save, _style, tip_path
 from . import battery
 
 #: The figures of the page, in its order (file name, caption).
@@ -20,8 +20,6 @@ FIGURES = (("errors.png", "Largest error over the 11 elements per paper case, lo
            ("torques.png", "Joint torques of the paper cases (Gauss-Seidel), the motors' limits dashed, t_f dotted"),
            ("tip_path.png", "Tip path over the slew (Gauss-Seidel): start, end and the straight line between them"),
            ("robustness.png", "Robustness: payload 0-0.5 kg, noise seeds 1-3, against our baselines"))
-STYLES = ("-", "--", "-.", ":")  # identical curves stay visible: each case its own dash and width
-WIDTHS = (2.2, 1.6, 1.2, 0.9)
 
 
 def _fmt(v, digits: int = 4) -> str:
@@ -123,8 +121,10 @@ def _figures(name: str, cases, recs: dict, bases: dict, folder: Path) -> None:
             t = np.asarray(s["time"])
             for key, style, label in (("velocity_error", "-", "velocity, deg/s"),
                                       ("position_error", "--", "position, deg")):
-                ax.plot(t, np.maximum(np.asarray(s[key]), 1e-6), style, lw=0.9, label=label)
+                ax.plot(t, np.asarray(s[key]), style, lw=0.9, label=label)
             ax.set_yscale("log")
+            top = max(np.nanmax(s["velocity_error"]), np.nanmax(s["position_error"]))
+            ax.set_ylim(bottom=max(1e-6 * top, 1e-9))  # the zero error at t = 0 would stretch the axis down
         ax.axvline(traj.t_f, color="0.4", ls=":", lw=1)
         ax.set_title(f"{c.key}: {'stable' if recs[c.key]['status'] == 'ok' else recs[c.key]['status']}",
                      fontsize=9)
@@ -138,7 +138,7 @@ def _figures(name: str, cases, recs: dict, bases: dict, folder: Path) -> None:
         for i, c in enumerate(c for c in paper if c.algorithm == "gauss-seidel"):
             s = recs[c.key].get("series")
             if s:
-                ax.plot(s["time"], s[f"tau{j + 1}"], STYLES[i % 4], lw=WIDTHS[i % 4], label=c.key)
+                ax.plot(s["time"], s[f"tau{j + 1}"], label=c.key, **_style(i))
         for sign in (1, -1):
             ax.axhline(sign * limits[j], color="r", ls="--", lw=1,
                        label=f"limit ±{limits[j]:g} N·m" if sign > 0 else None)
@@ -151,35 +151,6 @@ def _figures(name: str, cases, recs: dict, bases: dict, folder: Path) -> None:
     tip_path(name, [(c.key, recs[c.key].get("series")) for c in paper if c.algorithm == "gauss-seidel"], traj,
              folder / "tip_path.png")
     _robustness(name, cases, recs, bases, folder / "robustness.png")
-
-
-def tip_path(name: str, runs, traj, path: Path) -> None:
-    """The tip path zoomed to the slew: desired path, start, end, the straight line between them, each run in its
-    own style. `runs`: (label, {"tip_x", "tip_y"} or None)."""
-    fig, ax = _figure(figsize=(7, 6))
-    start, end = traj.tip[0], traj.tip[-1]
-    ax.plot(traj.tip[:, 0], traj.tip[:, 1], "k-", lw=3, alpha=0.3, label="desired (optimiser)")
-    ax.plot([start[0], end[0]], [start[1], end[1]], color="0.5", ls=":", lw=1, label="straight line")
-    xs, ys = [traj.tip[:, 0]], [traj.tip[:, 1]]
-    for i, (label, s) in enumerate(runs):
-        if s:
-            ax.plot(s["tip_x"], s["tip_y"], STYLES[i % 4], lw=WIDTHS[i % 4], label=label)
-            xs.append(np.asarray(s["tip_x"]))
-            ys.append(np.asarray(s["tip_y"]))
-    ax.plot(*start, "go", ms=8, label="start")
-    ax.plot(*end, "rs", ms=8, label="end")
-    x, y = np.concatenate(xs), np.concatenate(ys)
-    ok = np.isfinite(x) & np.isfinite(y)
-    pad = 0.05 * max(np.ptp(traj.tip[:, 0]), np.ptp(traj.tip[:, 1]))
-    # zoomed to the slew (and to any run that strays from it by up to a slew's length, not to a diverged one)
-    lo = np.maximum(np.array([x[ok].min(), y[ok].min()]), traj.tip.min(axis=0) - np.ptp(traj.tip, axis=0))
-    hi = np.minimum(np.array([x[ok].max(), y[ok].max()]), traj.tip.max(axis=0) + np.ptp(traj.tip, axis=0))
-    ax.set_xlim(lo[0] - pad, hi[0] + pad)
-    ax.set_ylim(lo[1] - pad, hi[1] + pad)
-    ax.set_aspect("equal", adjustable="box")
-    ax.set(xlabel="x, m", ylabel="y, m", title=f"{name}: tip path")
-    _legend(ax, fontsize=7)
-    _save(fig, path)
 
 
 def _robustness(name: str, cases, recs: dict, bases: dict, path: Path) -> None:
@@ -195,7 +166,7 @@ def _robustness(name: str, cases, recs: dict, bases: dict, path: Path) -> None:
                 mean.append(np.mean(vals) if vals else np.nan)
                 lo.append(min(vals) if vals else np.nan)
                 hi.append(max(vals) if vals else np.nan)
-            line, = ax.plot(payloads, mean, STYLES[i % 4], marker="o", lw=WIDTHS[i % 4], label=who)
+            line, = ax.plot(payloads, mean, marker="o", label=who, **_style(i))
             ax.fill_between(payloads, lo, hi, color=line.get_color(), alpha=0.15)
         ax.set_yscale("log")
         ax.set(xlabel="tip payload, kg", ylabel=f"{m.replace('_', ' ')}, {UNITS[m]}")
