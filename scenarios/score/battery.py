@@ -164,7 +164,8 @@ def run_case(case: Case, controller: Controller, kind: str, fmu_dir: str, native
     setup, m = _loaded(controller, kind, case.algorithm, fmu_dir, native_fmu_dir)
     params = case.parameters()
     ctrl = {**controller.parameters, **(controller.jacobi_parameters if case.algorithm == "jacobi" else {})}
-    if controller.fmu.endswith(".fmu") and case.algorithm == "jacobi" and _declares(setup, "loop_delay_samples"):
+    if (controller.fmu.endswith(".fmu") and case.algorithm == "jacobi" and "loop_delay_samples" not in ctrl
+            and _declares(setup, "loop_delay_samples")):  # the documented name (docs/own-controller.md); a --set wins
         ctrl["loop_delay_samples"] = JACOBI_LOOP_DELAY
     if ctrl:
         params["controller"] = ctrl
