@@ -1,12 +1,12 @@
-"""Command line: ``python -m scenarios list | run NAME|PATH|all [--case KEY] | sweep NAME|PATH | export-ssp NAME |
-results-page``.
+"""Command line: ``python -m scenarios list | run NAME|PATH|all [--case KEY] | sweep NAME|PATH | score CONTROLLER |
+export-ssp NAME | results-page``.
 
-Exit codes (docs/outcomes.md): 0 every case or point finished, ok or unbounded (both are results);
-1 some case or point ended with an FMU error (recorded as such; a crash, exit or hang of an FMU in a process
-of its own too); 2 refused before anything ran (bad input, named field and allowed values); 3 the results
-folder cannot be used or written (busy, permission, disk full); 4 results written, standard output
-unwritable; 130 interrupted (Ctrl-C; nothing recorded as a result); 141 standard output's reader left;
-143 terminated (SIGTERM).
+Exit codes (docs/outcomes.md): 0 every case or point finished, ok, diverging, saturated or unbounded
+(all results, the status says which); 1 some case or point ended with an FMU error (recorded as such; a crash,
+exit or hang of an FMU in a process of its own too); 2 refused before anything ran (bad input, named field and
+allowed values); 3 the results folder cannot be used or written (busy, permission, disk full); 4 results written,
+standard output unwritable; 130 interrupted (Ctrl-C; nothing recorded as a result); 141 standard output's reader
+left; 143 terminated (SIGTERM).
 """
 
 from __future__ import annotations
@@ -80,10 +80,10 @@ def _err(text: str) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m scenarios", description="Run the paper's experiments on our FMUs.",
-                                 epilog="Exit codes: 0 ok or unbounded, 1 FMU error in a case, 2 refused input, "
-                                        "3 results folder unusable, 4 results written but standard output "
-                                        "unwritable, 130 interrupted, 141 reader of standard output left, "
-                                        "143 terminated (see docs/outcomes.md).")
+                                 epilog="Exit codes: 0 ok, diverging, saturated or unbounded, 1 FMU error in a "
+                                        "case, 2 refused input, 3 results folder unusable, 4 results written but "
+                                        "standard output unwritable, 130 interrupted, 141 reader of standard output "
+                                        "left, 143 terminated (see docs/outcomes.md).")
     sub = ap.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list the shipped scenarios")
     run = sub.add_parser("run", help="run scenarios: shipped names (see list), all, or scenario files")
@@ -136,6 +136,9 @@ def main(argv=None) -> int:
     page.add_argument("--check", action="store_true",
                       help="do not write: exit 1 with a diff if the committed files differ from a fresh run")
     page.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
+    from .score.cli import add_parser as add_score
+
+    add_score(sub, DEFAULT_OUT, DEFAULT_FMU_DIR, _kind_options)
     _reserve_stdio()
     args = ap.parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
@@ -217,6 +220,10 @@ def _dispatch(args) -> int:
         from .sweep import cli as sweep_cli
 
         return sweep_cli(args)
+    if args.command == "score":
+        from .score.cli import main as score_main
+
+        return score_main(args)
     if args.command == "export-ssp":
         from .ssp import SSPExportError, export_ssp
 

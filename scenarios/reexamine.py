@@ -132,7 +132,7 @@ def tables(out_dir: Path) -> dict:
                     p = paper[table].get(r.key)
                     rows[f"{table}|{scheme}|{ratio}|{r.key}"] = {
                         "table": table, "scheme": scheme, "damping_ratio": ratio, "case": r.key,
-                        "status": r.status, "metrics": r.metrics,
+                        "status": r.outcome.status, "metrics": r.metrics,
                         "paper": None if p is None or isinstance(p, dict) else dict(zip(METRICS, p)),
                         "paper_unbounded": isinstance(p, dict),
                         "velocity_error_growth_per_s": envelope_growth(r.series["time"], velocity_errors(r, traj)),
@@ -157,7 +157,7 @@ def long_gamma1(out_dir: Path, seconds: float = 5.0) -> dict:
                 # a mark the run did not reach (it stopped: NaN rows after) is left out, never a partial maximum
                 if sel.any() and t[sel][-1] >= m - 0.002 and np.isfinite(err[sel]).all():
                     marks[str(m)] = float(err[sel].max())
-            out[f"{scheme}|{r.key}"] = {"status": r.status, "message": r.message,
+            out[f"{scheme}|{r.key}"] = {"status": r.outcome.status, "message": r.outcome.message,
                                         "steps": int(len(t) - 1), "peak_velocity_error_by_time": marks,
                                         "growth_per_s": envelope_growth(t, velocity_errors(r, traj), 1.0)}
     return out
@@ -173,7 +173,7 @@ def settling(out_dir: Path) -> tuple[dict, dict]:
     for scheme, ratio in SETTLING_VARIANTS:
         for r in run_scenario(variant(base, scheme, ratio), out_dir, progress=False, kind=_kind(scheme),
                               divergence_limit=_long_limit()):
-            if r.status != "ok":  # metrics of a run that stopped early would be figures of a shorter run
+            if r.outcome.status != "ok":  # metrics of a run that stopped early would be figures of a shorter run
                 raise RuntimeError(f"settling: {scheme}, ζ = {ratio:g}, {r.key} stopped ({r.status}): {r.message}")
             s = r.series
             t = s["time"]
@@ -187,7 +187,7 @@ def settling(out_dir: Path) -> tuple[dict, dict]:
                 settle[f"{tol:g}mm"] = float(t[outside[-1] + 1]) if outside.size and outside[-1] + 1 < len(t) \
                     else (float(t[0]) if not outside.size else float("inf"))
             metrics[f"{scheme}|{ratio}|{r.key}"] = {
-                "scheme": scheme, "damping_ratio": ratio, "case": r.key, "status": r.status,
+                "scheme": scheme, "damping_ratio": ratio, "case": r.key, "status": r.outcome.status,
                 "slew_end_s": traj.t_f, "run_end_s": float(t[-1]),
                 "tip_error_at_slew_end_mm": float(dist[np.argmax(after)]),
                 "final_overshoot_mm": float(max(along[after].max(), 0.0)),
@@ -283,7 +283,7 @@ def noise_study(out_dir: Path) -> dict:
         for (label, _, amplitudes), r in zip(variants, results):
             m = r.metrics
             out[f"{scheme}|{label}"] = {
-                "scheme": scheme, "variant": label, "amplitudes": amplitudes, "status": r.status, "metrics": m,
+                "scheme": scheme, "variant": label, "amplitudes": amplitudes, "status": r.outcome.status, "metrics": m,
                 "peak_velocity_ratio": None if m is None else m["peak_velocity_error"] / ref["peak_velocity_error"],
                 "rms_velocity_ratio": None if m is None else m["rms_velocity_error"] / ref["rms_velocity_error"],
                 "rms_position_ratio": None if m is None else m["rms_position_error"] / ref["rms_position_error"],

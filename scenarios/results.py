@@ -27,13 +27,57 @@ JOINTS = (("q1", "rad", "joint-1 angle θ1"), ("q2", "rad", "joint-2 angle θ7 �
           ("qd1", "rad/s", "joint-1 rate ω1"), ("qd2", "rad/s", "joint-2 rate ω7 − ω6"))
 
 
+#: The CSV's second line starts with this: the columns' units, a comment line that readers skip
+#: (``pandas.read_csv(path, comment="#")``, ``numpy.genfromtxt(path, delimiter=",", names=True)``).
+UNITS_PREFIX = "# units: "
+
+
+def unit_of(column: str) -> str:
+    """The unit of a case CSV's column (:func:`write_csv`), from the signal catalogue; "" when unknown (an output
+    of a user's FMU that the catalogue does not name) or dimensionless.
+
+    ``time`` s; ``<instance>.<name>``, ``ref.<name>``, ``err.<name>``: the catalogue's unit of <name> (any FMU's
+    output of that name); ``joint.<name>`` and ``err.<joint name>``: :data:`JOINTS`.
+    """
+    if column == "time":
+        return "s"
+    name = column.split(".", 1)[-1]
+    joints = {j: unit for j, unit, _ in JOINTS}
+    if column.startswith(("joint.", "err.")) and name in joints:
+        return joints[name]
+    return _catalogue_units().get(name, "")
+
+
+def _catalogue_units() -> dict[str, str]:
+    if not _UNITS:
+        from flexarm.signals import catalogue
+
+        for s in catalogue():
+            _UNITS.setdefault(s.name, "" if s.unit in ("-", "1") else s.unit)
+    return _UNITS
+
+
+_UNITS: dict[str, str] = {}
+
+
 def write_csv(path: str | Path, columns: dict[str, np.ndarray]) -> None:
-    """Time series as CSV (one column per signal, full float precision), written atomically."""
+    """Time series as CSV, written atomically: a header of column names, a units line (``# units: s,rad,...``,
+    a comment: :data:`UNITS_PREFIX`), then one row per sample at full float precision."""
     names = list(columns)
     data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
-    lines = [",".join(names)]
+    lines = [",".join(names), UNITS_PREFIX + ",".join(unit_of(n) for n in names)]
     lines += [",".join(repr(float(x)) for x in row) for row in data]
     write_atomic(path, "\n".join(lines) + "\n")
+
+
+def read_units(path: str | Path) -> dict[str, str]:
+    """Column -> unit of a case CSV written by :func:`write_csv` (its first two lines)."""
+    with open(path, encoding="utf-8") as f:
+        names = f.readline().rstrip("\n").split(",")
+        units = f.readline().rstrip("\n")
+    if not units.startswith(UNITS_PREFIX):
+        raise ValueError(f"{path}: no units line (a second line starting {UNITS_PREFIX!r})")
+    return dict(zip(names, units[len(UNITS_PREFIX):].split(",")))
 
 
 def analysis_columns(series: dict[str, np.ndarray], plant: str, reference) -> dict[str, np.ndarray]:

@@ -34,6 +34,7 @@ from .outdir import check_writable, run_folder
 from .results import analysis_columns, write_csv
 from .stability import loop_stability
 from .values import check_parameters
+from .verdict import judge
 
 REPO = Path(__file__).resolve().parent.parent
 #: Where FMUs are built and found: $FLEXARM_FMU_DIR, else ./build/fmus (relative to the current directory, as
@@ -69,6 +70,8 @@ class CaseResult:
     #: The linearised sampled loop's stability (:func:`scenarios.stability.loop_stability`: the check, or why it
     #: was not made and whether the plant scheme could show a bracket-mode instability anyway).
     loop_stability: dict | None = None
+    #: The run's verdict from its own samples (:func:`scenarios.verdict.verdict`); None when it did not finish.
+    verdict: dict | None = None
 
 
 def _build_tool():
@@ -596,13 +599,15 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                                           setup.n_steps * scenario.step_size, algorithm)
                     notes = list(out.get("warnings", [])) + ([stab["note"]] if stab and stab["note"] else [])
                     series.update(analysis_columns(series, setup.plant, reference))
-                    by_key[case.key] = CaseResult(case.key, case.label, out["status"], out["message"], metrics,
-                                                  wall, series, out["outcome"], notes, stab)
+                    status, message, judged = judge(out, series, setup.driver)  # scenarios/verdict.py
+                    by_key[case.key] = CaseResult(case.key, case.label, status, message, metrics,
+                                                  wall, series, out["outcome"], notes, stab, judged)
                     write_csv(folder / f"{case.key}.csv", series)
                     write_json(folder / f"{case.key}.json", {
                         "scenario": scenario.name, "scenario_file": str(scenario.path),
                         "scenario_sha256": scenario_sha, "case": case.key, "label": case.label,
-                        "status": out["status"], "message": out["message"], "outcome": out["outcome"].as_dict(),
+                        "status": status, "message": message, "outcome": out["outcome"].as_dict(),
+                        "verdict": judged,
                         "warnings": by_key[case.key].warnings,
                         "metrics": metrics, "metric_units": dict(UNITS), "parameters": params,
                         "samples": setup.n_steps, "step_size_s": scenario.step_size, "algorithm": algorithm,
@@ -787,7 +792,7 @@ def format_table(results: list[CaseResult], paper: dict | None) -> str:
     blocks = []
     for start in range(0, len(results), CASES_PER_BLOCK):
         chunk = results[start:start + CASES_PER_BLOCK]
-        head = f"{'':32s}" + "".join(f"{r.key:>28s}" for r in chunk)
+        head = f"{'':32s}" + "".join(f"{r.key + ('' if r.status == 'ok' else f' [{r.status}]'):>28s}" for r in chunk)
         sub = f"{'':32s}" + "".join(f"{'ours':>10s}{'paper':>9s}{'ratio':>9s}" for _ in chunk)
         lines = [head, sub]
         for i, m in enumerate(METRICS):
