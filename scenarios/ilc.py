@@ -36,6 +36,7 @@ from flexarm.provenance import git_commit, sha256_file, write_atomic, write_json
 from .config import SCENARIO_DIR, Scenario, ScenarioError, load_scenario
 from .metrics import table_metrics
 from .outdir import check_writable, folder_lock, remove_stale
+from .results import portable
 from .runner import (
     DEFAULT_FMU_DIR,
     DEFAULT_NATIVE_FMU_DIR,
@@ -269,6 +270,12 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         feedforward = ilc.feedforward_over(traj, n)
         journal = Journal(folder / "journal.jsonl")
         records = journal.read()
+        trial_keys = sorted(k for k in records if k.startswith("trial-"))
+        if journal.tampered or trial_keys != [f"trial-{j:03d}" for j in range(len(trial_keys))]:
+            # each trial learns from the one before: an edited or missing line cannot be run again alone
+            raise ScenarioError(f"{journal.problems() or folder / 'journal.jsonl'}"
+                                f"{'' if journal.tampered else ': its trials are not consecutive'}; "
+                                "remove that folder or choose another --out")
         config = _config_record(scenario, settings, setup, chain)
         if records:
             old = records.get("config", {})
@@ -356,7 +363,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                    "fmu_sha256": {i: sha256_file(p) for i, p in setup.paths.items()}, "data_sha256": chain,
                    "samples": n, "slew_samples": n_slew, "trials": rows, "stopped": stopped,
                    "evaluation": evaluation}
-        write_json(folder / "evaluation.json", summary)
+        write_json(folder / "evaluation.json", portable(summary, folder))
         _write_csv(folder / "trials.csv", rows)
         if plots and rows:
             plot_convergence(rows, folder / "convergence.png", scenario.name)

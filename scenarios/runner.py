@@ -30,7 +30,7 @@ from .config import KINDS, Scenario, ScenarioError, check_inputs_given, check_si
 from .fmu_files import NotAnFmuError, read_description
 from .metrics import METRICS, UNITS, saturation_warnings, table_metrics
 from .outdir import check_writable, run_folder
-from .results import analysis_columns, write_csv
+from .results import analysis_columns, portable, write_csv
 from .stability import loop_stability
 from .values import check_parameters
 
@@ -566,7 +566,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     by_key[case.key] = CaseResult(case.key, case.label, out["status"], out["message"], metrics,
                                                   wall, series, out["outcome"], notes, stab)
                     write_csv(folder / f"{case.key}.csv", series)
-                    write_json(folder / f"{case.key}.json", {
+                    write_json(folder / f"{case.key}.json", portable({
                         "scenario": scenario.name, "scenario_file": str(scenario.path),
                         "scenario_sha256": scenario_sha, "case": case.key, "label": case.label,
                         "status": out["status"], "message": out["message"], "outcome": out["outcome"].as_dict(),
@@ -582,7 +582,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                         "parameter_file": _relative(DEFAULT_PARAMETER_FILE),
                         "parameter_file_sha256": chain[_relative(DEFAULT_PARAMETER_FILE)],
                         "data_sha256": chain, "fmu_log_tail": out["log"][-20:], "loop_stability": stab,
-                    })
+                    }, folder))
         finally:
             for m in opened:
                 m.close()
