@@ -560,7 +560,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     wall = time.perf_counter() - t0
                     series = {"time": out["time"], **out["signals"]}
                     stab = loop_stability(setup.paths, setup.plant, setup.driver, params, scenario.step_size,
-                                          setup.n_steps * scenario.step_size, algorithm)
+                                          setup.n_steps * scenario.step_size, algorithm, metrics=metrics)
                     notes = list(out.get("warnings", [])) + ([stab["note"]] if stab and stab["note"] else [])
                     series.update(analysis_columns(series, setup.plant, reference))
                     by_key[case.key] = CaseResult(case.key, case.label, out["status"], out["message"], metrics,
