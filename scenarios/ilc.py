@@ -388,12 +388,16 @@ def _with(parameters: dict, inst: str, values: dict) -> dict:
 
 
 def _learned_metadata(scenario, settings, chain, commit) -> dict:
+    from flexarm.gain_schedule import relative_path
     from flexarm.parameters import DEFAULT_PARAMETER_FILE
     from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
     ctrl = scenario.parameters.get("controller", {})
-    return {"trajectory_file": str(DEFAULT_TRAJECTORY_FILE), "trajectory_sha256": sha256_file(DEFAULT_TRAJECTORY_FILE),
-            "parameter_file": str(DEFAULT_PARAMETER_FILE), "parameter_sha256": sha256_file(DEFAULT_PARAMETER_FILE),
+    # relative to the checkout (flexarm/data/...: resolved against the package when read), no absolute path
+    return {"trajectory_file": relative_path(DEFAULT_TRAJECTORY_FILE),
+            "trajectory_sha256": sha256_file(DEFAULT_TRAJECTORY_FILE),
+            "parameter_file": relative_path(DEFAULT_PARAMETER_FILE),
+            "parameter_sha256": sha256_file(DEFAULT_PARAMETER_FILE),
             "gain_set": ctrl.get("gain_set", "gamma0.1"), "schedule_period_s": ctrl.get("schedule_period", 0.2),
             "ilc": settings.as_dict(), "ilc_method": "norm-optimal (Amann, Owens, Rogers), Riccati/adjoint sweep, "
             "zero-phase Butterworth Q-filter, clipped to the motors' peak torques (flexarm.ilc)",
