@@ -76,7 +76,10 @@ def compile_shim(guid: str, model_identifier: str, dest: Path, preflight: str = 
         raise BuildError(f"unexpected GUID {guid!r}, model identifier {model_identifier!r} or start-up check "
                          f"{preflight!r}")
     version = f"{sys.version_info.major}.{sys.version_info.minor}"
+    # -ffile-prefix-map: no path of this checkout in the binary (__FILE__), so the same sources give the same bytes
+    # wherever they are built
     cmd = [c_compiler(), "-std=c11", "-O2", *cflags, "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
+           f"-ffile-prefix-map={SOURCES}=.", f"-ffile-prefix-map={fmi_headers()}=fmi2",
            f"-I{fmi_headers()}", f"-I{SOURCES / 'common'}", f"-I{NATIVE_COMMON_DIR}", f'-DFLEXARM_FMU_GUID="{guid}"',
            f'-DFLEXARM_MODEL_IDENTIFIER="{model_identifier}"', f'-DFLEXARM_LIBPYTHON="{libpython_name()}"',
            f'-DFLEXARM_PYTHON_VERSION="{version}"', f'-DFLEXARM_PREFLIGHT_FILE="{preflight}"',

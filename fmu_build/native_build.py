@@ -303,11 +303,14 @@ def compile_binary(src_dir: Path, model_identifier: str, platform: str, out_dir:
         for target in UNIVERSAL.get(platform, (main_target,)):
             lib = Path(tmp) / target / (model_identifier + suffix)
             lib.parent.mkdir()
+            # -ffile-prefix-map: the temporary folder's name never reaches the binary (reproducible builds)
             cmd = [*zig_command(), "-target", target, "-shared", "-O2", "-g0", "-s", "-ffp-contract=off",
-                   "-fvisibility=hidden", "-std=c99",
+                   "-fvisibility=hidden", "-std=c99", f"-ffile-prefix-map={src_dir}=sources",
                    "-I", str(src_dir), "-o", str(lib), *sorted(str(p) for p in src_dir.glob("*.c"))]
             if platform != "win64":
                 cmd += ["-fPIC", "-lm"]
+            if platform == "darwin64":  # the install name defaults to the -o path, a temporary folder's
+                cmd += [f"-Wl,-install_name,@rpath/{model_identifier}{suffix}"]
             run = subprocess.run(cmd, capture_output=True, text=True, cwd=lib.parent)
             if run.returncode != 0 or not lib.is_file():
                 raise NativeBuildError(f"{model_identifier} for {platform} ({target}): {' '.join(cmd)}\n"

@@ -36,11 +36,13 @@ import hashlib
 import importlib
 import json
 import os
+import re
 import runpy
 import shutil
 import subprocess
 import sys
 import tempfile
+import uuid
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -73,6 +75,25 @@ FMU_OPTIONS = {
     "canSerializeFMUstate": True,
 }
 _ZIP_DATE = (2024, 1, 1, 0, 0, 0)
+#: pythonfmu writes a time-based GUID and the build's date and time: two builds of the same sources would differ in
+#: every byte that carries them (the description, the front end the GUID is compiled into, the documentation).
+_GUID_ATTR = re.compile(r'\sguid="([^"]*)"')
+_DATE_ATTR = re.compile(r'\sgenerationDateAndTime="[^"]*"')
+#: The namespace of the FMUs' content-derived GUIDs (uuid5).
+_GUID_NAMESPACE = uuid.UUID("5f0c7c52-7d3e-4c43-9a55-0c1f3c8a7e21")
+
+
+def reproducible_description(raw: zipfile.ZipFile) -> str:
+    """pythonfmu's modelDescription.xml made a function of the FMU's content: no generationDateAndTime (optional
+    in FMI 2.0), and a GUID derived from the description and every member kept (uuid5 of their SHA-256), so it
+    changes when the FMU does and only then."""
+    text = raw.read("modelDescription.xml").decode("utf-8")
+    text = _DATE_ATTR.sub("", text, count=1)
+    digest = hashlib.sha256(_GUID_ATTR.sub(' guid=""', text, count=1).encode())
+    for name in sorted(n for n in raw.namelist() if _keep(n) and n != "modelDescription.xml"):
+        digest.update(name.encode() + b"\0" + hashlib.sha256(raw.read(name)).digest())
+    guid = str(uuid.uuid5(_GUID_NAMESPACE, digest.hexdigest()))
+    return _GUID_ATTR.sub(f' guid="{guid}"', text, count=1)
 
 
 @functools.lru_cache(maxsize=1)
@@ -368,7 +389,8 @@ def finish_fmu(raw_fmu: Path, dest: Path, spec: FmuSpec, peers: dict[str, dict],
     `preflight`: the file name of the start-up check in ``resources`` that the front end runs.
     """
     with zipfile.ZipFile(raw_fmu) as raw:
-        md = ElementTree.fromstring(raw.read("modelDescription.xml"))
+        description = reproducible_description(raw)
+        md = ElementTree.fromstring(description.encode("utf-8"))
         cosim = md.find("CoSimulation")
         model_id, guid = cosim.get("modelIdentifier"), md.get("guid")
         inner = raw.read(f"binaries/linux64/{model_id}.so")
@@ -381,7 +403,9 @@ def finish_fmu(raw_fmu: Path, dest: Path, spec: FmuSpec, peers: dict[str, dict],
                 out.writestr(info, data, zipfile.ZIP_DEFLATED)
 
             for info in raw.infolist():
-                if _keep(info.filename):
+                if info.filename == "modelDescription.xml":
+                    put(info.filename, description.encode("utf-8"))
+                elif _keep(info.filename):
                     put(info.filename, _PYTHONFMU_INIT.encode() if info.filename == "resources/pythonfmu/__init__.py"
                         else raw.read(info))
             put(f"binaries/linux64/{model_id}.so", shim, 0o755)

@@ -33,6 +33,7 @@ from .config import (
 from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S, START_TIMEOUT_S
 from .master import CoSimulationError
 from .outdir import OutputError, describe_os_error
+from .paper import paper_columns
 from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, ISOLATE, check_kind, format_table, run_scenario
 
 EXIT_OK, EXIT_ERROR, EXIT_REFUSED, EXIT_OUTPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
@@ -278,9 +279,16 @@ def _dispatch(args) -> int:
                                plots=not args.no_plots, kind=kind, native_fmu_dir=args.native_fmu_dir,
                                overrides=overrides, isolate=args.isolate, step_timeout=args.step_timeout)
         written.append(args.out / sc.name)
+        columns = paper_columns(sc, overrides, paper)  # by the parameters run, not by the case's key
         lines = [f"\n== {sc.name}: {sc.description} [{kind} FMUs]",
-                 format_table(results, paper.get(sc.paper_table) if sc.paper_table else None)]
+                 format_table(results, {k: col for k, (_, col) in columns.items()} if sc.paper_table else None)]
         for r in results:
+            if sc.paper_table and r.key not in columns:
+                lines.append(f"   {r.key}: no paper column: no case of the paper's {sc.paper_table} has the "
+                             "parameters this run used")
+            elif sc.paper_table and columns[r.key][0] != r.key:
+                lines.append(f"   {r.key}: the paper column is the paper's case {columns[r.key][0]}, whose "
+                             "parameters this run used")
             if r.status != "ok":
                 lines.append(f"   {r.key}: {r.status} ({r.message})")
             lines += [f"   {r.key}: warning: {w}" for w in r.warnings]

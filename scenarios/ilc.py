@@ -36,6 +36,7 @@ from flexarm.provenance import git_commit, sha256_file, write_atomic, write_json
 from .config import SCENARIO_DIR, Scenario, ScenarioError, load_scenario
 from .metrics import table_metrics
 from .outdir import check_writable, folder_lock, remove_stale
+from .results import portable
 from .runner import (
     DEFAULT_FMU_DIR,
     DEFAULT_NATIVE_FMU_DIR,
@@ -269,6 +270,12 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         feedforward = ilc.feedforward_over(traj, n)
         journal = Journal(folder / "journal.jsonl")
         records = journal.read()
+        trial_keys = sorted(k for k in records if k.startswith("trial-"))
+        if journal.tampered or trial_keys != [f"trial-{j:03d}" for j in range(len(trial_keys))]:
+            # each trial learns from the one before: an edited or missing line cannot be run again alone
+            raise ScenarioError(f"{journal.problems() or folder / 'journal.jsonl'}"
+                                f"{'' if journal.tampered else ': its trials are not consecutive'}; "
+                                "remove that folder or choose another --out")
         config = _config_record(scenario, settings, setup, chain)
         if records:
             old = records.get("config", {})
@@ -356,7 +363,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                    "fmu_sha256": {i: sha256_file(p) for i, p in setup.paths.items()}, "data_sha256": chain,
                    "samples": n, "slew_samples": n_slew, "trials": rows, "stopped": stopped,
                    "evaluation": evaluation}
-        write_json(folder / "evaluation.json", summary)
+        write_json(folder / "evaluation.json", portable(summary, folder))
         _write_csv(folder / "trials.csv", rows)
         if plots and rows:
             plot_convergence(rows, folder / "convergence.png", scenario.name)
@@ -381,12 +388,16 @@ def _with(parameters: dict, inst: str, values: dict) -> dict:
 
 
 def _learned_metadata(scenario, settings, chain, commit) -> dict:
+    from flexarm.gain_schedule import relative_path
     from flexarm.parameters import DEFAULT_PARAMETER_FILE
     from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
     ctrl = scenario.parameters.get("controller", {})
-    return {"trajectory_file": str(DEFAULT_TRAJECTORY_FILE), "trajectory_sha256": sha256_file(DEFAULT_TRAJECTORY_FILE),
-            "parameter_file": str(DEFAULT_PARAMETER_FILE), "parameter_sha256": sha256_file(DEFAULT_PARAMETER_FILE),
+    # relative to the checkout (flexarm/data/...: resolved against the package when read), no absolute path
+    return {"trajectory_file": relative_path(DEFAULT_TRAJECTORY_FILE),
+            "trajectory_sha256": sha256_file(DEFAULT_TRAJECTORY_FILE),
+            "parameter_file": relative_path(DEFAULT_PARAMETER_FILE),
+            "parameter_sha256": sha256_file(DEFAULT_PARAMETER_FILE),
             "gain_set": ctrl.get("gain_set", "gamma0.1"), "schedule_period_s": ctrl.get("schedule_period", 0.2),
             "ilc": settings.as_dict(), "ilc_method": "norm-optimal (Amann, Owens, Rogers), Riccati/adjoint sweep, "
             "zero-phase Butterworth Q-filter, clipped to the motors' peak torques (flexarm.ilc)",

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flexarm.provenance import write_atomic
+from flexarm.provenance import SOURCE_ROOT, write_atomic
 from flexarm.signals import signals
 
 #: The document whose generated table lists the CSV and trajectory.npz layouts.
@@ -58,6 +58,46 @@ def _catalogue_units() -> dict[str, str]:
 
 
 _UNITS: dict[str, str] = {}
+
+
+#: What is left of a directory outside the results folder and the checkout: ``…/name`` (the file's SHA-256, recorded
+#: beside it, says which file it was). An absolute POSIX or Windows path not inside a word (units such as rad/s stay).
+_FOREIGN_DIRS = re.compile(r"(?<![\w.~\-/\\])(?:/|[A-Za-z]:[\\/])(?:[^\s/\\'\"<>|:]+[\\/])+")
+
+
+def portable(obj, folder: str | Path, root: str | Path = SOURCE_ROOT):
+    """`obj` (JSON values) with no absolute path of the machine that ran it, for a results JSON.
+
+    In every string, a path inside the results `folder` becomes relative to it (``none.csv``), one inside the
+    checkout `root` relative to that (``build/fmus/plant.fmu``, ``scenarios/table2.toml``), the home folder ``~``,
+    and the folders of any other absolute path ``…/`` (an FMU of one's own, a temporary unpacking folder in an FMU's
+    log): the files themselves are identified by the SHA-256 the JSON records beside them.
+    """
+    prefixes = []  # (absolute folder, what it becomes), the most specific first
+    for base, name in ((folder, "."), (root, "."), (Path.home, "~")):
+        try:
+            resolved = str(Path(base() if callable(base) else base).resolve())
+        except (OSError, RuntimeError):  # no home folder: nothing of it to hide
+            continue
+        if len(Path(resolved).parts) > 1:  # never the file system's root itself
+            prefixes.append((resolved, name))
+
+    def clean(text: str) -> str:
+        for prefix, name in prefixes:
+            if prefix in text:
+                text = text.replace(prefix + "/", "" if name == "." else name + "/")
+                text = re.sub(re.escape(prefix) + r"(?![\w.\-])", name, text)
+        return _FOREIGN_DIRS.sub("…/", text)
+
+    if isinstance(obj, str):
+        return clean(obj)
+    if isinstance(obj, Path):
+        return clean(str(obj))
+    if isinstance(obj, dict):
+        return {clean(k) if isinstance(k, str) else k: portable(v, folder, root) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [portable(v, folder, root) for v in obj]
+    return obj
 
 
 def write_csv(path: str | Path, columns: dict[str, np.ndarray]) -> None:

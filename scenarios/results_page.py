@@ -239,8 +239,11 @@ def expected_files(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> d
 
 
 def check(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> list[str]:
-    """Unified diffs of every generated file that differs from a fresh run ([] when all match); writes nothing."""
-    diffs = []
+    """Unified diffs of every generated file that differs from a fresh run ([] when all match), and every typed
+    performance figure in the docs (:mod:`scenarios.perf_lint`); writes nothing."""
+    from .perf_lint import check_docs
+
+    diffs = check_docs(REPO)
     for path, text in expected_files(fmu_dir, progress).items():
         old = path.read_text(encoding="utf-8") if path.exists() else ""
         if old != text:

@@ -31,7 +31,7 @@ from .fmu_files import NotAnFmuError, read_description
 from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S
 from .metrics import METRICS, UNITS, saturation_warnings, table_metrics
 from .outdir import check_writable, run_folder
-from .results import analysis_columns, write_csv
+from .results import analysis_columns, portable, write_csv
 from .stability import loop_stability
 from .values import check_parameters
 from .verdict import judge
@@ -596,14 +596,14 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                     wall = time.perf_counter() - t0
                     series = {"time": out["time"], **out["signals"]}
                     stab = loop_stability(setup.paths, setup.plant, setup.driver, params, scenario.step_size,
-                                          setup.n_steps * scenario.step_size, algorithm)
+                                          setup.n_steps * scenario.step_size, algorithm, metrics=metrics)
                     notes = list(out.get("warnings", [])) + ([stab["note"]] if stab and stab["note"] else [])
                     series.update(analysis_columns(series, setup.plant, reference))
                     status, message, judged = judge(out, series, setup.driver)  # scenarios/verdict.py
                     by_key[case.key] = CaseResult(case.key, case.label, status, message, metrics,
                                                   wall, series, out["outcome"], notes, stab, judged)
                     write_csv(folder / f"{case.key}.csv", series)
-                    write_json(folder / f"{case.key}.json", {
+                    write_json(folder / f"{case.key}.json", portable({
                         "scenario": scenario.name, "scenario_file": str(scenario.path),
                         "scenario_sha256": scenario_sha, "case": case.key, "label": case.label,
                         "status": status, "message": message, "outcome": out["outcome"].as_dict(),
@@ -620,7 +620,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                         "parameter_file": _relative(DEFAULT_PARAMETER_FILE),
                         "parameter_file_sha256": chain[_relative(DEFAULT_PARAMETER_FILE)],
                         "data_sha256": chain, "fmu_log_tail": out["log"][-20:], "loop_stability": stab,
-                    })
+                    }, folder))
         finally:
             for m in opened:
                 m.close()

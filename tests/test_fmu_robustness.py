@@ -135,10 +135,27 @@ def test_non_finite_values_return_error_and_the_fmu_stays_usable(fmus, unzipped,
         assert s.status("doStep", math.nan, DT) == ERROR
         assert s.status("doStep", s.time, math.inf) == ERROR
         assert s.status("doStep", s.time, -DT) == ERROR
+        # a step longer than the documented bound is refused at once (it used not to return in 150 s), by name
+        n = len(s.messages)
+        assert s.status("doStep", s.time, 1e6) == ERROR
+        assert any("step_size" in m and "10 s" in m for _, m in s.messages[n:]), s.messages[n:]
         after = drive(s, name, 5, 5)  # usable again: valid values were set
         assert np.all(np.isfinite(before)) and np.all(np.isfinite(after))
     finally:
         s.close()
+
+
+def test_the_step_bound_is_one_fact():
+    """The Python FMUs' MAX_STEP_SIZE and the native glue's GLUE_MAX_STEP_SIZE are the same bound (the docs name
+    10 s for both)."""
+    import re
+
+    text = (ROOT / "fmus" / "common" / "flexarm_fmu_base.py").read_text()
+    py = float(re.search(r"^MAX_STEP_SIZE = ([0-9.e+]+)$", text, re.M)[1])
+    c = float(re.search(r"#define GLUE_MAX_STEP_SIZE ([0-9.e+]+)", (ROOT / "fmus" / "native" / "common" /
+                                                                   "fmi2_glue.h").read_text())[1])
+    assert py == c == 10.0
+    assert "`h` > 10 s" in (ROOT / "docs" / "fmu-interface.md").read_text()
 
 
 # -- memory: 200 instantiate/free cycles -------------------------------------------------------------

@@ -294,7 +294,7 @@ def test_controller_fmus_add_the_learned_correction_python_and_native_alike(tmp_
     """Both kinds of controller FMU with feedforward_correction_file: the Python one equals the library law with
     the same correction bit for bit; the native one equals the Python one to 1e-13 N·m (their K·m products sum in
     different orders: the unlearned controllers differ by the same ~1e-14 N·m), a run past the file's end and the
-    saturation included; a missing or stale file is refused by both."""
+    saturation included; a missing, stale or edited file (its seal broken) is refused by both."""
     from fmu_harness import _controller_inputs, built_fmus
     from native_fmus import native_fmus
 
@@ -318,8 +318,20 @@ def test_controller_fmus_add_the_learned_correction_python_and_native_alike(tmp_
 
     stale = ilc.write_learned_feedforward(tmp_path / "stale", u, 1e-3,
                                           dict(read_learned_feedforward(path).metadata, parameter_sha256="0" * 64))
+    # a broken seal of the .json (one digit of it changed; a byte added that JSON does not see): both kinds
+    # refuse it, as flexarm.ilc.read_learned_feedforward does
+    text = path.with_suffix(".json").read_text()
+    seal = text.split('"json_sha256": "')[1][:64]
+    broken = []
+    for name, edited in (("seal", text.replace(seal, ("1" if seal[0] != "1" else "2") + seal[1:])),
+                         ("space", text.replace("{", "{ ", 1))):
+        shutil.copyfile(path, tmp_path / f"{name}.npz")
+        (tmp_path / f"{name}.json").write_text(edited)
+        broken.append(tmp_path / f"{name}.npz")
+        with pytest.raises(StaleDataError, match="json_sha256"):
+            read_learned_feedforward(broken[-1])
     for fmu in (py, native):
-        for bad in (stale, tmp_path / "missing.npz"):
+        for bad in (stale, tmp_path / "missing.npz", *broken):
             with pytest.raises(Exception):  # noqa: B017 - fmpy raises its own exception type for fmi2Error
                 _torques(fmu, 2, {"feedforward_correction_file": str(bad)})
 
@@ -353,6 +365,15 @@ def test_ilc_scenario_learns_through_the_fmus_and_resumes(tmp_path):
     assert page.startswith(MARKER) and f"| 2 | {rms[2]:.4f} |" in page and "Jacobi stepping" in page
     learned = ilc.read_learned_feedforward(out / "ilc_payload" / "learned_feedforward.npz")
     assert learned.metadata["trials_learned_from"] == 3 and learned.correction.shape == (400, 2)
+    # a number edited in a trial's journal line is refused, naming the line, never reported in trials.csv
+    jpath = out / "ilc_payload" / "journal.jsonl"
+    lines = jpath.read_text().splitlines()
+    rec = json.loads(lines[2])
+    rec["metrics"]["slew_rms_position_error"] /= 10
+    jpath.write_text("\n".join([*lines[:2], json.dumps(rec), *lines[3:]]) + "\n")
+    with pytest.raises(ScenarioError, match=r"line_sha256.*\(line 3\)"):
+        run_ilc(scen, out, plots=False, progress=lambda s: None, trials=3)
+    jpath.write_text("\n".join(lines) + "\n")
     # another configuration in the same folder is refused, not mixed
     scen.write_text(text.replace("leak_weight = 1e-3", "leak_weight = 2e-3"))
     with pytest.raises(ScenarioError, match="another configuration"):

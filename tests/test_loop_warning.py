@@ -330,3 +330,24 @@ def test_the_loop_check_at_a_runs_start_loads_neither_numba_nor_scipy_linalg():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.strip() == "[]", proc.stdout
+
+
+@pytest.mark.parametrize("scenario, samples, measured", [("table2", 3000, -0.19), ("table3", 10000, -0.116)])
+def test_a_default_plant_off_on_the_rms_velocity_error_says_so(tmp_path, scenario, samples, measured):
+    """The issue's two silent cases, the default rodas4 plant: Table 2 noise to 3 s (2.96 e-folds, under the peak's
+    3; rms velocity error 0.799 against the converged plant's 0.986 deg/s, −19 %) and Table 3 noise to 10 s (−11.6 %).
+    Each run now warns, naming the rms velocity error, and its JSON carries the predicted deviation of every error
+    metric. The prediction is a model of the converged plant, which these runs do not run (the mode's amplitude,
+    measured per gain set from these two cases' converged runs, scenarios/stability.py): it must be past 5 % with
+    the measured sign, and its size within a factor of 2 of the measurement (the margin is the model's: one
+    amplitude and the worst growth rate of the schedule, applied from t = 0)."""
+    (r,) = run_scenario(_one_case(scenario, "noise", samples), tmp_path, progress=False)
+    stab = r.loop_stability
+    assert r.status == "ok" and stab["plant_integrator"] == "rodas4" and stab["e_folds_over_run"] <= E_FOLDS
+    dev = stab["predicted_metric_deviation"]
+    assert set(dev) == {"rms_velocity_error", "rms_position_error", "peak_velocity_error", "peak_position_error"}
+    assert dev["rms_velocity_error"] < -DEVIATION and 0.5 < dev["rms_velocity_error"] / measured < 2
+    warned = [w for w in r.warnings if "rms velocity error" in w]
+    assert len(warned) == 1 and f"{dev['rms_velocity_error']:+.1%}" in warned[0], r.warnings
+    saved = json.loads((tmp_path / f"{scenario}-warn" / "noise.json").read_text())
+    assert warned[0] in saved["warnings"] and saved["loop_stability"]["predicted_metric_deviation"] == dev

@@ -123,3 +123,19 @@ def test_scenario_list_block_lists_every_shipped_scenario():
     text = BLOCKS["scenario-list"](None)
     for sc in list_scenarios():
         assert f"| `{sc.name}` | {len(sc.cases)}: " in text
+
+
+def test_no_typed_performance_figure_in_the_docs(tmp_path):
+    """results-page --check refuses a performance figure typed into README.md or docs/ (only generated blocks,
+    from a benchmark's output file, may carry one); the issue's stale figures are of the forms it finds."""
+    from scenarios.perf_lint import check_docs, typed_figures
+    from scenarios.results_page import REPO
+
+    assert check_docs(REPO) == []
+    for stale in ("libcosim: real-time factor **81.7×**", "a native plant step: 7.8 µs per step",
+                  "| plant | `plant.fmu` | 264 KiB |", "`python -m pytest` takes a few minutes"):
+        assert typed_figures(stale), stale
+    assert typed_figures("RK4 at 1.25 µs and finer; the real-time factor of Table 2") == []
+    generated = ("<!-- results-page:plant-step-cost begin (generated) -->\n| rodas4 | 23 µs per step |\n"
+                 "<!-- results-page:plant-step-cost end -->\n")
+    assert typed_figures(generated) == [] and typed_figures(generated + "and 23 µs per step typed\n")[0][0] == 4

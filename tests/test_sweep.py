@@ -73,7 +73,11 @@ def test_serial_table_and_provenance(small):
     assert all(r["warnings"] == [] and 0 < r["loop_stability"]["e_folds_over_run"] < 1 for r in ran)
     assert all(len(r["fmu_sha256.plant"]) == 64 and r["commit"] for r in rows)
     meta = json.loads((res.folder / "sweep.json").read_text())
-    assert meta["sweep_sha256"] and meta["points"] == 16 and meta["sweep_file"] == str(path)
+    # no absolute path of this machine: the sweep file outside the checkout by its name, beside its SHA-256
+    assert meta["sweep_sha256"] and meta["points"] == 16 and meta["sweep_file"] == f"…/{path.name}"
+    assert meta["scenario_file"] == "scenarios/table2.toml"
+    text = (res.folder / "sweep.json").read_text()
+    assert str(path.parent) not in text and str(res.folder) not in text and '"/' not in text
     # random samples: reproducible from their seed, inside their range
     payloads = sorted({float(r["plant.payload_mass"]) for r in rows})
     assert payloads == sorted(load_sweep(path).axes[0].values) and all(0 <= p <= 0.5 for p in payloads)
@@ -151,6 +155,28 @@ def test_resume_skips_done_points(small, tmp_path, capsys):
     assert res.ran == 3 + 8 and res.skipped == 5
     assert _same(res.tables[0]) == _same(serial.tables[0])
     assert journal.read_text().endswith("\n")  # the cut line was closed before appending
+
+
+def test_an_edited_journal_number_is_never_reported(small, tmp_path, capsys):
+    """A metric edited by hand in a finished sweep's journal breaks that line's seal: the rerun names the line,
+    runs its point again and the table holds the computed value, not the edited one; so does a line without a
+    seal (written by hand or by an older version)."""
+    path, serial, _ = small
+    folder = tmp_path / "small"
+    shutil.copytree(serial.folder, folder)
+    journal = folder / "journal.jsonl"
+    lines = journal.read_text().splitlines()
+    recs = [json.loads(x) for x in lines]
+    edited, unsealed = [i for i, r in enumerate(recs) if r["status"] == "ok"][:2]
+    recs[edited]["metrics"]["rms_velocity_error"] *= 7.13  # the issue's edit: mean rms 0.006452 -> 0.04601
+    del recs[unsealed]["line_sha256"]
+    journal.write_text("".join(json.dumps(r) + "\n" if i in (edited, unsealed) else lines[i] + "\n"
+                               for i, r in enumerate(recs)))
+    res = run_sweep(path, tmp_path, serial=True, plots=False, progress=False)
+    err = capsys.readouterr().err
+    assert f"line {edited + 1}, {unsealed + 1}" in err and "run again" in err
+    assert res.ran == 2 + 8 and res.skipped == 6  # the two lines and the 8 error points
+    assert _same(res.tables[0]) == _same(serial.tables[0])
 
 
 def test_fmu_swap_axis(tmp_path):

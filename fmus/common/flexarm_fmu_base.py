@@ -98,12 +98,18 @@ from flexarm_fmu_pythonfmu import PythonfmuSlave, pin_module_namespace
 from pythonfmu.enums import Fmi2Causality, Fmi2Status, Fmi2Variability
 from pythonfmu.variables import Boolean, Integer, Real, String
 
-__all__ = ["BUNDLE_MANIFEST", "CHOICES_MARK", "START_VALUES", "UNITS", "FlexarmSlave", "StepDiscarded", "Var",
-           "bundle_files", "complete_model_description", "own_data_dir", "pin_module_namespace", "slew",
-           "slew_experiment", "tree_sha256", "variable_table"]
+__all__ = ["BUNDLE_MANIFEST", "CHOICES_MARK", "MAX_STEP_SIZE", "START_VALUES", "UNITS", "FlexarmSlave",
+           "StepDiscarded", "Var", "bundle_files", "complete_model_description", "own_data_dir",
+           "pin_module_namespace", "slew", "slew_experiment", "tree_sha256", "variable_table"]
 
 #: Optional file (in an FMU's resources): {variable: start value} of a case's copy of the FMU.
 START_VALUES = "flexarm_start_values.json"
+#: The longest communication step any FMU of this project takes, s; a longer one is refused with fmi2Error naming
+#: step_size. Why a bound: a step must return in bounded time (10 000 plant steps of 1 ms, well under a second
+#: natively) so that a master keeps control of its run; 10 s is the longest run of any scenario (Table 3). The native
+#: glue has the same bound (GLUE_MAX_STEP_SIZE in fmus/native/common/fmi2_glue.h; tests/test_fmu_robustness.py checks
+#: that they agree and that both kinds refuse a longer step).
+MAX_STEP_SIZE = 10.0
 
 # Lifecycle of an instance (FMI 2.0 co-simulation state machine, simplified).
 _INSTANTIATED, _INITIALIZATION, _STEPPING, _TERMINATED = "instantiated", "initialization", "stepping", "terminated"
@@ -306,6 +312,10 @@ class FlexarmSlave(PythonfmuSlave):
                 return False
             if not (math.isfinite(step_size) and step_size > 0.0):
                 self._error(f"step_size: must be a finite communication step > 0 s, got {step_size!r}")
+                return False
+            if step_size > MAX_STEP_SIZE:
+                self._error(f"step_size: {step_size!r} s is longer than the longest communication step these FMUs "
+                            f"take, {MAX_STEP_SIZE:g} s (allowed: 0 < step_size <= {MAX_STEP_SIZE:g} s; split it)")
                 return False
             if not math.isfinite(current_time):
                 self._error(f"current_time: must be finite, got {current_time!r}")

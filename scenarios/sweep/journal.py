@@ -9,7 +9,7 @@ import json
 import os
 from pathlib import Path
 
-from flexarm.provenance import jsonable, write_atomic
+from flexarm.provenance import jsonable, sha256_bytes, write_atomic
 
 from ..metrics import METRICS
 from .plan import Plan
@@ -18,30 +18,72 @@ from .plan import Plan
 STATUSES = ("ok", "unbounded", "error")
 DONE = ("ok", "unbounded")
 
+#: The key of a line's seal: the SHA-256 of the line's record without it, as :func:`_canonical` writes it.
+LINE_SEAL = "line_sha256"
+
+
+def _canonical(record: dict) -> bytes:
+    """The bytes a line's seal is taken over: sorted keys, no spaces; floats as Python writes them (exact round
+    trip, NaN and infinities included), so reading a line and writing it again gives the same bytes."""
+    return json.dumps(record, sort_keys=True, separators=(",", ":"), allow_nan=True).encode()
+
+
+def seal_record(record: dict) -> dict:
+    """``record`` as plain JSON values with its :data:`LINE_SEAL` added."""
+    plain = json.loads(json.dumps({k: v for k, v in record.items() if k != LINE_SEAL}, default=jsonable,
+                                  allow_nan=True))
+    return {**plain, LINE_SEAL: sha256_bytes(_canonical(plain))}
+
 
 class Journal:
-    """Append-only JSON lines: one record per finished point, flushed and fsynced as it comes."""
+    """Append-only JSON lines: one record per finished point, flushed and fsynced as it comes.
+
+    Every line carries its own seal (:data:`LINE_SEAL`), so a number edited by hand is found when the journal is
+    read: such a line, or one without a seal, is not used (:attr:`tampered` names it by its line number) and its
+    point runs again (a sweep) or the journal is refused (an ILC run, whose trials build on each other).
+    """
 
     def __init__(self, path: Path):
         self.path = Path(path)
         self.bad_lines = 0
+        self.tampered: list[int] = []
         self._f = None
 
     def read(self) -> dict[str, dict]:
-        """Latest record per point key (lines that do not parse, e.g. cut by a crash, are skipped)."""
+        """Latest sealed record per point key (lines that do not parse, e.g. cut by a crash, are skipped and
+        counted in :attr:`bad_lines`; lines whose seal is missing or does not match are skipped and their
+        1-based numbers listed in :attr:`tampered`). The records are returned without their seals."""
         records: dict[str, dict] = {}
         self.bad_lines = 0
+        self.tampered = []
         if not self.path.is_file():
             return records
-        for line in self.path.read_text(errors="replace").splitlines():
+        for number, line in enumerate(self.path.read_text(errors="replace").splitlines(), 1):
             if not line.strip():
                 continue
             try:
                 rec = json.loads(line)
-                records[rec["key"]] = rec
-            except (json.JSONDecodeError, KeyError, TypeError):
+                key = rec["key"]
+                seal = rec.pop(LINE_SEAL, None)
+            except (json.JSONDecodeError, KeyError, TypeError, AttributeError):
                 self.bad_lines += 1
+                continue
+            if seal != sha256_bytes(_canonical(rec)):
+                self.tampered.append(number)
+                continue
+            records[key] = rec
         return records
+
+    def problems(self) -> str:
+        """What the last :meth:`read` skipped, as a sentence ('' when nothing)."""
+        parts = []
+        if self.tampered:
+            shown = ", ".join(map(str, self.tampered[:10])) + (", ..." if len(self.tampered) > 10 else "")
+            parts.append(f"{len(self.tampered)} line(s) whose seal ({LINE_SEAL}) is missing or does not match "
+                         f"their content, edited or not written by this version (line {shown})")
+        if self.bad_lines:
+            parts.append(f"{self.bad_lines} unreadable line(s)")
+        return f"{self.path}: skipped " + " and ".join(parts) if parts else ""
 
     def append(self, record: dict) -> None:
         if self._f is None:
@@ -52,7 +94,7 @@ class Journal:
                 self._f.seek(-1, os.SEEK_END)
                 if self._f.read(1) != b"\n":  # a line cut by a crash: never glue the next one to it
                     self._f.write(b"\n")
-        self._f.write((json.dumps(record, default=jsonable, allow_nan=True) + "\n").encode())
+        self._f.write((json.dumps(seal_record(record), allow_nan=True) + "\n").encode())
         self._f.flush()
         os.fsync(self._f.fileno())
 

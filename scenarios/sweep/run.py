@@ -16,6 +16,7 @@ from flexarm.provenance import git_commit, package_version, write_json
 from ..fmu_proxy import DEFAULT_STEP_TIMEOUT_S
 from ..master import RunInterrupted
 from ..outdir import check_writable, folder_lock, remove_stale
+from ..results import portable
 from ..runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, verify_data_chain
 from .journal import DONE, STATUSES, Journal, table_columns, table_rows, write_table
 from .plan import Plan, plan_sweep
@@ -128,7 +129,7 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
             "fmu_sets": [{"fmus": fs.names, "fmu_sha256": fs.sha256} for fs in plan.fmu_sets.values()],
             "started_at": _now(), "journal": "journal.jsonl", "columns": table_columns(plan),
         }
-        write_json(folder / "sweep.json", meta)
+        write_json(folder / "sweep.json", portable(meta, folder))
         bar = Progress(sweep.name, len(plan.points), len(done), progress)
         if progress and done:
             sys.stderr.write(f"{sweep.name}: {len(done)} of {len(plan.points)} points done in {journal.path}, "
@@ -138,8 +139,8 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
             sys.stderr.write(f"{sweep.name}: {unmatched} journal record(s) match no point of this sweep (other "
                              "parameters, scenario content, run length, FMU names or kind, or an older key scheme); "
                              "they are kept but not reused\n")
-        if journal.bad_lines:
-            sys.stderr.write(f"{sweep.name}: skipped {journal.bad_lines} unreadable journal line(s)\n")
+        if journal.problems():  # an edited line is never reported: its point runs again
+            sys.stderr.write(f"{sweep.name}: {journal.problems()}; their points run again\n")
         other_build = sum(records[k].get("fmu_sha256") != plan.fmu_sets[plan.point_set[k]].sha256 for k in done)
         if other_build:
             sys.stderr.write(f"{sweep.name}: {other_build} point(s) in the journal ran on other FMU builds "
@@ -189,10 +190,10 @@ def run_sweep(sweep: Sweep | str | Path, out_dir: Path = DEFAULT_OUT_DIR, fmu_di
             records = now
         rows = table_rows(plan, records)
         tables = write_table(folder / f"{sweep.name}.csv", table_columns(plan), rows)
-        write_json(folder / "sweep.json", {**meta, "finished_at": _now(), "run_now": ran, "from_journal": len(done),
-                                           "interrupted": interrupted is not None,
-                                           "status_counts": {st: sum(r["status"] == st for r in rows)
-                                                             for st in STATUSES}})
+        write_json(folder / "sweep.json", portable({**meta, "finished_at": _now(), "run_now": ran,
+                                                    "from_journal": len(done), "interrupted": interrupted is not None,
+                                                    "status_counts": {st: sum(r["status"] == st for r in rows)
+                                                                      for st in STATUSES}}, folder))
         if isinstance(interrupted, SystemExit):
             raise interrupted
         if interrupted is not None:

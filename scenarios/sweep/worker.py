@@ -160,7 +160,7 @@ def run_point(task: dict) -> dict:
         # a point whose loop grows in a way its plant scheme cannot show says so, as a scenario run does
         stab = loop_stability(setup.paths, setup.plant, setup.driver, setup.case_parameters(task["parameters"]),
                               setup.scenario.step_size, setup.n_steps * setup.scenario.step_size,
-                              setup.scenario.algorithm)
+                              setup.scenario.algorithm, metrics=metrics)
         rec.update(warnings=list(out.get("warnings", [])) + ([stab["note"]] if stab and stab["note"] else []),
                    loop_stability=stab)
     except Exception as exc:  # noqa: BLE001 - recorded against the point, never fatal to the sweep

@@ -564,6 +564,12 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
                  "and t finite", communicationStepSize, currentCommunicationPoint);
         return fmi2Error;
     }
+    if (communicationStepSize > GLUE_MAX_STEP_SIZE) {
+        glue_log(inst, fmi2Error, "fmi2DoStep: step_size = %.17g s is longer than the longest communication step these "
+                 "FMUs take, %g s (allowed: 0 < step_size <= %g s; split it)", communicationStepSize,
+                 GLUE_MAX_STEP_SIZE, GLUE_MAX_STEP_SIZE);
+        return fmi2Error;
+    }
     if (blocked_by_invalid(inst, "fmi2DoStep", CA_INPUT)) return fmi2Error;
     if (inst->outputs_stale && MODEL_INFO.sample != NULL) { /* the sample of t, from the inputs present now */
         fmi2Status s = MODEL_INFO.sample(inst);

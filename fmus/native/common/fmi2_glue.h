@@ -103,6 +103,11 @@ int glue_read_doubles(const Instance *inst, const char *file, const char *text, 
    cannot be read. The caller frees it. */
 char *glue_read_file(const char *path, size_t *size);
 
+/* The longest communication step these FMUs take, s: a longer one is refused with fmi2Error naming step_size, so
+   a step returns in bounded time. The same bound as the Python FMUs' MAX_STEP_SIZE (fmus/common/flexarm_fmu_base.py,
+   where the reason is written; a test checks that the two agree). */
+#define GLUE_MAX_STEP_SIZE 10.0
+
 /* A step within this many seconds of a whole number of samples counts as that number. */
 #define GLUE_STEP_TOLERANCE 1e-9
 

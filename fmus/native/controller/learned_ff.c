@@ -2,8 +2,10 @@
  * The learned feedforward correction of the controller FMUs (flexarm.ilc design files), read at initialisation
  * from the String parameter feedforward_correction_file: the .npz (numpy savez, stored, array correction of shape
  * (m, 2), little-endian doubles) and its .json beside it, which must record the npz's SHA-256 and the SHA-256 of
- * the trajectory and parameter files the FMU was built from: a stale file is refused, as
- * flexarm.ilc.read_learned_feedforward refuses it. Shared by controller.c and controller_lqg.c.
+ * the trajectory and parameter files the FMU was built from, and whose own seal (json_sha256, the SHA-256 of the
+ * .json's bytes with the seal written as 64 zeros, flexarm.provenance.sealed_json_text) must hold: a stale or
+ * edited file is refused, as flexarm.ilc.read_learned_feedforward refuses it. Shared by controller.c and
+ * controller_lqg.c.
  */
 #include <math.h>
 #include <stdio.h>
@@ -30,6 +32,34 @@ static int json_string(const char *json, const char *key, char *out)
     memcpy(out, p, n);
     out[n] = '\0';
     return 0;
+}
+
+/* The seal of a sealed JSON text (flexarm.provenance.read_sealed_json): exactly one "json_sha256": "<64 hex>",
+ * equal to the SHA-256 of the text with those 64 characters written as zeros. 0 if it holds. */
+static int json_seal_holds(const char *json, size_t size)
+{
+    static const char key[] = "\"json_sha256\": \"";
+    const size_t key_len = sizeof key - 1;
+    const char *at = NULL;
+    int seals = 0;
+    for (const char *p = strstr(json, key); p != NULL; p = strstr(p + 1, key)) {
+        size_t i = 0; /* counted as Python's regex counts: the key, 64 lower-case hex digits, a quote */
+        while (i < 64 && ((p[key_len + i] >= '0' && p[key_len + i] <= '9') ||
+                          (p[key_len + i] >= 'a' && p[key_len + i] <= 'f')))
+            i++;
+        if (i == 64 && p[key_len + 64] == '"') seals++, at = p;
+    }
+    if (seals != 1) return -1; /* none, or two: which one was written is unknown */
+    char seal[65], digest[65];
+    memcpy(seal, at + key_len, 64);
+    seal[64] = '\0';
+    char *copy = malloc(size);
+    if (copy == NULL) return -1;
+    memcpy(copy, json, size);
+    memset(copy + (at - json) + key_len, '0', 64);
+    sha256_hex((const unsigned char *)copy, size, digest);
+    free(copy);
+    return strcmp(seal, digest) == 0 ? 0 : -1;
 }
 
 static unsigned read_u16(const unsigned char *p) { return p[0] | (unsigned)p[1] << 8; }
@@ -110,6 +140,11 @@ fmi2Status learned_ff_load(Instance *inst, const char *path, const char *traject
     char digest[65], recorded[80];
     if (zip == NULL || json == NULL) {
         glue_log(inst, fmi2Error, "feedforward_correction_file: cannot read %s", zip == NULL ? path : json_path);
+        goto done;
+    }
+    if (memchr(json, '\0', json_size) != NULL || json_seal_holds(json, json_size) != 0) {
+        glue_log(inst, fmi2Error, "feedforward_correction_file: %s: its seal (json_sha256, the SHA-256 of its own "
+                 "bytes) is missing or does not match: edited or corrupt (learn it again)", json_path);
         goto done;
     }
     sha256_hex((const unsigned char *)zip, size, digest);
