@@ -235,7 +235,7 @@ def serve(fd: int, die_with_parent: bool = True) -> None:
     from fmpy.fmi2 import FMU2Slave
 
     from .compat import fmu2_raw_functions
-    from .master import logging_callbacks
+    from .fmi_callbacks import logging_callbacks
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C is the master's to act on; it kills us if need be
     if die_with_parent:  # die with the master, even when it is killed (SIGKILL) while we hang

@@ -56,18 +56,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from fmpy.fmi1 import calloc, free
 from fmpy.fmi2 import (
     FMU2Slave,
-    fmi2CallbackAllocateMemoryTYPE,
-    fmi2CallbackFreeMemoryTYPE,
-    fmi2CallbackFunctions,
-    fmi2CallbackLoggerTYPE,
     fmi2Real,
     fmi2ValueReference,
 )
 
 from .compat import fmu2_raw_functions
+from .fmi_callbacks import logging_callbacks
 from .fmu_files import read_description, unpack
 from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S, RemoteSlave
 from .interrupts import DeferSignals, RunInterrupted  # noqa: F401 - RunInterrupted: raised by Master.run, imported from here
@@ -154,18 +150,6 @@ class System:
     divergence_limit: float = 1e4
     #: "gauss-seidel" (the default, see the module docstring) or "jacobi".
     algorithm: str = "gauss-seidel"
-
-
-def logging_callbacks(logger) -> fmi2CallbackFunctions:
-    """FMI 2.0 callbacks routing the FMU's log to `logger(component, instance, status, category, message)`.
-
-    Keep the returned object referenced as long as the instance lives (ctypes).
-    """
-    cb = fmi2CallbackFunctions()
-    cb.logger = fmi2CallbackLoggerTYPE(logger)
-    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-    return cb
 
 
 #: In-process FMUs that returned fmi2Fatal, with their callbacks: FMI 2.0 allows no further call (not even
