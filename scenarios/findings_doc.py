@@ -294,6 +294,29 @@ def _findings_settling(runs: PageRuns) -> str:
     return "\n".join(lines)
 
 
+@block("findings-joint-damping")
+def _findings_joint_damping(runs: PageRuns) -> str:
+    """docs/findings.md: the hold's slowest pole without and with the best viscous joint damping
+    (:mod:`flexarm.joint_damping`, the linearised loop: a second)."""
+    from flexarm.gain_schedule import GainSchedule, desired_states
+    from flexarm.joint_damping import SETTLED_EFOLDS, best_joint_damping, hold_loop
+    from flexarm.model import ArmModel
+    from flexarm.parameters import load_parameters
+
+    end = desired_states(load_trajectory())[-1]
+    lines = ["| gains | payload | slowest pole, no joint damping | e^-4 after | best joint damping | slowest decay "
+             "then | e^-4 after |", "|---|---|---|---|---|---|---|"]
+    for label, gain_set in (("γ = 0.1", "gamma0.1"), ("eq. 32", "eq32")):
+        gain = GainSchedule.load(gain_set, "200ms").gains[-1]
+        for payload in (0.0, 0.275):
+            best = best_joint_damping(*hold_loop(ArmModel(load_parameters(payload_mass=payload)), gain, end))
+            p = best["pole_undamped"]
+            lines.append(f"| {label} | {'0.275 kg' if payload else 'none'} | {p.real:.3f} ± {abs(p.imag):.3f}j 1/s | "
+                         f"{SETTLED_EFOLDS / best['rate_undamped']:.1f} s | {best['c']:.2f} N·m·s/rad | "
+                         f"{best['rate']:.3f} 1/s | {SETTLED_EFOLDS / best['rate']:.1f} s |")
+    return "\n".join(lines)
+
+
 @block("scheme-summary")
 def _scheme_summary(runs: PageRuns) -> str:
     """docs/model.md: per scheme, the largest deviation from the converged reference over the three closed loops
