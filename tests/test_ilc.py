@@ -365,6 +365,9 @@ def test_ilc_scenario_learns_through_the_fmus_and_resumes(tmp_path):
     assert page.startswith(MARKER) and f"| 2 | {rms[2]:.4f} |" in page and "Jacobi stepping" in page
     learned = ilc.read_learned_feedforward(out / "ilc_payload" / "learned_feedforward.npz")
     assert learned.metadata["trials_learned_from"] == 3 and learned.correction.shape == (400, 2)
+    for written in ("evaluation.json", "learned_feedforward.json"):  # no absolute path of this machine
+        content = (out / "ilc_payload" / written).read_text()
+        assert str(tmp_path) not in content and '"/' not in content, written
     # a number edited in a trial's journal line is refused, naming the line, never reported in trials.csv
     jpath = out / "ilc_payload" / "journal.jsonl"
     lines = jpath.read_text().splitlines()
