@@ -268,7 +268,8 @@ def loops_part(seconds: float = max(MARKS), schemes=LOOP_SCHEMES, loops=LOOPS, k
                 peaks = _velocity_error_peaks(r, MARKS)
                 if integrator == "exponential":
                     peaks = {m: (v if float(m) <= EXPONENTIAL_HORIZON_S else "refused") for m, v in peaks.items()}
-                out[f"{label}|{s_label}"] = {"status": r.status, "message": r.message, "peak_velocity_error": peaks,
+                out[f"{label}|{s_label}"] = {"status": r.outcome.status, "message": r.outcome.message,
+                                             "peak_velocity_error": peaks,
                                              "end_s": float(r.series["time"][-1]),
                                              "wall_s": time.perf_counter() - start}
     return out
@@ -300,7 +301,7 @@ def horizons_part(seconds: float = 10.0, kind: str = "native") -> dict:
                 c.parameters["plant"]["damping_ratio"] = ratio
             (r,) = run_scenario(s, Path(tmp), progress=False, kind=kind, divergence_limit=DIVERGENCE_LIMIT)
             t = r.series["time"]
-            rec = {"status": r.status, "end_s": float(t[-1]),
+            rec = {"status": r.outcome.status, "end_s": float(t[-1]),  # the master's outcome (as recorded)
                    "peak_velocity_error": _velocity_error_peaks(r, HORIZON_MARKS)}
             if "plant.tip_x" in r.series:
                 dist = np.linalg.norm(np.column_stack([r.series["plant.tip_x"], r.series["plant.tip_y"]]) - end,
@@ -396,7 +397,7 @@ def step_size_comparison(default, fine) -> dict:
     rel = np.sqrt(np.mean((a - b) ** 2, axis=0)) / np.maximum(np.sqrt(np.mean(motion ** 2, axis=0)), 1e-300)
     j = int(np.argmax(rel))
     names = [f"{v}{i}" for v in ("theta", "omega") for i in range(1, 12)]
-    return {"status": [default.status, fine.status], "relative_rms": blocks,
+    return {"status": [default.outcome.status, fine.outcome.status], "relative_rms": blocks,
             "relative_rms_states": max(blocks.values()),
             "worst_relative_rms": float(rel[j]), "worst_state": names[j],
             "rms_velocity_error": [default.metrics and default.metrics["rms_velocity_error"],

@@ -73,6 +73,8 @@ def run_battery(controller: battery.Controller, kind: str, fmu_dir: Path, native
             for fut in as_completed(futures):
                 report(fut.result())
             n_workers = len(client.scheduler_info()["workers"])
+            if cluster is not None:  # free the workers' FMUs before the cluster stops them (else the nanny kills)
+                client.run(battery.close_all)
     finally:
         if cluster is not None:
             cluster.close()
