@@ -28,6 +28,7 @@ import threading
 import time
 from collections.abc import Callable
 from multiprocessing.connection import Connection
+from pathlib import Path
 
 #: The longest a communication step (and a get or set) may take before its FMU's process is killed, s, unless
 #: the run says otherwise (``--step-timeout``): a step of a 1 ms loop takes milliseconds, so this is a hang.
@@ -82,17 +83,22 @@ class RemoteSlave:
             # (a Dask worker's task thread may end before its process); otherwise the child ends at the
             # socket's EOF when it next waits for a request
             die_with = "1" if threading.current_thread() is threading.main_thread() else "0"
+            # the FMU's printing goes to our standard error, never into the table on standard output
             self.proc = subprocess.Popen([sys.executable, "-m", "scenarios.fmu_proxy", str(theirs.fileno()),
                                           die_with],
                                          pass_fds=[theirs.fileno()], stdin=subprocess.DEVNULL,
-                                         stdout=sys.stderr.fileno(), close_fds=True)
+                                         stdout=_stderr_fd(), close_fds=True, env=_child_environment())
         finally:
             theirs.close()
         self.conn = Connection(ours.detach())
         self._vrs: dict[int, tuple] = {}
         self._unanswered: list[str] = []  # calls sent without waiting for their reply (fmi2SetReal)
-        self._call("fmi2Instantiate (loading the FMU in its own process)",
-                   ("load", unzipdir, guid, model_identifier, instance_name), self.slow)
+        try:
+            self._call("fmi2Instantiate (loading the FMU in its own process)",
+                       ("load", unzipdir, guid, model_identifier, instance_name), self.slow)
+        except BaseException:
+            self.kill("not loaded")
+            raise
 
     # ---------------------------------------------------------------- what _Unit calls on an FMU2Slave
 
@@ -213,7 +219,7 @@ class RemoteSlave:
             code = None
         if why is None:
             why = ("its process was lost" if code is None else
-                   f"its process was killed by {signal.Signals(-code).name}" if code < 0 else
+                   f"its process was killed by {_signal_name(-code)}" if code < 0 else
                    f"its process ended with exit code {code}")
         self.gone = self.gone or why
         self.conn.close()
@@ -228,6 +234,31 @@ class RemoteSlave:
         except (OSError, subprocess.TimeoutExpired):
             pass
         self.kill("closed")
+
+
+def _signal_name(signum: int) -> str:
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
+
+
+def _child_environment() -> dict[str, str]:
+    """Our environment, with the folder this package was imported from first on the child's path: the child
+    runs the same code as the master, whatever the current directory (another checkout, an editable install)."""
+    home = Path(__file__).resolve().parent.parent
+    if {"site-packages", "dist-packages"} & set(home.parts):  # an installed copy: the child finds it as we did
+        return dict(os.environ)
+    path = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(home), *path])}
+
+
+def _stderr_fd() -> int:
+    """Standard error's descriptor (2 when sys.stderr is no file, e.g. captured by a test)."""
+    try:
+        return sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):
+        return 2
 
 
 def serve(fd: int, die_with_parent: bool = True) -> None:

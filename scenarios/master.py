@@ -393,6 +393,7 @@ class Master:
                 self._wire(connections)
             except BaseException as exc:  # free what was loaded on every path, Ctrl-C included
                 self.close()
+                interrupted.raise_pending("while loading the FMUs")  # an isolated FMU's load given up for it
                 if isinstance(exc, CoSimulationError) or not isinstance(exc, Exception):
                     raise
                 raise CoSimulationError(f"could not load the FMUs: {exc}; log: {self.messages[-5:]}") from exc
