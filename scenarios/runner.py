@@ -165,6 +165,11 @@ def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = Non
                                 f"got {name!r}")
     refuse_without_native(names, kind)
     folder = Path(native_fmu_dir if kind == "native" else fmu_dir)
+    given = {inst: _given_path(scenario, name) for inst, name in names.items() if name.endswith(".fmu")}
+    for inst, p in given.items():  # a file given by path is checked before minutes of building ours
+        if not p.is_file():
+            raise ScenarioError(f"fmus.{inst}: no FMU at {p}")
+    read_descriptions(given)
     built = {}
     if to_build and build and tool is not None:
         try:
@@ -179,7 +184,7 @@ def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = Non
     paths = {}
     for inst, name in names.items():
         if name.endswith(".fmu"):
-            p = Path(name) if Path(name).is_absolute() else (scenario.path.parent / name)
+            p = given[inst]
         else:
             p = built.get(name, folder / f"{name}.fmu")
         if not p.is_file():
@@ -190,6 +195,11 @@ def resolve_fmus(scenario: Scenario, fmu_dir: Path, controller: str | None = Non
             raise ScenarioError(f"fmus.{inst}: no {what} at {p}{hint}")
         paths[inst] = p
     return paths
+
+
+def _given_path(scenario: Scenario, name: str) -> Path:
+    """A .fmu given by path: as it is when absolute, else relative to the scenario file's folder."""
+    return Path(name) if Path(name).is_absolute() else (scenario.path.parent / name)
 
 
 def read_descriptions(paths: dict[str, Path]) -> dict:
