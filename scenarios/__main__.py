@@ -31,10 +31,11 @@ from .config import (
     select_cases,
 )
 from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S, START_TIMEOUT_S
+from .isolation import ISOLATE
 from .master import CoSimulationError
 from .outdir import OutputError, describe_os_error
 from .paper import paper_columns
-from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, ISOLATE, check_kind, format_table, run_scenario
+from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, check_kind, format_table, run_scenario
 
 EXIT_OK, EXIT_ERROR, EXIT_REFUSED, EXIT_OUTPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader left

@@ -25,7 +25,7 @@ from flexarm.provenance import git_commit, package_version, sha256_file, write_j
 from flexarm.signals import names as signal_names
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
-from . import master
+from . import isolation, master
 from .config import KINDS, Scenario, ScenarioError, check_inputs_given, check_size
 from .fmu_files import NotAnFmuError, read_description
 from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S
@@ -321,7 +321,7 @@ class Setup:
     #: it; None without a reference FMU that has the parameter.
     reference_lead: int | None = None
     #: Instances run each in a process of their own (:mod:`scenarios.fmu_proxy`): by default those given as a
-    #: .fmu path (not ours, :func:`foreign_instances`); every one with ``--isolate all``.
+    #: .fmu path (not ours, :func:`scenarios.isolation.foreign_instances`); every one with ``--isolate all``.
     isolate: list[str] = field(default_factory=list)
     #: Seconds a call of an isolated FMU may take (``--step-timeout``).
     step_timeout: float = DEFAULT_STEP_TIMEOUT_S
@@ -335,15 +335,6 @@ class Setup:
         `algorithm` (default the scenario's: a sweep point steps as the scenario does)."""
         return master.Master(self.paths, self.scenario.order, self.connections,
                              algorithm or self.scenario.algorithm, self.isolate, self.step_timeout)
-
-    def isolating(self, isolate: str, step_timeout: float) -> Setup:
-        """Apply the run's ``--isolate`` (:data:`ISOLATE`) and ``--step-timeout``; returns self."""
-        if isolate not in ISOLATE:
-            raise ScenarioError(f"--isolate: one of {list(ISOLATE)}, got {isolate!r}")
-        if isolate == "all":
-            self.isolate = list(self.paths)
-        self.step_timeout = step_timeout
-        return self
 
     def case_parameters(self, case_parameters: dict[str, dict], where: str = "") -> dict[str, dict]:
         """The case's parameters checked against the FMUs and converted (:func:`scenarios.values.check_parameters`),
@@ -368,7 +359,7 @@ def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str
     """
     kind = kind or scenario.kind
     paths = resolve_fmus(scenario, fmu_dir, controller, build, names, kind, native_fmu_dir)
-    foreign = foreign_instances(scenario, controller, names)
+    foreign = isolation.foreign_instances(scenario, controller, names)
     descriptions = read_descriptions(paths)
     scenario, paths, descriptions = with_reference(scenario, paths, descriptions, fmu_dir, build, kind,
                                                    native_fmu_dir)
@@ -391,20 +382,6 @@ def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str
                  desired_states(traj, np.arange(n + 1) * scenario.step_size), start_parameters(traj),
                  descriptions, kind, left_out, held, list(dict.fromkeys(seen)),
                  reference_lead(scenario, descriptions, algorithm or scenario.algorithm), foreign)
-
-
-#: ``--isolate``: which FMUs run in a process of their own: "foreign" (given as a .fmu path), or "all".
-ISOLATE = ("foreign", "all")
-
-
-def foreign_instances(scenario: Scenario, controller: str | None = None,
-                      names: dict[str, str] | None = None) -> list[str]:
-    """The instances whose FMU is given as a .fmu path (someone else's, or ours by path): not one of this
-    project's FMU names, which this project builds and tests."""
-    names = dict(scenario.fmus if names is None else names)
-    if controller is not None:
-        names["controller"] = controller
-    return sorted(inst for inst, name in names.items() if name.endswith(".fmu"))
 
 
 #: The FMU name of the reference signals (fmus/reference/), added to a run whose controller asks for them.
@@ -556,8 +533,8 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     ``overrides`` ({instance: {variable: value}}, the CLI's ``--set``) are checked against the FMUs' model
     descriptions like scenario values and applied to every case after the scenario's own.
     ``divergence_limit``: a recorded |value| above it ends a case as "unbounded" (:meth:`master.Master.run`).
-    ``isolate`` (:data:`ISOLATE`) and ``step_timeout``: which FMUs run in a process of their own, and how long
-    a call of theirs may take (:meth:`Setup.isolating`).
+    ``isolate`` and ``step_timeout``: which FMUs run in a process of their own, and how long a call of theirs
+    may take (:func:`scenarios.isolation.apply`).
     """
     algorithm = algorithm or scenario.algorithm
     scenario = with_overrides(scenario, overrides)
@@ -576,7 +553,8 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
         setups = []
         for names, cases in groups.items():
             setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None, kind=kind,
-                            native_fmu_dir=native_fmu_dir, algorithm=algorithm).isolating(isolate, step_timeout)
+                            native_fmu_dir=native_fmu_dir, algorithm=algorithm)
+            isolation.apply(setup, isolate, step_timeout)
             check_overrides(setup, overrides or {})
             for case in cases:
                 setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")

@@ -13,10 +13,11 @@ from flexarm.provenance import sha256_bytes
 
 from ..config import ScenarioError
 from ..fmu_proxy import DEFAULT_STEP_TIMEOUT_S
+from ..isolation import apply as apply_isolation
+from ..isolation import foreign_instances
 from ..runner import (
     DEFAULT_FMU_DIR,
     DEFAULT_NATIVE_FMU_DIR,
-    foreign_instances,
     known_fmu_names,
     prepare,
     read_descriptions,
@@ -183,7 +184,7 @@ def _probe(sweep: Sweep, fs: FmuSet, isolate: str, step_timeout: float) -> None:
     """Initialise the base point on this FMU set and step once; a refusal is a :class:`SweepError`."""
     setup = prepare(sweep.scenario, names={k: str(v) for k, v in fs.paths.items()}, build=False)
     setup.isolate = foreign_instances(sweep.scenario, names=fs.names)  # by the names given, not the files' paths
-    setup.isolating(isolate, step_timeout)
+    apply_isolation(setup, isolate, step_timeout)
     with setup.open_master() as m:  # with a reference FMU added; stepping as the scenario does
         outcome = m.probe(setup.case_parameters(sweep.case.parameters), sweep.scenario.step_size)
     if outcome.status == "error":

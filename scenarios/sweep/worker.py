@@ -21,8 +21,10 @@ from distributed import WorkerPlugin
 
 from flexarm.provenance import sha256_bytes, sha256_file, write_atomic
 
+from ..isolation import apply as apply_isolation
+from ..isolation import foreign_instances
 from ..master import CoSimulationError
-from ..runner import foreign_instances, prepare, simulate_case
+from ..runner import prepare, simulate_case
 from ..stability import loop_stability
 from .plan import Plan, Point
 
@@ -105,7 +107,7 @@ def _loaded(task: dict):
         paths[inst] = str(p)
     setup = prepare(task["scenario"], names=paths, build=False)
     setup.isolate = foreign_instances(task["scenario"], names=task["fmu_names"])  # as named, not the cache paths
-    setup.isolating(task["isolate"], task["step_timeout"])
+    apply_isolation(setup, task["isolate"], task["step_timeout"])
     m = setup.open_master()
     _LOADED[key] = (setup, m)
     return setup, m
