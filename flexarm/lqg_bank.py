@@ -392,6 +392,11 @@ class BankController:
 
     sample_index = LqgController.sample_index
 
+    def desired_measurement(self, j: int) -> np.ndarray:
+        """The ten measurements the trajectory predicts for the plant's sample j (zero innovation): the law's
+        y_d, the row the native twin reads (fmus/native/lqg_resources.py writes the same expression)."""
+        return self._y_d[self._c(max(int(j), 0))].copy()
+
     def _c(self, k: int) -> int:
         return min(k, self.n_steps)
 

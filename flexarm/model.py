@@ -77,7 +77,7 @@ N_STATE = 2 * N_ELEMENTS
 _LINK_TIPS = np.array([LINK1_TIP_ELEMENT, LINK2_TIP_ELEMENT], dtype=np.int64)
 
 #: What :meth:`ArmModel.observables` returns, in order: the plant FMU's outputs in the signal catalogue.
-OBSERVABLE_NAMES = signal_names("plant", "output")
+OBSERVABLE_NAMES = signal_names("plant", "output", indices=False)  # the sample indices are the FMU's, not physics
 
 
 class ArmModel:

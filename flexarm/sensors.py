@@ -79,10 +79,10 @@ class SignalInfo(NamedTuple):
 
 #: The plant's true signals, the bank's input vector, in order (the sensors FMU's inputs in the signal catalogue).
 TRUE_SIGNALS: tuple[SignalInfo, ...] = tuple(SignalInfo(s.name, s.unit, s.description)
-                                             for s in catalogue_signals("sensors", "input"))
+                                             for s in catalogue_signals("sensors", "input", indices=False))
 #: The bank's measured output vector, in order (same channels as TRUE_SIGNALS; the sensors FMU's outputs).
 MEASURED_SIGNALS: tuple[SignalInfo, ...] = tuple(SignalInfo(s.name, s.unit, s.description)
-                                                 for s in catalogue_signals("sensors", "output"))
+                                                 for s in catalogue_signals("sensors", "output", indices=False))
 TRUE_SIGNAL_NAMES: tuple[str, ...] = tuple(s.name for s in TRUE_SIGNALS)
 MEASURED_SIGNAL_NAMES: tuple[str, ...] = tuple(s.name for s in MEASURED_SIGNALS)
 N_SIGNALS = len(TRUE_SIGNALS)

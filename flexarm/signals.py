@@ -19,6 +19,11 @@ from typing import NamedTuple
 SIGNAL_FILE = Path(__file__).resolve().parent / "data" / "signals.toml"
 FMUS = ("plant", "sensors", "controller", "reference")
 CAUSALITIES = ("input", "output")
+#: The group of the loop's sample indices (docs/control.md, "The loop measures its own delay"): whole numbers
+#: carried as Reals, not physical signals; the physics vectors (observables, sensor channels) leave them out.
+INDEX_GROUP = "index"
+#: The first index of a run: sample k = 0 carries 1, so a master's zero fill (0) reads as "no sample yet".
+NO_SAMPLE = 0
 
 
 class Signal(NamedTuple):
@@ -57,15 +62,20 @@ def catalogue(path: str | Path = SIGNAL_FILE) -> tuple[Signal, ...]:
     return tuple(out)
 
 
-def signals(fmu: str, causality: str | None = None, groups: tuple[str, ...] | str | None = None) -> tuple[Signal, ...]:
-    """The signals of one FMU, in order; optionally of one causality and of some groups."""
+def signals(fmu: str, causality: str | None = None, groups: tuple[str, ...] | str | None = None,
+            indices: bool = True) -> tuple[Signal, ...]:
+    """The signals of one FMU, in order; optionally of one causality and of some groups.
+
+    ``indices=False`` leaves out the sample indices (group :data:`INDEX_GROUP`): the physical signals only.
+    """
     if fmu not in FMUS:
         raise SignalError(f"fmu: one of {FMUS}, got {fmu!r}")
     groups = (groups,) if isinstance(groups, str) else groups
     return tuple(s for s in catalogue() if s.fmu == fmu and (causality is None or s.causality == causality)
-                 and (groups is None or s.group in groups))
+                 and (groups is None or s.group in groups) and (indices or s.group != INDEX_GROUP))
 
 
-def names(fmu: str, causality: str | None = None, groups: tuple[str, ...] | str | None = None) -> tuple[str, ...]:
+def names(fmu: str, causality: str | None = None, groups: tuple[str, ...] | str | None = None,
+          indices: bool = True) -> tuple[str, ...]:
     """Names of :func:`signals`."""
-    return tuple(s.name for s in signals(fmu, causality, groups))
+    return tuple(s.name for s in signals(fmu, causality, groups, indices))

@@ -47,7 +47,7 @@ DEFAULT_OUT = Path("build") / "fmus-native"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 COMMON_SOURCES = ("fmi2_glue.c", "fmi2_glue.h", "fmi2_glue_internal.h", "fmi2_glue_state.c", "fmi2_glue_resources.c",
                   "live_table.c", "live_table.h", "sha256.c", "sha256.h", "portable_math.c", "portable_math.h",
-                  "libm.h", "libm_link.c", "libm_link.h")
+                  "libm.h", "libm_link.c", "libm_link.h", "loop_index.h")
 #: musl's sin/cos kernels, copied from the ziglang package (MIT licence) so every platform computes the same bits.
 MUSL_SOURCES = ("__sin.c", "__cos.c", "__tan.c", "__rem_pio2.c", "__rem_pio2_large.c")
 

@@ -112,7 +112,7 @@ def default_record(ssd: bytes) -> list[tuple[str, str]]:
     else:
         raise SSPExportError("no connection drives an input 'tau1' (the plant's torque)")
     return [(plant, v) for v in signal_names("plant", "output", ("state", "tip"))] + \
-        [(driver, v) for v in signal_names("controller", "output")]
+        [(driver, v) for v in signal_names("controller", "output", indices=False)]
 
 
 def _prepare_ssd(ssd: bytes, worker_threads: int | None) -> tuple[bytes, float, float]:

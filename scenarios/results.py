@@ -180,9 +180,9 @@ def layout_table() -> str:
             "|---|---|---|---|", "| `time` | s | communication point t_k | `t[k]` |"]
     for s in signals("plant", "output", ("state", "tip")):
         rows.append(f"| `plant.{s.name}` | {s.unit} | {s.description} (plant output) | |")
-    for s in signals("controller", "output"):
+    for s in signals("controller", "output", indices=False):
         rows.append(f"| `controller.{s.name}` | {s.unit} | {s.description} (controller output) | |")
-    for s in signals("sensors", "output"):
+    for s in signals("sensors", "output", indices=False):
         rows.append(f"| `sensors.{s.name}` | {s.unit} | {s.description}: what the controller saw (when wired "
                     "into it) | |")
     rows.append("| `reference.<name>` | | a reference output wired into the controller (when it asks for it) | |")

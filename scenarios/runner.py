@@ -29,6 +29,7 @@ from . import isolation, master
 from .config import KINDS, Scenario, ScenarioError, check_inputs_given, check_size
 from .fmu_files import NotAnFmuError, read_description
 from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S
+from .loop_delay import INDEX_NAMES, loop_delay_record, loop_delay_warnings
 from .metrics import METRICS, UNITS, saturation_warnings, table_metrics
 from .outdir import check_writable, run_folder
 from .results import analysis_columns, portable, write_csv
@@ -377,7 +378,8 @@ def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str
     record += [tuple(s.split(".", 1)) for s in scenario.record if tuple(s.split(".", 1)) not in record]
     traj = desired_trajectory()
     n = run_length(scenario, traj)
-    seen = [(c.src_fmu, c.src_var) for c in connections if c.dst_fmu == driver and (c.src_fmu, c.src_var) not in record]
+    seen = [(c.src_fmu, c.src_var) for c in connections if c.dst_fmu == driver and (c.src_fmu, c.src_var) not in record
+            and c.src_var not in INDEX_NAMES]  # the sample indices are bookkeeping, not signals
     return Setup(scenario, paths, connections, plant, driver, record, n,
                  desired_states(traj, np.arange(n + 1) * scenario.step_size), start_parameters(traj),
                  descriptions, kind, left_out, held, list(dict.fromkeys(seen)),
@@ -482,8 +484,10 @@ def check_overrides(setup: Setup, overrides: dict[str, dict]) -> dict[str, dict]
 def simulate_case(setup: Setup, m: master.Master, parameters: dict[str, dict],
                   progress=None, divergence_limit: float = 1e4) -> tuple[dict, dict[str, float] | None]:
     """One run on a loaded master: the master's result and the table metrics (None unless the outcome is ok)."""
-    out = m.run(setup.case_parameters(parameters), setup.record + setup.seen, setup.n_steps,
+    delay = loop_delay_record(setup.descriptions, setup.driver)
+    out = m.run(setup.case_parameters(parameters), setup.record + setup.seen + delay, setup.n_steps,
                 setup.scenario.step_size, divergence_limit, progress=progress)
+    out.setdefault("warnings", []).extend(loop_delay_warnings(out, delay))
     if out["status"] != "ok":
         return out, None
     sig, p, d = out["signals"], setup.plant, setup.driver

@@ -29,10 +29,12 @@
   bound to the component with one ``ssd:ParameterBinding`` (for masters that
   apply bindings: libcosim applies it, with the same result).
 
-A predictive controller's ``loop_delay_samples`` (the LQG) is what the scenario's stepping puts in
-the loop, in all three places (start value, ``resources/flexarm_start_values.*``, ``.ssv``): 0 for
-a Gauss-Seidel scenario (``lqg``), 2n for a Jacobi one at n ms (``lqg_jacobi``: 2)
-(:func:`loop_delay_parameters`).
+A predictive controller's ``loop_delay_samples`` (the LQG) stays automatic (-1, its start value) unless
+the scenario sets it: the controller then measures the loop delay of whatever master runs the archive
+(docs/control.md, "The loop measures its own delay"), so one archive serves every master (``lqg``).
+A value the scenario sets is replaced by what the scenario's stepping puts in the loop, in all three
+places (start value, ``resources/flexarm_start_values.*``, ``.ssv``): 0 for Gauss-Seidel, 2n for
+Jacobi at n ms (``lqg_jacobi``: 2) (:func:`loop_delay_parameters`).
 
 A case that swaps an FMU (``fmus.controller = "controller_ff"``) simply has
 that FMU in its archive. Each archive is written to a temporary file beside
@@ -55,6 +57,7 @@ from pathlib import Path
 from fmpy import read_model_description
 from lxml import etree
 
+from flexarm.loop_index import AUTOMATIC
 from flexarm.lqg import with_loop_delay
 from flexarm.provenance import write_atomic
 
@@ -351,6 +354,8 @@ def loop_delay_parameters(scenario: Scenario, params: dict, variables: dict) -> 
     """
     if "loop_delay_samples" not in variables:
         return params
+    if int(params.get("loop_delay_samples", variables["loop_delay_samples"].start)) == AUTOMATIC:
+        return params  # it measures the delay of whatever master runs the archive: one archive for every master
     return with_loop_delay(params, scenario.algorithm, _feedthrough_fmus(scenario), scenario.step_size)
 
 

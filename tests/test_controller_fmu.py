@@ -77,13 +77,18 @@ def test_inputs_are_the_sensor_outputs_and_outputs_the_plant_inputs(fmus):
     by_name = {v.name: v for v in md.modelVariables}
     inputs = [v.name for v in md.modelVariables if v.causality == "input"]
     outputs = [v.name for v in md.modelVariables if v.causality == "output"]
-    assert inputs == list(MEASURED_SIGNAL_NAMES)
-    assert [v.name for v in sensors.modelVariables if v.causality == "output"] == inputs
-    assert outputs == ["tau1", "tau2"]
-    assert [v.name for v in plant.modelVariables if v.causality == "input"] == outputs
-    assert all(by_name[n].unit == "N.m" for n in outputs)
-    for unknown in md.outputs:  # direct feedthrough from the ten used measurements, not the accelerometers
-        assert [v.name for v in unknown.dependencies] == list(USED)
+    # the loop's sample index and the plant's report of the torque it held (docs/control.md)
+    assert inputs == [*MEASURED_SIGNAL_NAMES, "sample_index_m", "tau_lag", "tau1_applied", "tau2_applied"]
+    assert [v.name for v in sensors.modelVariables if v.causality == "output"] == inputs[:13]
+    assert outputs == ["tau1", "tau2", "tau_index", "loop_delay", "loop_delay_assumed"]
+    assert [v.name for v in plant.modelVariables if v.causality == "input"] == outputs[:3]
+    assert all(by_name[n].unit == "N.m" for n in outputs[:2]) and all(by_name[n].unit == "1" for n in outputs[2:])
+    # direct feedthrough from the ten used measurements, not the accelerometers; the index follows the time alone,
+    # the measured delay the index received
+    want = {"tau1": list(USED), "tau2": list(USED), "tau_index": [], "loop_delay": ["sample_index_m"],
+            "loop_delay_assumed": []}
+    for unknown in md.outputs:
+        assert [v.name for v in unknown.dependencies] == want[unknown.variable.name]
     assert by_name["schedule_period"].unit == "s"
     # No String choices (issue 12): the choices are Integers listing their options in the description; the one
     # String is a path, the learned feedforward file (issue 25, flexarm.ilc)

@@ -285,10 +285,14 @@ def test_model_structure_declares_what_the_outputs_depend_on(kind):
                 assert deps == set(), (name, out.variable.name)
             elif name == "sensors":
                 assert len(deps) == 1 and deps <= inputs, (name, out.variable.name, deps)  # its true signal
+            elif out.variable.name in ("tau_index", "loop_delay_assumed"):  # the time, the law's setting
+                assert deps == set(), (name, out.variable.name)
+            elif out.variable.name == "loop_delay":  # the index received (docs/control.md)
+                assert deps == {"sample_index_m"}, (name, deps)
             else:
                 assert len(deps) == 10 and deps <= inputs, (name, deps)
         for unknown in md.initialUnknowns:
-            if name == "plant":
+            if name == "plant" or unknown.variable.name in ("tau_index", "loop_delay_assumed"):
                 assert unknown.dependencies is None
             else:
                 out = next(o for o in md.outputs if o.variable is unknown.variable)

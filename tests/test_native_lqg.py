@@ -64,16 +64,24 @@ CASES = [{"loop_delay_samples": d, "integral_action": i, "gain_set": g, "schedul
 CASES.append({"loop_delay_samples": 10, "gain_set": 4, "schedule_period": 0.0, "tau2_max": 0.5})
 
 
+#: The outputs compared: the torques (the sample-index outputs after them are compared in tests/test_loop_delay.py).
+TORQUES = ["tau1", "tau2"]
+
+
 def _agreement(got: np.ndarray, ref: np.ndarray) -> float:
-    """Largest |native - Python| over samples, relative to each torque's peak."""
+    """Largest |native - Python| over samples, relative to each torque's peak (the first two columns; the
+    sample-index outputs after them, when both have them, must be equal)."""
+    if got.shape[1] > 2 and ref.shape[1] > 2:
+        np.testing.assert_array_equal(got[:, 2:], ref[:, 2:])
+    got, ref = got[:, :2], ref[:, :2]
     return float((np.abs(got - ref).max(axis=0) / np.abs(ref).max(axis=0)).max())
 
 
 @pytest.mark.parametrize("params", CASES, ids=lambda p: "-".join(f"{k}={v}" for k, v in p.items()))
 def test_native_lqg_matches_python(params):
     py, native = built_fmus()["controller_lqg"], native_fmus()["controller_lqg"]
-    _, ref = run_fmpy(py, N_STEPS, lqg_inputs, params)
-    _, got = run_fmpy(native, N_STEPS, lqg_inputs, params)
+    _, ref = run_fmpy(py, N_STEPS, lqg_inputs, params, outputs=TORQUES)
+    _, got = run_fmpy(native, N_STEPS, lqg_inputs, params, outputs=TORQUES)
     assert _agreement(got, ref) <= 1e-10, (params, np.abs(got - ref).max(axis=0))
     limits = np.array([params.get("tau1_max", 7.0), params.get("tau2_max", 2.25)])
     assert (np.abs(got) <= limits).all()
@@ -420,8 +428,8 @@ def test_native_bank_matches_python_on_recorded_measurements(case):
         fed = np.vstack([received[1:], received[-1:]])
     else:
         fed = received
-    _, ref = run_fmpy(built_fmus()["controller_lqg"], N_STEPS, recorded_inputs(fed), params)
-    _, got = run_fmpy(native_fmus()["controller_lqg"], N_STEPS, recorded_inputs(fed), params)
+    _, ref = run_fmpy(built_fmus()["controller_lqg"], N_STEPS, recorded_inputs(fed), params, outputs=TORQUES)
+    _, got = run_fmpy(native_fmus()["controller_lqg"], N_STEPS, recorded_inputs(fed), params, outputs=TORQUES)
     np.testing.assert_array_equal(ref[:N_STEPS], np.array(torques))  # the Python FMU is the library law
     bound = max(1e-9, 10 * rounding_spread(case, received))
     assert _agreement(got, ref) <= bound, (case, _agreement(got, ref), bound)
@@ -441,7 +449,8 @@ def test_native_bank_takes_the_posterior_decisions_of_python():
     floored = ((p == p.min(axis=1, keepdims=True)).sum(axis=1) >= 2) & (p.min(axis=1) < 1e-3)  # held at the floor
     assert floored.mean() > 0.5 and np.allclose(p.min(axis=1)[floored], np.exp(law.log_floor), rtol=0.01)
     params = _bank_params(*case[1:])
-    _, got = run_fmpy(native_fmus()["controller_lqg"], N_STEPS, recorded_inputs(received), params)
+    _, got = run_fmpy(native_fmus()["controller_lqg"], N_STEPS, recorded_inputs(received), params,
+                      outputs=TORQUES)
     assert _agreement(got[:N_STEPS], torques) <= 1e-9
     bank = load_bank("200ms")
     for other in ({"reseed_below": 0.0}, {"floor": 1e-5}):
@@ -511,7 +520,8 @@ def test_closed_loop_native_bank_equals_python(tmp_path, scenario, keys, control
     for key in keys:
         c = {**cases[key]["controller"], **controller}
         spread = closed_loop_spread(cases[key].get("plant", {}).get("payload_mass", 0.0),
-                                    cases[key]["sensors"]["noise_enabled"], c["gain_set"], c["loop_delay_samples"],
+                                    cases[key]["sensors"]["noise_enabled"], c["gain_set"],
+                                    c.get("loop_delay_samples", 0),  # lqg: automatic, 0 in its Gauss-Seidel master
                                     c["integral_action"], c.get("tau1_max", 7.0))
         bound = max(1e-9, 10 * spread)
         for name, r in ref[key].items():

@@ -81,7 +81,8 @@ def test_model_description_declares_interface(fmu_path):
     for name, unit in [("theta7", "rad"), ("omega3", "rad/s"), ("eps6", "rad"), ("tip_x", "m"), ("acc2_n", "m/s2")]:
         assert by_name[name].causality == "output" and by_name[name].unit == unit
     assert {u.name for u in md.unitDefinitions} >= {"rad", "rad/s", "N.m", "m", "m/s2", "kg"}
-    assert len(md.outputs) == len(md.initialUnknowns) == 40  # 11 + 11 + 2 + 2 + 6 + 2 + 4 + 2
+    # 11 + 11 + 2 + 2 + 6 + 2 + 4 + 2, and the sample indices sample_index, tau_lag (docs/control.md)
+    assert len(md.outputs) == len(md.initialUnknowns) == 44  # and the torque held, tau1_applied, tau2_applied
     assert all(u.dependencies == [] for u in md.outputs)  # no direct feedthrough
     assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
     assert md.coSimulation.modelIdentifier == "FlexarmPlant"
@@ -307,7 +308,10 @@ def test_outputs_are_the_library_observables(fmu_path):
     from flexarm.model import OBSERVABLE_NAMES
 
     md = read_model_description(str(fmu_path))
-    assert tuple(v.name for v in md.modelVariables if v.causality == "output") == OBSERVABLE_NAMES
+    # then the sample indices (docs/control.md, "The loop measures its own delay")
+    assert tuple(v.name for v in md.modelVariables if v.causality == "output") == (*OBSERVABLE_NAMES, "sample_index",
+                                                                                   "tau_lag", "tau1_applied",
+                                                                                   "tau2_applied")
 
 
 def test_integrator_and_damping_parameters(fmu_path, unzipped):

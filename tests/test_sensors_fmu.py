@@ -85,13 +85,13 @@ def test_inputs_are_the_plant_outputs_and_outputs_the_measured_names(fmus):
     inputs = [v.name for v in md.modelVariables if v.causality == "input"]
     outputs = [v.name for v in md.modelVariables if v.causality == "output"]
     plant_outputs = {v.name: v for v in plant.modelVariables if v.causality == "output"}
-    assert inputs == list(TRUE_SIGNAL_NAMES)
-    assert outputs == list(MEASURED_SIGNAL_NAMES)
+    assert inputs == [*TRUE_SIGNAL_NAMES, "sample_index"]  # and the loop's sample index (docs/control.md)
+    assert outputs == [*MEASURED_SIGNAL_NAMES, "sample_index_m"]
     by_name = {v.name: v for v in md.modelVariables}
     for name in inputs:  # the master connects plant.NAME -> sensors.NAME
         assert name in plant_outputs and plant_outputs[name].unit == by_name[name].unit
     # direct feedthrough, channel by channel: output i depends on input i only
-    for unknown, true_name in zip(md.outputs, TRUE_SIGNAL_NAMES):
+    for unknown, true_name in zip(md.outputs, [*TRUE_SIGNAL_NAMES, "sample_index"]):
         assert [v.name for v in unknown.dependencies] == [true_name]
 
 

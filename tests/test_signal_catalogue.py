@@ -23,11 +23,13 @@ def test_the_committed_interface_document_equals_the_generated_one():
 
 
 def test_library_and_scenarios_lists_come_from_the_catalogue():
-    assert OBSERVABLE_NAMES == signals.names("plant", "output") and len(OBSERVABLE_NAMES) == 40
+    # the physics vectors: every signal but the loop's sample indices (docs/control.md)
+    assert OBSERVABLE_NAMES == signals.names("plant", "output", indices=False) and len(OBSERVABLE_NAMES) == 40
+    assert signals.names("plant", "output")[40:] == ("sample_index", "tau_lag", "tau1_applied", "tau2_applied")
     assert [tuple(s) for s in TRUE_SIGNALS] == [(s.name, s.unit, s.description)
-                                                for s in signals.signals("sensors", "input")]
+                                                for s in signals.signals("sensors", "input", indices=False)]
     assert [tuple(s) for s in MEASURED_SIGNALS] == [(s.name, s.unit, s.description)
-                                                    for s in signals.signals("sensors", "output")]
+                                                    for s in signals.signals("sensors", "output", indices=False)]
     assert PLANT_STATE == [f"theta{i}" for i in range(1, 12)] + [f"omega{i}" for i in range(1, 12)]
 
 
@@ -37,6 +39,8 @@ def test_the_catalogue_wires_by_name_with_matching_units():
     for dst, src in (("sensors", "plant"), ("controller", "sensors"), ("plant", "controller")):
         for s in signals.signals(dst, "input"):
             source = by.get((src, "output", s.name))
+            if source is None and dst == "controller" and s.group == signals.INDEX_GROUP:
+                source = by.get(("plant", "output", s.name))  # the plant's report of the torque it held
             assert source is not None and source.unit == s.unit, (dst, s.name)
 
 
@@ -48,9 +52,10 @@ def test_each_fmu_declares_exactly_its_catalogue_rows(fmu):
     for causality in ("input", "output"):
         got = [(v.name, v.unit or "", v.description) for v in md.modelVariables if v.causality == causality]
         want = [(s.name, s.unit, s.description) for s in signals.signals(kind, causality)]
-        if kind == "sensors":  # the FMU's text says what the channel is to it
-            want = [(n, u, f"True {d} (plant output {n})" if causality == "input" else f"Measured: {d}")
-                    for n, u, d in want]
+        if kind == "sensors":  # the FMU's text says what the channel is to it (the index's is the catalogue's)
+            index = signals.names(kind, causality, signals.INDEX_GROUP)
+            want = [(n, u, d if n in index else f"True {d} (plant output {n})" if causality == "input"
+                     else f"Measured: {d}") for n, u, d in want]
         assert got == want, (fmu, causality)
 
 

@@ -45,9 +45,11 @@ from typing import ClassVar
 import numpy as np
 from flexarm_feedthrough import FeedthroughSlave, whole_samples
 from flexarm_fmu_base import Var, own_data_dir, slew_experiment, variable_table
+from pythonfmu.enums import Fmi2Status
 
 from flexarm.control import PEAK_TORQUE, TrackingController
 from flexarm.ilc import read_learned_feedforward  # imported here, so the build bundles it (fmu_build traces imports)
+from flexarm.loop_index import index_of_time, measured_delay
 from flexarm.lqr import OMEGA7_CHOICES, canonical_name, default_trajectory_path
 from flexarm.signals import names, signals
 
@@ -88,7 +90,11 @@ VARIABLES = variable_table([
         "How the theta7-rate error is formed: from the joint-2 tachometer (qd2 error) or rigid-body "
         "(qd1 + qd2 errors)", 1, 1, 2, type="Integer", choices=OMEGA7_ITEMS),
     *[Var(s.name, "output", "continuous", s.unit, s.description, depends_on=USED_INPUTS)
-      for s in signals("controller", "output")],
+      for s in signals("controller", "output", indices=False)],
+    # the index of the torques' sample: a function of the time alone (flexarm.loop_index)
+    *[Var(s.name, "output", "continuous", s.unit, s.description,
+          depends_on=("sample_index_m",) if s.name == "loop_delay" else ())
+      for s in signals("controller", "output", "index")],
     # Last, so that the native twins (no Strings in their glue) leave it out without a gap in the references.
     Var(FEEDFORWARD_CORRECTION, "parameter", "fixed", None,
         "Learned feedforward correction: path of a flexarm.ilc design file (.npz with its .json); "
@@ -159,6 +165,8 @@ class ControllerSlave(FeedthroughSlave):
         self.law: TrackingController | None = None
         self._key = None
         self._used_vrs = [self._vr[n] for n in USED_INPUTS]
+        self._index_vr = self._vr["sample_index_m"]
+        self.delay_contradictions = 0  # fmi2DoSteps whose measured loop delay contradicted the law's (warn_delay)
 
     def _config(self) -> tuple:
         omega7 = dict((v, n) for v, n, _ in OMEGA7_ITEMS).get(self.value("omega7_estimate"))
@@ -184,6 +192,7 @@ class ControllerSlave(FeedthroughSlave):
         return (*self._config(), self._correction())
 
     def setup(self) -> None:
+        self.delay_contradictions = 0
         key = self._law_key()
         if self.law is not None and key == self._key:
             return
@@ -197,14 +206,45 @@ class ControllerSlave(FeedthroughSlave):
 
     def evaluate(self) -> np.ndarray:
         x = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)  # q1_m .. eps6_m
-        return self.law.torque_from_measurements(self.law.sample_index(self.time), x)
+        k = self.law.sample_index(self.time)
+        return np.concatenate([self.law.torque_from_measurements(k, x),
+                               self.index_outputs(k, self._values[self._index_vr], 0)])
+
+    def index_outputs(self, k: int, index: float, assumed: int) -> list[float]:
+        """``tau_index``, ``loop_delay``, ``loop_delay_assumed`` of the torques of sample k computed from
+        measurements carrying `index` by a law that predicts over `assumed` samples."""
+        return [index_of_time(k * self.law.dt), measured_delay(k, index), float(assumed)]
+
+    def warn_delay(self, t: float, measured: float, assumed: int, setting: str) -> None:
+        """Say in the FMI log, once per run, that the loop delay measured at fmi2DoStep contradicts the law's.
+
+        `measured` < 0 (no index) says nothing. At fmi2DoStep a feedthrough law sees the inputs the master set
+        last: a delay of 1 there means the master reads the torques before it sets the measurements (Jacobi
+        stepping), so the torques it applied were computed at least 2 samples after their measurement.
+        """
+        if measured < 0 or measured == assumed:
+            return
+        self.delay_contradictions += 1
+        if self.delay_contradictions == 1:
+            self.log(f"{self.instance_name}: loop delay contradiction at t = {t!r} s: the measurements present at "
+                     f"fmi2DoStep are of the plant's sample {measured:g} sample(s) before the one the torques are "
+                     f"for (tau_index - sample_index_m), but the law predicts over {assumed} ({setting}); the "
+                     "master's stepping differs from the one the law is set for (a Jacobi master reads the "
+                     "torques before it sets the measurements). Use controller_lqg with loop_delay_samples = -1 "
+                     "(automatic), which measures the delay and predicts over it", Fmi2Status.warning)
+
+    def commit(self, t: float, h: float, n: int) -> None:
+        # the outputs were just evaluated from the inputs present at fmi2DoStep
+        self.warn_delay(t, self._values[self._vr["loop_delay"]], 0, "the paper's law assumes no delay")
 
     def samples_in_step(self, t: float, h: float) -> int:
         return whole_samples(h, self.law.dt, "the controller's sample (the trajectory's sample time)")
 
     def get_sample_state(self) -> dict:
-        return {}  # stateless: the torque is a function of the time and the inputs
+        # stateless: the torque is a function of the time and the inputs; the warning is said once per run
+        return {"delay_contradictions": self.delay_contradictions}
 
     def set_sample_state(self, state: dict) -> None:
         if self.law is None or self._key != self._law_key():
             self.setup()
+        self.delay_contradictions = int(state.get("delay_contradictions", 0))

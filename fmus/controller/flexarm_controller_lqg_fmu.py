@@ -43,14 +43,17 @@ rounding) does nothing; a step that is no whole number of samples (within
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
 from flexarm_controller_base import FEEDFORWARD_CORRECTION, VARIABLES, ControllerSlave
 from flexarm_feedthrough import whole_samples
 from flexarm_fmu_base import Var, pin_module_namespace, variable_table
+from pythonfmu.enums import Fmi2Status
 
 from flexarm.ilc import read_learned_feedforward
+from flexarm.loop_index import AUTOMATIC, NO_SAMPLE, is_placeholder, measured_delay, received_index
 from flexarm.lqg import MAX_DELAY_SAMPLES, LqgController, lqg_controller
 from flexarm.lqg_bank import BANK_SCHEDULES, BankController, bank_controller
 
@@ -89,10 +92,13 @@ class FlexarmControllerLQG(ControllerSlave):
         *[v for v in VARIABLES if v.name != FEEDFORWARD_CORRECTION],  # last here too (value references kept)
         Var("loop_delay_samples", "parameter", "fixed", None,
             "Samples between the plant state measured and the sample whose torques use it; the estimator "
-            "predicts across them. 0: direct feedthrough (Gauss-Seidel master); d > 0: no direct feedthrough, "
-            "the torques are computed at fmi2DoStep and held (Jacobi master at n ms with separate sensors "
-            "and controller FMUs: 2n)",
-            0, 0, MAX_DELAY_SAMPLES, type="Integer"),
+            "predicts across them. -1 (automatic, the start value): measured from the sample indices "
+            "(sample_index_m, tau_index), direct feedthrough while the delay is 0 (Gauss-Seidel master), "
+            "no feedthrough and a prediction over the measured delay from the first step that shows one "
+            "(Jacobi master); 0: direct feedthrough; d > 0: no direct feedthrough, the torques are computed "
+            "at fmi2DoStep and held (Jacobi master at n ms with separate sensors and controller FMUs: 2n). "
+            "An explicit value that contradicts the measured delay is warned in the log",
+            AUTOMATIC, AUTOMATIC, MAX_DELAY_SAMPLES, type="Integer"),
         Var("integral_action", "parameter", "fixed", None,
             "Feed back the integrated joint-angle errors (anti-windup: frozen while a torque saturates)",
             False, type="Boolean"),
@@ -108,62 +114,166 @@ class FlexarmControllerLQG(ControllerSlave):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.state = None  # LqgState or BankState (the estimator's), committed
-        self._pending = None  # loop_delay_samples = 0: the state after the sample the outputs show (derived)
-        self._tau = None  # loop_delay_samples > 0: the torques held until the next doStep
+        self._pending = None  # feedthrough (delay 0): the state after the sample the outputs show (derived)
+        self._tau = None  # delay > 0: the outputs held until the next doStep (torques, then the index outputs)
+        self.delay = 0  # the delay the law in force predicts over (loop_delay_samples, or the measured one)
+        self._unwired_warned = False
+        #: sample -> the torque the plant held over it where that was not this controller's (tau_lag != 0)
+        self._foreign: dict[int, list[float]] = {}
+        self._lag_vr = self._vr["tau_lag"]
+        self._applied_vrs = (self._vr["tau1_applied"], self._vr["tau2_applied"])
 
     def _config(self) -> tuple:
         name, schedule, tau1_max, tau2_max, _omega7 = super()._config()
         return (name, schedule, tau1_max, tau2_max, int(self.value("loop_delay_samples")),
                 bool(self.value("integral_action")), int(self.value("estimator")), self._correction())
 
-    def setup(self) -> None:
+    @property
+    def automatic(self) -> bool:
+        return self._key[4] == AUTOMATIC
+
+    def _build(self, delay: int) -> None:
+        """The law of the configuration with the loop delay `delay` (samples)."""
+        key = self._config()
         try:
-            key = self._config()
-            self.law = _law(*key)
+            self.law = _law(*key[:4], delay, *key[5:])
         except (ValueError, OSError) as exc:
             raise ValueError(f"gain_set = {self.value('gain_set')!r}, schedule_period = "
                              f"{self.value('schedule_period')!r} s, loop_delay_samples = "
                              f"{self.value('loop_delay_samples')!r}, estimator = {self.value('estimator')!r}, "
                              f"{FEEDFORWARD_CORRECTION} = {self.value(FEEDFORWARD_CORRECTION)!r}: {exc}") from None
-        self._key = key
+        self._key, self.delay = key, delay
+
+    def setup(self) -> None:
+        self.delay_contradictions, self._unwired_warned, self._foreign = 0, False, {}
+        requested = int(self.value("loop_delay_samples"))
+        if requested < AUTOMATIC:
+            raise ValueError(f"loop_delay_samples: {requested!r} is not -1 (automatic) or 0..{MAX_DELAY_SAMPLES}")
+        # automatic starts as a Gauss-Seidel master's law (delay 0, direct feedthrough): exactly it while the
+        # measured delay stays 0 (docs/control.md, "The loop measures its own delay")
+        self._build(0 if requested == AUTOMATIC else requested)
         self.state = self.law.initial_state()
         self._pending = self._tau = None
         if self.law.delay > 0:  # sample 0 from the trajectory alone (no measurement exists yet)
-            self._sample(self.law.sample_index(self.time), None)
+            self._sample(self.law.sample_index(self.time), None, NO_SAMPLE)
 
     def _measurements(self) -> np.ndarray:
         return np.array([self._values[vr] for vr in self._used_vrs], dtype=float)  # q1_m .. eps6_m
 
-    def _sample(self, k: int, measurements) -> None:
-        """Run sample k of the delayed law (loop_delay_samples > 0): commit it and hold its torques.
+    def _desired(self, j: int) -> np.ndarray:
+        """The measurement the trajectory predicts for the plant's sample j (zero innovation)."""
+        return self.law.desired_measurement(j)
+
+    def _sample(self, k: int, measurements, index: float) -> None:
+        """Run sample k of the delayed law (delay > 0): commit it and hold its torques.
 
         The measurement of sample k is that of the plant at k - d; before k = d there is none and the filter
-        gets the measurement the trajectory predicts at t = 0 (zero innovation on the zero initial error).
+        gets the measurement the trajectory predicts at t = 0 (zero innovation on the zero initial error); a
+        master's placeholder (no index, all zero) is no measurement either.
         """
         if k < self.law.delay:
-            measurements = self.law.design.C @ self.law.z[0]
-        self._tau, self.state = self.law.step(self.state, k, measurements)
+            measurements, index = self.law.design.C @ self.law.z[0], NO_SAMPLE
+        elif measurements is None or is_placeholder(index, measurements):
+            measurements, index = self._desired(k - self.law.delay), NO_SAMPLE
+        tau, self.state = self.law.step(self.state, k, measurements)
+        self._tau = np.concatenate([tau, self.index_outputs(k, index, self.law.delay)])
 
     def evaluate(self) -> np.ndarray:
         if self.law.delay > 0:
             return self._tau
-        tau, self._pending = self.law.step(self.state, self.law.sample_index(self.time), self._measurements())
-        return tau
+        k = self.law.sample_index(self.time)
+        measurements, index = self._measurements(), self._values[self._index_vr]
+        if is_placeholder(index, measurements):  # fmpy's first step: no sample yet, not a measurement of q = 0
+            measurements = self._desired(k)
+        tau, self._pending = self.law.step(self._with_applied(self.state, self._applied(k)), k, measurements)
+        return np.concatenate([tau, self.index_outputs(k, index, 0)])
+
+    def _applied(self, k: int) -> tuple[int, list[float]] | None:
+        """(k - 1, the torque the plant held over sample k - 1) when the plant reports that it was not this
+        controller's for that sample (tau_lag != 0: a master's fill before the first exchange, a late torque),
+        else None. An unwired tau_lag holds 0: nothing to correct."""
+        if k < 1 or self._values[self._lag_vr] == 0.0:
+            return None
+        return k - 1, [float(self._values[vr]) for vr in self._applied_vrs]
+
+    def _with_applied(self, state, applied: tuple[int, list[float]] | None):
+        """`state` with the torque its filter assumes for sample s replaced by the one the plant held (a copy)."""
+        if applied is None:
+            return state
+        s, torque = applied
+        row = len(state.du) - (state.k - s)  # du: the torques of samples state.k - len(du) .. state.k - 1
+        if not 0 <= row < len(state.du):
+            return state
+        du = state.du.copy()
+        du[row] = np.asarray(torque) - self.law.feedforward(s)
+        return dataclasses.replace(state, du=du)
+
+    def _remember(self, applied: tuple[int, list[float]] | None) -> None:
+        if applied is not None:
+            self._foreign[applied[0]] = applied[1]
+            for s in sorted(self._foreign)[:-16]:  # a switch comes within the first steps: a few are enough
+                del self._foreign[s]
 
     def commit(self, t: float, h: float, n: int) -> None:
         held = self._measurements()  # the inputs present at fmi2DoStep, held inside the step
+        index = self._values[self._index_vr]
+        k = self.law.sample_index(t)
+        self._warn_unwired(t, index, held)
+        applied = self._applied(k)
+        self._remember(applied)
         if self.law.delay > 0:  # samples k + 1 .. k + n; the last one's torques are published
-            if self.state.k != self.law.sample_index(t) + 1:
-                raise ValueError(f"current_time: {t!r} s is sample {self.law.sample_index(t)}, but the controller "
+            if self.state.k != k + 1:
+                raise ValueError(f"current_time: {t!r} s is sample {k}, but the controller "
                                  f"computed sample {self.state.k - 1} last (one fmi2DoStep per communication "
                                  "point, from t = 0)")
+            self.state = self._with_applied(self.state, applied)
             for _ in range(n):
-                self._sample(self.state.k, held)
+                self._sample(self.state.k, held, index)
+            self.warn_delay(t, self._tau[3], self.law.delay, self._setting())
             return
-        state, self._pending = self._pending, None  # sample k, evaluated from the inputs present
+        measured = measured_delay(k, index)
+        if self.automatic and measured >= 1:  # the master sets the measurements after it reads the torques
+            self._switch(t, k, int(measured) + n, n, held, index)  # the last of the n samples is published
+            return
+        self.warn_delay(t, measured, 0, self._setting())
+        state, self._pending = self._pending, None  # sample k, evaluated from the inputs present (and torque held)
         for _ in range(n - 1):
             _, state = self.law.step(state, state.k, held)
         self.state = state
+
+    def _setting(self) -> str:
+        return f"loop_delay_samples = {self._key[4]}" + (" (automatic)" if self.automatic else "")
+
+    def _switch(self, t: float, k: int, delay: int, n: int, held, index: float) -> None:
+        """Automatic delay: the measurements present at fmi2DoStep(t_k) are `delay` - n samples old, so the master
+        reads before it sets (Jacobi stepping) and the torques published after this step of n samples are
+        `delay` samples late (2n in a Jacobi master at n ms, the explicit guidance). From now on
+        the law predicts over `delay` without feedthrough, as loop_delay_samples = `delay` would: its samples
+        0 .. k are run again from the trajectory alone (before k = delay such a law has no measurement; a
+        switch happens at the first steps), then k + 1 .. k + n from the inputs present."""
+        delay = min(delay, MAX_DELAY_SAMPLES)
+        self._build(delay)
+        self.log(f"{self.instance_name}: loop_delay_samples = -1 (automatic): the loop delay measured at "
+                 f"fmi2DoStep(t = {t!r} s) is {delay} samples (the master reads the torques before it sets the "
+                 f"measurements); predicting over {delay} samples from sample {k + 1} on", Fmi2Status.ok)
+        self.state, self._pending = self.law.initial_state(), None
+        for s in range(k + 1):
+            self._sample(s, None, NO_SAMPLE)
+            if s in self._foreign:  # the plant held another torque over s than this law's (fmpy's first step)
+                self.state = self._with_applied(self.state, (s, self._foreign[s]))
+        for _ in range(n):
+            self._sample(self.state.k, held, index)
+
+    def _warn_unwired(self, t: float, index: float, measurements) -> None:
+        """Say once that the measurements carry no index (sample_index_m not wired): no delay can be measured."""
+        if self._unwired_warned or received_index(index) is not None or is_placeholder(index, measurements):
+            return
+        self._unwired_warned = True
+        self.log(f"{self.instance_name}: sample_index_m is {index!r} at t = {t!r} s while the measurements are "
+                 "not a master's placeholder: the sample index is not wired (connect the plant's sample_index to "
+                 "the sensors and the sensors' sample_index_m to this FMU, or the plant's sample_index here "
+                 f"directly), so the loop delay cannot be measured; {self._setting()} is taken as given "
+                 "(automatic: 0, a Gauss-Seidel master's)", Fmi2Status.warning)
 
     def samples_in_step(self, t: float, h: float) -> int:
         return whole_samples(h, self.law.dt, "the controller's 1 ms sample (controller_lqg is a sampled filter "
@@ -172,14 +282,20 @@ class FlexarmControllerLQG(ControllerSlave):
     def get_sample_state(self) -> dict:
         as_dict = lambda s: None if s is None else s.as_dict()  # noqa: E731
         return {"lqg": as_dict(self.state), "pending": as_dict(self._pending),
-                "tau": None if self._tau is None else self._tau.tolist()}
+                "tau": None if self._tau is None else self._tau.tolist(), "delay": self.delay,
+                "delay_contradictions": self.delay_contradictions, "unwired_warned": self._unwired_warned,
+                "foreign": {str(s): v for s, v in self._foreign.items()}}
 
     def set_sample_state(self, state: dict) -> None:
-        if self.law is None or self._key != self._config():
-            self.setup()
+        delay = int(state.get("delay", self.delay))
+        if self.law is None or self._key != self._config() or self.delay != delay:
+            self._build(delay)
         state_type = type(self.law.initial_state())
         from_dict = lambda d: None if d is None else state_type.from_dict(d)  # noqa: E731
         if state.get("lqg") is not None:
             self.state = from_dict(state["lqg"])
         self._pending = from_dict(state.get("pending"))
         self._tau = None if state.get("tau") is None else np.array(state["tau"], dtype=float)
+        self.delay_contradictions = int(state.get("delay_contradictions", 0))
+        self._unwired_warned = bool(state.get("unwired_warned", False))
+        self._foreign = {int(s): list(v) for s, v in state.get("foreign", {}).items()}

@@ -11,13 +11,15 @@ Interface (full table in ``docs/fmu-interface.md``):
 Its inputs and outputs are the plant's rows of the signal catalogue
 (``flexarm/data/signals.toml``):
 
-* inputs ``tau1``, ``tau2`` (N·m), held constant over each step;
+* inputs ``tau1``, ``tau2`` (N·m), held constant over each step, and ``tau_index``, the index of the
+  controller sample they were computed for (:mod:`flexarm.loop_index`);
 * parameters ``payload_mass`` (kg), ``q1_0``, ``q2_0`` (rad), ``substeps``
   (per millisecond of the step), ``integrator`` (1 ``rodas4``, 2 ``exponential``,
   3 ``gauss``, 4 ``reference``) and ``damping_ratio``;
 * outputs at the communication point: element angles and rates, joint
   angles and rates, strain-gauge angles, tip position, link-tip
-  accelerations and accelerometer signals.
+  accelerations and accelerometer signals; ``sample_index`` (the index of the sample the outputs belong
+  to) and ``tau_lag`` (how late the torque held over the finished step was, -1 without an index).
 
 Defaults (nothing set): the arm starts at rest and undeformed on the
 committed trajectory's first state (``q1_0``, ``q2_0`` read from
@@ -86,6 +88,7 @@ from flexarm.integrator import (
     advance,
     check_horizon,
 )
+from flexarm.loop_index import index_of_time, torque_lag
 from flexarm.model import (
     ArmModel,
     N,
@@ -169,7 +172,7 @@ class FlexarmPlant(FlexarmSlave):
         self._build_model()
         z = np.concatenate([rigid_configuration(self.value("q1_0"), self.value("q2_0")), np.zeros(N)])
         tau = self._torque()
-        self.set_outputs(self._outputs(z, tau))
+        self.set_outputs(self._outputs(z, tau, self.time, self.time))
         self.z, self.tau_held, self.last_error = z, tau, 0.0
 
     def step(self, t: float, h: float) -> None:
@@ -181,14 +184,20 @@ class FlexarmPlant(FlexarmSlave):
         except IntegrationError as exc:  # FMI's discard: not done, a smaller step (or more substeps) may do
             raise StepDiscarded(f"{exc} (tau1 = {float(tau[0])!r} N.m, tau2 = {float(tau[1])!r} N.m, h = {h!r} s, "
                                 f"substeps = {self.value('substeps')})") from None
-        outputs = self._outputs(z, tau)
+        outputs = self._outputs(z, tau, t + h, t)
         # Commit only after everything succeeded: a failed step leaves the state untouched.
         self.set_outputs(outputs)
         self.z, self.tau_held, self.last_error = z, tau, err
 
-    def _outputs(self, z: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """All outputs in table order (= flexarm.model.OBSERVABLE_NAMES) for state z and held torque tau."""
-        return self.model.observables(z, tau)
+    def _outputs(self, z: np.ndarray, tau: np.ndarray, t: float, held_from: float) -> np.ndarray:
+        """All outputs in table order for state z at time t and torque tau held since `held_from`.
+
+        flexarm.model.OBSERVABLE_NAMES, then the sample indices (``sample_index``, ``tau_lag``; see
+        :mod:`flexarm.loop_index`; the tau_index present now came with tau) and the torque held
+        (``tau1_applied``, ``tau2_applied``).
+        """
+        return np.concatenate([self.model.observables(z, tau),
+                               [index_of_time(t), torque_lag(held_from, self.value("tau_index")), *tau]])
 
     def get_internal_state(self) -> dict:
         return {"z": self.z.tolist(), "tau_held": self.tau_held.tolist(), "last_error": self.last_error}

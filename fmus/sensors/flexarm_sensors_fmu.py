@@ -13,7 +13,9 @@ Interface (full table in ``docs/fmu-interface.md``):
 * parameters: one per :class:`flexarm.sensors.SensorSettings` field, same
   name (the per-link gauge full scale as ``..._link1`` / ``..._link2``),
   plus ``sample_period`` (s);
-* outputs: :data:`flexarm.sensors.MEASURED_SIGNAL_NAMES` (``q1_m`` … ``acc2_m``).
+* outputs: :data:`flexarm.sensors.MEASURED_SIGNAL_NAMES` (``q1_m`` … ``acc2_m``);
+* ``sample_index`` in, ``sample_index_m`` out: the index of the plant sample measured, passed on as it
+  was present at the sample (0: no sample yet; :mod:`flexarm.loop_index`).
 
 Defaults: noise off (``noise_enabled`` false), 1 ms sample period; the
 default experiment lasts the committed trajectory's slew.
@@ -40,6 +42,7 @@ from flexarm_feedthrough import FeedthroughSlave, whole_samples
 from flexarm_fmu_base import Var, pin_module_namespace, slew_experiment, variable_table
 
 from flexarm.sensors import MEASURED_SIGNALS, TRUE_SIGNALS, SensorBank, SensorSettings
+from flexarm.signals import signals
 
 pin_module_namespace(globals())  # pythonfmu 0.7.0 drops a reference per instantiation (see there)
 
@@ -65,6 +68,12 @@ _INPUTS = [Var(s.name, "input", "continuous", s.unit, f"True {s.description} (pl
            for s in TRUE_SIGNALS]
 _OUTPUTS = [Var(m.name, "output", "continuous", m.unit, f"Measured: {m.description}", depends_on=(s.name,))
             for s, m in zip(TRUE_SIGNALS, MEASURED_SIGNALS)]
+#: The sample index passed through (flexarm.loop_index): the index of the plant sample measured.
+(_INDEX_IN,) = signals("sensors", "input", "index")
+(_INDEX_OUT,) = signals("sensors", "output", "index")
+_INPUTS.append(Var(_INDEX_IN.name, "input", "continuous", _INDEX_IN.unit, _INDEX_IN.description, 0.0))
+_OUTPUTS.append(Var(_INDEX_OUT.name, "output", "continuous", _INDEX_OUT.unit, _INDEX_OUT.description,
+                    depends_on=(_INDEX_IN.name,)))
 
 VARIABLES = variable_table([
     *_INPUTS,
@@ -131,6 +140,7 @@ class FlexarmSensors(FeedthroughSlave):
         self.bank: SensorBank | None = None
         self._pre: dict | None = None  # bank checkpoint before the sample of the current communication point
         self._true_vrs = [self._vr[s.name] for s in TRUE_SIGNALS]
+        self._index_vr = self._vr[_INDEX_IN.name]
 
     def settings(self) -> SensorSettings:
         """The :class:`SensorSettings` of the current parameter values (validated)."""
@@ -148,7 +158,8 @@ class FlexarmSensors(FeedthroughSlave):
         else:  # inputs changed after a read at this communication point: measure again from the same state
             self.bank.rewind(self._pre)
         values = self._values
-        return self.bank.measure(np.array([values[vr] for vr in self._true_vrs], dtype=float))
+        measured = self.bank.measure(np.array([values[vr] for vr in self._true_vrs], dtype=float))
+        return np.append(measured, values[self._index_vr])  # the index of the plant sample measured
 
     def commit(self, t: float, h: float, n: int) -> None:
         # A step of n sample periods: the sample at t was taken; the n - 1 samples inside the step

@@ -26,6 +26,7 @@
 #include "fmi2_glue.h"
 #include "learned_ff.h"
 #include "learned_ff_data.h"
+#include "loop_index.h"
 #include "model_vars.h"
 
 #define N_MEAS 10
@@ -222,11 +223,19 @@ static fmi2Status controller_sample(Instance *inst)
     for (int i = 0; i < 2; i++) tau[i] = fmin(fmax(tau[i], -limit[i]), limit[i]);
     VALUE(inst, IDX_tau1) = tau[0];
     VALUE(inst, IDX_tau2) = tau[1];
+    VALUE(inst, IDX_tau_index) = loop_index_of_time((double)k * d->dt); /* the torques' sample */
+    VALUE(inst, IDX_loop_delay) = loop_measured_delay((double)k, VALUE(inst, IDX_sample_index_m));
+    VALUE(inst, IDX_loop_delay_assumed) = 0.0; /* the paper's law predicts over no delay */
     return fmi2OK;
 }
 
+typedef struct { /* the FMU state: only what the log says once per run */
+    int delay_contradictions;
+} ControllerState;
+
 static fmi2Status controller_initialize(Instance *inst)
 {
+    ((ControllerState *)inst->state)->delay_contradictions = 0;
     fmi2Status status = configure(inst);
     if (status != fmi2OK) {
         glue_log(inst, fmi2Error, "fmi2ExitInitializationMode: schedule_period must be 0.2, 0.02 or 0");
@@ -247,10 +256,22 @@ static fmi2Status controller_do_step(Instance *inst, double t, double h)
                  GLUE_STEP_TOLERANCE);
         return fmi2Error;
     }
-    return fmi2OK; /* stateless: the torque is a function of the time and the inputs */
+    /* the outputs were just sampled from the inputs present at fmi2DoStep: a delay there contradicts the law's
+       (flexarm_controller_base.ControllerSlave.warn_delay); said once per run */
+    ControllerState *st = inst->state;
+    const double measured = VALUE(inst, IDX_loop_delay);
+    if (measured >= 0.0 && measured != 0.0 && st->delay_contradictions++ == 0)
+        glue_log(inst, fmi2Warning, "loop delay contradiction at t = %.17g s: the measurements present at "
+                 "fmi2DoStep are of the plant's sample %g sample(s) before the one the torques are for (tau_index - "
+                 "sample_index_m), but the law predicts over 0 (the paper's law assumes no delay); the master's "
+                 "stepping differs from the one the law is set for (a Jacobi master reads the torques before it sets "
+                 "the measurements). Use controller_lqg with loop_delay_samples = -1 (automatic), which measures the "
+                 "delay and predicts over it", t, measured);
+    return fmi2OK; /* the torque is a function of the time and the inputs */
 }
 
 const ModelInfo MODEL_INFO = {
     MODEL_IDENTIFIER_STRING, MODEL_GUID_STRING, MODEL_VARS, MODEL_N_VARS, MODEL_RESOURCES, MODEL_N_RESOURCES,
-    0, controller_load, controller_unload, controller_initialize, controller_sample, controller_do_step,
+    sizeof(ControllerState), controller_load, controller_unload, controller_initialize, controller_sample,
+    controller_do_step,
 };

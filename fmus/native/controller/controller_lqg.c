@@ -37,6 +37,7 @@
 #include "controller_lqg.h"
 #include "learned_ff.h"
 #include "learned_ff_data.h"
+#include "loop_index.h"
 
 #define N_SCHEDULES 3
 static const char *const SCHEDULE_FILES[N_SCHEDULES] = {"lqg_200ms.txt", "lqg_20ms.txt", "lqg_single.txt"};
@@ -47,10 +48,17 @@ static const double SCHEDULE_PERIODS[N_SCHEDULES] = {0.2, 0.02, 0.0};
 static const int MEAS[N_MEAS] = {IDX_q1_m, IDX_q2_m, IDX_qd1_m, IDX_qd2_m, IDX_eps1_m,
                                  IDX_eps2_m, IDX_eps3_m, IDX_eps4_m, IDX_eps5_m, IDX_eps6_m};
 
+#define N_FOREIGN 16 /* a switch to the measured delay comes within the first steps: a few are enough */
+
 typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
     LqgState committed; /* after the last sample run */
     LqgState pending;   /* d = 0: after the sample the outputs show (derived from committed and the inputs) */
     double held[2];     /* d > 0: the torques of the last sample run, N.m */
+    double held_index[3]; /* d > 0: their tau_index, loop_delay, loop_delay_assumed */
+    int delay;          /* loop_delay_samples = -1 (automatic): the delay the law predicts over (0 until measured) */
+    int delay_contradictions, unwired_warned; /* what the log says once per run */
+    double foreign[N_FOREIGN][3]; /* sample, torques: the plant held another torque than this law's (tau_lag != 0) */
+    int n_foreign;
 } FmuState;
 
 /* -- resources -------------------------------------------------------------------------------------------- */
@@ -260,8 +268,11 @@ void lqg_schedule_index(const double *times, int count, int n_steps, double dt, 
 static fmi2Status configure(Instance *inst)
 {
     LqgData *d = inst->data;
-    double key[5] = {VALUE(inst, IDX_gain_set), VALUE(inst, IDX_schedule_period), VALUE(inst, IDX_loop_delay_samples),
-                     VALUE(inst, IDX_integral_action), VALUE(inst, IDX_estimator)};
+    const FmuState *st = inst->state;
+    const double requested = VALUE(inst, IDX_loop_delay_samples); /* automatic: the delay measured so far */
+    double key[5] = {VALUE(inst, IDX_gain_set), VALUE(inst, IDX_schedule_period),
+                     requested == LOOP_AUTOMATIC ? (double)st->delay : requested, VALUE(inst, IDX_integral_action),
+                     VALUE(inst, IDX_estimator)};
     int s = -1;
     for (int i = 0; i < N_SCHEDULES; i++)
         if (fabs(key[1] - SCHEDULE_PERIODS[i]) <= 1e-12) s = i;
@@ -299,19 +310,70 @@ static void law_step(const LqgData *d, const LqgState *s, long long k, const dou
     else lqg_step(d, s, k, m, limit, tau, next);
 }
 
-/* d > 0: run sample committed.k from the measurements m (ignored before sample d) and hold its torques. */
-static void delayed_sample(Instance *inst, const double m_present[N_MEAS])
+/* The plant's report that the torque it held over sample k - 1 was not this law's (tau_lag != 0): 1 and the torque. */
+static int plant_applied(Instance *inst, long long k, double torque[2])
+{
+    if (k < 1 || VALUE(inst, IDX_tau_lag) == 0.0) return 0; /* an unwired tau_lag holds 0: nothing to correct */
+    torque[0] = VALUE(inst, IDX_tau1_applied), torque[1] = VALUE(inst, IDX_tau2_applied);
+    return 1;
+}
+
+/* The torque deviation the filter of state s assumes for `sample` replaced by the plant's `torque`. */
+static void with_applied(const LqgData *d, LqgState *s, long long sample, const double torque[2])
+{
+    const long long row = d->delay - (s->k - 1 - sample); /* du rows 0 .. d: samples s->k - 1 - d .. s->k - 1 */
+    if (row < 0 || row > d->delay) return;
+    double nominal[2], command[2];
+    lqg_feedforward(d, sample, nominal, command);
+    s->du[row][0] = torque[0] - nominal[0], s->du[row][1] = torque[1] - nominal[1];
+}
+
+static void remember(FmuState *st, long long sample, const double torque[2])
+{
+    if (st->n_foreign == N_FOREIGN) { /* drop the oldest */
+        memmove(st->foreign[0], st->foreign[1], (N_FOREIGN - 1) * sizeof st->foreign[0]);
+        st->n_foreign--;
+    }
+    st->foreign[st->n_foreign][0] = (double)sample;
+    st->foreign[st->n_foreign][1] = torque[0], st->foreign[st->n_foreign][2] = torque[1];
+    st->n_foreign++;
+}
+
+/* The index outputs of the torques of sample k from measurements carrying `index`, by a law predicting over `assumed`. */
+static void index_outputs(Instance *inst, long long k, double index, int assumed, double out[3])
+{
+    const LqgData *d = inst->data;
+    out[0] = loop_index_of_time((double)k * d->dt);
+    out[1] = loop_measured_delay((double)k, index);
+    out[2] = (double)assumed;
+}
+
+static void set_outputs(Instance *inst, const double tau[2], const double index[3])
+{
+    VALUE(inst, IDX_tau1) = tau[0];
+    VALUE(inst, IDX_tau2) = tau[1];
+    VALUE(inst, IDX_tau_index) = index[0];
+    VALUE(inst, IDX_loop_delay) = index[1];
+    VALUE(inst, IDX_loop_delay_assumed) = index[2];
+}
+
+/* d > 0: run sample committed.k from the measurements m carrying `index` and hold its torques. Before sample d
+   there is no measurement (y_d(0)); m NULL or a master's placeholder is none either (y_d of the plant's sample). */
+static void delayed_sample(Instance *inst, const double *m_present, double index)
 {
     LqgData *d = inst->data;
     FmuState *st = inst->state;
     const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
     const long long k = st->committed.k;
-    const double *m = k < d->delay ? d->desired : m_present; /* no measurement before t = 0: y_d(0) */
+    const double *m = m_present;
+    if (k < d->delay) m = d->desired, index = LOOP_NO_SAMPLE; /* no measurement before t = 0: y_d(0) */
+    else if (m == NULL || loop_is_placeholder(index, m, N_MEAS))
+        m = d->desired + clamp(d, k - d->delay) * N_MEAS, index = LOOP_NO_SAMPLE;
     LqgState next;
     law_step(d, &st->committed, k, m, limit, st->held, &next);
     st->committed = next;
-    VALUE(inst, IDX_tau1) = st->held[0];
-    VALUE(inst, IDX_tau2) = st->held[1];
+    index_outputs(inst, k, index, d->delay, st->held_index);
+    set_outputs(inst, st->held, st->held_index);
 }
 
 static fmi2Status lqg_sample(Instance *inst)
@@ -321,8 +383,7 @@ static fmi2Status lqg_sample(Instance *inst)
     fmi2Status status = configure(inst);
     if (status != fmi2OK) return status;
     if (d->delay > 0) { /* no feedthrough: the torques held since the last step */
-        VALUE(inst, IDX_tau1) = st->held[0];
-        VALUE(inst, IDX_tau2) = st->held[1];
+        set_outputs(inst, st->held, st->held_index);
         return fmi2OK;
     }
     double t = inst->time;
@@ -336,12 +397,18 @@ static fmi2Status lqg_sample(Instance *inst)
                  "sample %.0f (one call per sample; controller_lqg starts at t = 0)", t, st->committed.k, k);
         return fmi2Error;
     }
-    double m[N_MEAS], tau[2];
+    double m[N_MEAS], tau[2], out[3];
     const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
     for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
-    law_step(d, &st->committed, (long long)k, m, limit, tau, &st->pending);
-    VALUE(inst, IDX_tau1) = tau[0];
-    VALUE(inst, IDX_tau2) = tau[1];
+    const double index = VALUE(inst, IDX_sample_index_m);
+    /* fmpy's first step: no sample yet, not a measurement of q = 0 */
+    const double *used = loop_is_placeholder(index, m, N_MEAS) ? d->desired + clamp(d, (long long)k) * N_MEAS : m;
+    LqgState base = st->committed;
+    double applied[2];
+    if (plant_applied(inst, (long long)k, applied)) with_applied(d, &base, (long long)k - 1, applied);
+    law_step(d, &base, (long long)k, used, limit, tau, &st->pending);
+    index_outputs(inst, (long long)k, index, 0, out);
+    set_outputs(inst, tau, out);
     return fmi2OK;
 }
 
@@ -355,7 +422,9 @@ static fmi2Status lqg_initialize(Instance *inst)
     status = learned_ff_load(inst, glue_string(inst, IDX_feedforward_correction_file), TRAJECTORY_SHA256,
                              PARAMETER_SHA256, &d->correction, &d->n_correction);
     if (status != fmi2OK) return status;
-    memset(st, 0, sizeof *st); /* on the trajectory, nothing sent, integrators empty */
+    memset(st, 0, sizeof *st); /* on the trajectory, nothing sent, integrators empty; automatic: delay 0 */
+    status = configure(inst);
+    if (status != fmi2OK) return status;
     if (d->use_bank) bank_initial_state(&d->bank, &st->committed);
     if (d->delay == 0) return lqg_sample(inst);
     if (nearbyint(inst->time / d->dt) != 0.0) {
@@ -363,8 +432,64 @@ static fmi2Status lqg_initialize(Instance *inst)
                  "(sample 0 of the trajectory)", inst->time);
         return fmi2Error;
     }
-    delayed_sample(inst, d->desired); /* sample 0, from the parameters and the trajectory alone */
+    delayed_sample(inst, NULL, LOOP_NO_SAMPLE); /* sample 0, from the parameters and the trajectory alone */
     return fmi2OK;
+}
+
+static const char *setting(Instance *inst)
+{
+    return VALUE(inst, IDX_loop_delay_samples) == LOOP_AUTOMATIC ? " (automatic)" : "";
+}
+
+/* A measured delay at fmi2DoStep that contradicts the law's: said once per run (as the Python FMU's warn_delay). */
+static void warn_delay(Instance *inst, double t, double measured, int assumed)
+{
+    FmuState *st = inst->state;
+    if (measured < 0.0 || measured == (double)assumed || st->delay_contradictions++ > 0) return;
+    glue_log(inst, fmi2Warning, "loop delay contradiction at t = %.17g s: the measurements present at fmi2DoStep are "
+             "of the plant's sample %g sample(s) before the one the torques are for (tau_index - sample_index_m), "
+             "but the law predicts over %d (loop_delay_samples = %g%s); the master's stepping differs from the one "
+             "the law is set for (a Jacobi master reads the torques before it sets the measurements). Use "
+             "loop_delay_samples = -1 (automatic), which measures the delay and predicts over it", t, measured,
+             assumed, VALUE(inst, IDX_loop_delay_samples), setting(inst));
+}
+
+/* Measurements without an index that are no master's placeholder: the index is not wired (said once). */
+static void warn_unwired(Instance *inst, double t, double index, const double m[N_MEAS])
+{
+    FmuState *st = inst->state;
+    double j;
+    if (st->unwired_warned || loop_received_index(index, &j) || loop_is_placeholder(index, m, N_MEAS)) return;
+    st->unwired_warned = 1;
+    glue_log(inst, fmi2Warning, "sample_index_m is %.17g at t = %.17g s while the measurements are not a master's "
+             "placeholder: the sample index is not wired (connect the plant's sample_index to the sensors and the "
+             "sensors' sample_index_m to this FMU, or the plant's sample_index here directly), so the loop delay "
+             "cannot be measured; loop_delay_samples = %g%s is taken as given (automatic: 0, a Gauss-Seidel "
+             "master's)", index, t, VALUE(inst, IDX_loop_delay_samples), setting(inst));
+}
+
+/* Automatic delay (flexarm_controller_lqg_fmu._switch): from fmi2DoStep(t_k) on, predict over `delay` without
+   feedthrough, as loop_delay_samples = delay would; samples 0 .. k again from the trajectory alone, then
+   k + 1 .. k + n from the inputs present. */
+static void switch_delay(Instance *inst, double t, long long k, int delay, double n, const double m[N_MEAS],
+                         double index)
+{
+    LqgData *d = inst->data;
+    FmuState *st = inst->state;
+    st->delay = delay;
+    configure(inst); /* the same parameters, now with the delay: cannot fail where it succeeded before */
+    glue_log(inst, fmi2OK, "loop_delay_samples = -1 (automatic): the loop delay measured at fmi2DoStep(t = %.17g s) "
+             "is %d samples (the master reads the torques before it sets the measurements); predicting over %d "
+             "samples from sample %lld on", t, delay, delay, k + 1);
+    memset(&st->committed, 0, sizeof st->committed);
+    memset(&st->pending, 0, sizeof st->pending);
+    if (d->use_bank) bank_initial_state(&d->bank, &st->committed);
+    for (long long s = 0; s <= k; s++) {
+        delayed_sample(inst, NULL, LOOP_NO_SAMPLE);
+        for (int i = 0; i < st->n_foreign; i++) /* the plant held another torque over s (fmpy's first step) */
+            if (st->foreign[i][0] == (double)s) with_applied(d, &st->committed, s, &st->foreign[i][1]);
+    }
+    for (double i = 0; i < n; i++) delayed_sample(inst, m, index);
 }
 
 static fmi2Status lqg_do_step(Instance *inst, double t, double h)
@@ -382,6 +507,11 @@ static fmi2Status lqg_do_step(Instance *inst, double t, double h)
     if (n == 0) return fmi2OK; /* no sample instant in the step: nothing changes */
     double m[N_MEAS];
     for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]); /* present at fmi2DoStep, held in the step */
+    const double index = VALUE(inst, IDX_sample_index_m);
+    warn_unwired(inst, t, index, m);
+    double applied[2];
+    const int foreign = plant_applied(inst, (long long)nearbyint(t / d->dt), applied);
+    if (foreign) remember(st, (long long)nearbyint(t / d->dt) - 1, applied);
     if (d->delay > 0) {
         if (nearbyint(t / d->dt) + 1 != (double)st->committed.k) {
             glue_log(inst, fmi2Error, "fmi2DoStep: current_time: %.17g s is sample %.0f, but the controller computed "
@@ -389,9 +519,20 @@ static fmi2Status lqg_do_step(Instance *inst, double t, double h)
                      nearbyint(t / d->dt), st->committed.k - 1);
             return fmi2Error;
         }
-        for (double i = 0; i < n; i++) delayed_sample(inst, m);
+        if (foreign) with_applied(d, &st->committed, (long long)nearbyint(t / d->dt) - 1, applied);
+        for (double i = 0; i < n; i++) delayed_sample(inst, m, index);
+        warn_delay(inst, t, st->held_index[1], d->delay);
         return fmi2OK;
     }
+    const double k = nearbyint(t / d->dt), measured = loop_measured_delay(k, index);
+    if (VALUE(inst, IDX_loop_delay_samples) == LOOP_AUTOMATIC && measured >= 1.0) {
+        /* the master sets the measurements after it reads the torques: predict over the measured delay */
+        /* the torques published after this step of n samples are measured + n samples late (2n in a Jacobi
+           master at n ms) */
+        switch_delay(inst, t, (long long)k, measured + n < MAX_DELAY ? (int)(measured + n) : MAX_DELAY, n, m, index);
+        return fmi2OK;
+    }
+    warn_delay(inst, t, measured, 0);
     st->committed = st->pending; /* sample k, from the inputs present (the glue sampled them before this call) */
     if (n > 1) { /* the samples inside the step, of the inputs held since t (their torques are not published) */
         double tau[2];

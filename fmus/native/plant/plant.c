@@ -18,6 +18,7 @@
 
 #include "fmi2_glue.h"
 #include "flexarm_physics.h"
+#include "loop_index.h"
 #include "model_vars.h"
 #include "plant_constants.h"
 #include "plant_linalg.h"
@@ -407,6 +408,16 @@ static int set_model(PlantData *d, double payload, double ratio)
 }
 
 /* -- outputs -------------------------------------------------------------------------------------- */
+/* The sample indices (flexarm/loop_index.py): the outputs' sample at t, the lag of the torque held since held_from
+   (the tau_index present came with it). */
+static void index_outputs(Instance *inst, double t, double held_from, const double tau[2])
+{
+    VALUE(inst, IDX_sample_index) = loop_index_of_time(t);
+    VALUE(inst, IDX_tau_lag) = loop_torque_lag(held_from, VALUE(inst, IDX_tau_index));
+    VALUE(inst, IDX_tau1_applied) = tau[0]; /* the torque held, as received */
+    VALUE(inst, IDX_tau2_applied) = tau[1];
+}
+
 static void outputs(PlantData *d, Instance *inst, const double *z, const Eval *ev, const double *tau)
 {
     double alpha[N], forces[N];
@@ -520,6 +531,7 @@ static fmi2Status plant_initialize(Instance *inst)
         return fmi2Error;
     }
     outputs(d, inst, z, &ev, tau);
+    index_outputs(inst, inst->time, inst->time, tau);
     memcpy(st->z, z, sizeof z);
     memcpy(st->tau_held, tau, sizeof tau);
     st->last_error = 0.0;
@@ -589,6 +601,7 @@ static fmi2Status plant_do_step(Instance *inst, double t, double h)
         return fmi2Discard;
     }
     outputs(d, inst, z, at_z, tau);
+    index_outputs(inst, t + h, t, tau);
     memcpy(st->z, z, sizeof z);
     memcpy(st->tau_held, tau, sizeof tau);
     st->last_error = err;

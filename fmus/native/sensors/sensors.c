@@ -10,7 +10,8 @@
  * Sampling (direct feedthrough): the outputs at t_k are a pure function of the committed bank and the inputs
  * present (computed into a pending copy; reads change nothing); fmi2DoStep commits the sample of the inputs
  * present then, and a step of n sample periods takes the n - 1 samples inside the step with the inputs held.
- * A step of 0 samples (within 1e-9 s) does nothing.
+ * A step of 0 samples (within 1e-9 s) does nothing. The plant's sample_index is passed on as sample_index_m as
+ * present at the sample (flexarm/loop_index.py).
  */
 #include <math.h>
 #include <stdlib.h>
@@ -283,6 +284,7 @@ static fmi2Status sensors_initialize(Instance *inst)
     s->pending = s->committed;
     measure(s, &s->pending, x, y);
     for (int i = 0; i < N_SIGNALS; i++) VALUE(inst, MEASURED_IDX[i]) = y[i];
+    VALUE(inst, IDX_sample_index_m) = VALUE(inst, IDX_sample_index); /* the plant sample measured */
     return fmi2OK;
 }
 
@@ -294,6 +296,7 @@ static fmi2Status sensors_sample(Instance *inst)
     s->pending = s->committed; /* re-set inputs re-measure from the same state */
     measure(s, &s->pending, x, y);
     for (int i = 0; i < N_SIGNALS; i++) VALUE(inst, MEASURED_IDX[i]) = y[i];
+    VALUE(inst, IDX_sample_index_m) = VALUE(inst, IDX_sample_index); /* the plant sample measured */
     return fmi2OK;
 }
 
