@@ -243,6 +243,7 @@ def check(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> list[str]:
     performance figure in the docs (:mod:`scenarios.perf_lint`); writes nothing."""
     from .perf_lint import check_docs
 
+    require_checkout()  # before reading the checkout's documents
     diffs = check_docs(REPO)
     for path, text in expected_files(fmu_dir, progress).items():
         old = path.read_text(encoding="utf-8") if path.exists() else ""

@@ -497,15 +497,26 @@ def metric_deviations(stab: dict, metrics: dict, duration_s: float) -> dict:
     T = float(duration_s)
     g, gp = float(stab["growth_per_s"]), float(stab["plant_growth_per_s"])
     omega = 2 * math.pi * float(stab["mode_frequency_hz"])
+    # the mode's angle is its rate over |lambda| (|lambda| = the frequency for a lightly damped oscillation; the
+    # growth rate for a real mode, whose frequency is 0); a mode with neither leaves the angles' metrics out
+    magnitude = math.hypot(g, omega)
+    pos = 1.0 / magnitude if magnitude > 0 else None
     out = {}
-    for metric, scale in (("rms_velocity_error", 1.0), ("rms_position_error", 1.0 / omega)):
+    for metric, scale in (("rms_velocity_error", 1.0), ("rms_position_error", pos)):
+        if scale is None:
+            continue
         run = float(metrics[metric])
         a2 = (MODE_RMS_DEG_S.get(stab.get("gain_set"), max(MODE_RMS_DEG_S.values())) * scale) ** 2
-        conv = math.sqrt(max(run ** 2 - a2 * _mean_square_growth(gp * T), 0.0) + a2 * _mean_square_growth(g * T))
+        in_run = _mean_square_growth(gp * T)
+        a2 = min(a2, run ** 2 / in_run)  # the mode carries at most the run's whole error (a mode of another kind)
+        conv = math.sqrt(run ** 2 - a2 * in_run + a2 * _mean_square_growth(g * T))
         out[metric] = run / conv - 1.0 if conv > 0 else 0.0
-    for metric, scale in (("peak_velocity_error", 1.0), ("peak_position_error", 1.0 / omega)):
+    for metric, scale in (("peak_velocity_error", 1.0), ("peak_position_error", pos)):
+        if scale is None:
+            continue
         run = float(metrics[metric])
-        conv = max(run, MODE_PEAK_DEG_S * scale * math.exp(min(g * T, 700.0)))
+        amplitude = min(MODE_PEAK_DEG_S * scale, run * math.exp(-max(gp * T, -700.0)))  # at most the run's, as above
+        conv = max(run, amplitude * math.exp(min(g * T, 700.0)))
         out[metric] = run / conv - 1.0 if conv > 0 else 0.0
     return out
 

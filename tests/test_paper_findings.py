@@ -209,8 +209,8 @@ def test_findings_2_5_12_quote_the_reference_runs():
 def test_a_run_whose_loop_is_unstable_says_so(tmp_path):
     """γ = 1 undamped (linear growth +3.27 1/s at the bracket mode) over 1 s (3.3 e-folds): under the default
     RODAS4 plant the run looks quiet, so its results carry a warning naming the growth and the cure; under the
-    reference plant the note says the run shows it; the same loop over 0.5 s, and γ = 0.1 with ζ = 0.005, get no
-    note (issue 24 item 5)."""
+    reference plant the note says the run shows it; the same loop over 0.5 s is warned only for the one table metric
+    it moves more than 5 % (issue 35 item 5), and γ = 0.1 with ζ = 0.005 gets no note (issue 24 item 5)."""
     s = load_scenario("table1")
     s.cases = [c for c in s.cases if c.key == "none"]
     s.samples = 1000
@@ -221,9 +221,11 @@ def test_a_run_whose_loop_is_unstable_says_so(tmp_path):
     assert r.warnings == [stab["note"]]
     (r,) = run_scenario(with_plant(s, integrator="reference"), tmp_path, progress=False)
     assert "shows that growth" in r.loop_stability["note"]
-    s.samples = 500
-    (r,) = run_scenario(s, tmp_path, progress=False)
-    assert r.loop_stability["growth_per_s"] > 0 and r.loop_stability["note"] == "" and r.warnings == []
+    s.samples = 500  # 1.6 e-folds: too little growth for the growth warning, but the rodas4 plant's damped bracket
+    (r,) = run_scenario(s, tmp_path, progress=False)  # mode leaves the rms velocity error 5.8 % below the
+    note = r.loop_stability["note"]  # converged plant's (measured: 0.5785 against 0.6142 deg/s, reference at 16/ms)
+    assert r.loop_stability["growth_per_s"] > 0 and "grows" in note and "rms velocity error" in note
+    assert "shows that growth" not in note and "peak" not in note and r.warnings == [note]
     s2 = load_scenario("table2")
     s2.cases = [c for c in s2.cases if c.key == "none"]
     s2.samples = 20

@@ -22,6 +22,7 @@ from ..runner import (
     prepare,
     read_descriptions,
     resolve_fmus,
+    with_reference,
 )
 from ..values import check_parameters, check_value, check_variable
 from .spec import Axis, Sweep, SweepError, _require, toml_content_sha256
@@ -64,13 +65,16 @@ class Plan:
     #: Which FMUs run in a process of their own and how long a call may take (scenarios.runner.Setup.isolating).
     isolate: str = "foreign"
     step_timeout: float = DEFAULT_STEP_TIMEOUT_S
+    #: Where the FMUs the points add by name (the reference FMU a controller's inputs ask for) are found:
+    #: ``fmu_dir``, ``kind``, ``native_fmu_dir`` of :func:`scenarios.runner.prepare`, as the sweep was started with.
+    where: dict = field(default_factory=dict)
 
     def task(self, point: Point) -> dict:
         """The picklable description of one point that :func:`run_point` runs."""
         fs = self.fmu_sets[self.point_set[point.key]]
         return {"key": point.key, "index": point.index, "scenario": self.sweep.scenario, "fmu_names": fs.names,
                 "fmu_sha256": fs.sha256, "parameters": point.parameters,
-                "isolate": self.isolate, "step_timeout": self.step_timeout,
+                "isolate": self.isolate, "step_timeout": self.step_timeout, "where": self.where,
                 "setup_key": f"{self.scenario_sha256[:16]}-{self.sweep.scenario.samples}-{fs.key}-{self.isolate}-"
                              f"{self.step_timeout:g}"}
 
@@ -133,6 +137,7 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
     """
     scenario, case = sweep.scenario, sweep.case
     kind = kind or scenario.kind
+    dirs = {"fmu_dir": fmu_dir, "kind": kind, "native_fmu_dir": native_fmu_dir}
     scenario_sha = toml_content_sha256(scenario.path)
     fmu_axes = [a for a in sweep.axes if a.is_fmu]
     fmu_sets: dict[str, FmuSet] = {}
@@ -150,6 +155,7 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
         try:
             paths = resolve_fmus(scenario, fmu_dir, None, build, names, kind, native_fmu_dir)
             descriptions = read_descriptions(paths)
+            with_reference(scenario, paths, descriptions, fmu_dir, build, kind, native_fmu_dir)  # built now, if asked
             check_parameters(f"{scenario.path.name}: cases[{case.key}].parameters", descriptions, case.parameters)
         except ScenarioError as exc:
             raise SweepError(f"{sweep.path.name}: FMUs {names}: {exc}") from exc
@@ -162,7 +168,7 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
         shas = {inst: sha256_bytes(b) for inst, b in blobs.items()}
         fs = FmuSet(names, paths, shas, blobs)
         if probe and fs.key not in fmu_sets:
-            _probe(sweep, fs, isolate, step_timeout)
+            _probe(sweep, fs, isolate, step_timeout, dirs)
         fmu_sets.setdefault(fs.key, fs)
         by_combo[combo] = fs.key
     points, point_set = [], {}
@@ -177,12 +183,12 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
         key = point_key(scenario_sha, scenario.samples, names, params, kind)
         points.append(Point(index, key, values, names, params))
         point_set[key] = fs_key
-    return Plan(sweep, points, fmu_sets, point_set, scenario_sha, isolate, step_timeout)
+    return Plan(sweep, points, fmu_sets, point_set, scenario_sha, isolate, step_timeout, dirs)
 
 
-def _probe(sweep: Sweep, fs: FmuSet, isolate: str, step_timeout: float) -> None:
+def _probe(sweep: Sweep, fs: FmuSet, isolate: str, step_timeout: float, where: dict) -> None:
     """Initialise the base point on this FMU set and step once; a refusal is a :class:`SweepError`."""
-    setup = prepare(sweep.scenario, names={k: str(v) for k, v in fs.paths.items()}, build=False)
+    setup = prepare(sweep.scenario, names={k: str(v) for k, v in fs.paths.items()}, build=False, **where)
     setup.isolate = foreign_instances(sweep.scenario, names=fs.names)  # by the names given, not the files' paths
     apply_isolation(setup, isolate, step_timeout)
     with setup.open_master() as m:  # with a reference FMU added; stepping as the scenario does

@@ -105,7 +105,7 @@ def _loaded(task: dict):
             raise CoSimulationError(f"fmus.{inst}: {p} missing on this worker (the client ships FMUs with a "
                                     "worker plugin: was the sweep started through scenarios.sweep?)")
         paths[inst] = str(p)
-    setup = prepare(task["scenario"], names=paths, build=False)
+    setup = prepare(task["scenario"], names=paths, build=False, **task.get("where", {}))
     setup.isolate = foreign_instances(task["scenario"], names=task["fmu_names"])  # as named, not the cache paths
     apply_isolation(setup, task["isolate"], task["step_timeout"])
     m = setup.open_master()
