@@ -374,10 +374,7 @@ def solve_collocation(params: ArmParameters, groups, n_intervals: int, degree: i
             _NLP_CACHE.pop(next(iter(_NLP_CACHE)))
         _NLP_CACHE[key] = _build_nlp(red, N, d, regularisation, torque_rate_limit, opts)
     solver, n_eq, n_line, n_rate, n_g = _NLP_CACHE[key]
-    dvec = (params.line_end - params.line_start) / np.linalg.norm(params.line_end - params.line_start)
-    lengths = red.T.T @ red.length
-    p = np.concatenate([[0.0 if t_fixed is not None else 1.0], red.coefficient_vector(), lim, th0, lengths,
-                        params.line_start, [-dvec[1], dvec[0]]])
+    p = nlp_parameters(params, red, th0, free_time=t_fixed is None)
 
     # bounds: final state fixed (rest, undeformed, tip at the end: the rigid
     # configuration of the end point), torque limits, t_f
@@ -458,7 +455,20 @@ def solve_collocation(params: ArmParameters, groups, n_intervals: int, degree: i
 _NLP_CACHE: dict = {}
 
 
+def nlp_parameters(params: ArmParameters, red: ReducedModel, th0: np.ndarray, free_time: bool) -> np.ndarray:
+    """The parameter vector p of :func:`nlp_expressions` (its docstring gives the layout)."""
+    dvec = (params.line_end - params.line_start) / np.linalg.norm(params.line_end - params.line_start)
+    return np.concatenate([[1.0 if free_time else 0.0], red.coefficient_vector(), params.torque_limit, th0,
+                           red.T.T @ red.length, params.line_start, [-dvec[1], dvec[0]]])
+
+
 def _build_nlp(red: ReducedModel, N: int, d: int, regularisation: float, torque_rate_limit, opts: dict):
+    """IPOPT on :func:`nlp_expressions`; returns (solver, n_eq, n_line, n_rate, n_g)."""
+    nlp, n_eq, n_line, n_rate, n_g = nlp_expressions(red, N, d, regularisation, torque_rate_limit)
+    return ca.nlpsol("slew", "ipopt", nlp, opts), n_eq, n_line, n_rate, n_g
+
+
+def nlp_expressions(red: ReducedModel, N: int, d: int, regularisation: float, torque_rate_limit):
     """The collocation NLP for one structure; model constants, start and line are parameters.
 
     Parameters p = [w_tf, model coefficients, τ_limit (2), θ_r(0) (n), group lengths (n),
@@ -517,8 +527,7 @@ def _build_nlp(red: ReducedModel, N: int, d: int, regularisation: float, torque_
     g = ca.vertcat(*[ca.vec(c) for c in cons])
     x = ca.vertcat(ca.vec(TH), ca.vec(OM), ca.vec(AC), ca.vec(U), tf)
     f = w_tf * tf + regularisation * ca.sumsqr(dU)
-    solver = ca.nlpsol("slew", "ipopt", {"x": x, "f": f, "g": g, "p": P}, opts)
-    return solver, n_eq, n_line, n_rate, int(g.shape[0])
+    return {"x": x, "f": f, "g": g, "p": P}, n_eq, n_line, n_rate, int(g.shape[0])
 
 
 def _straight_guess(params, red: ReducedModel, elbow: int, s_cols, N) -> np.ndarray:
