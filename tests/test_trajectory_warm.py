@@ -50,3 +50,19 @@ def test_rebuilt_solution_is_not_the_loaded_arms(rebuilt):
     """The residual check can fail: the same motion violates the dynamics with a 0.275 kg payload."""
     params, _, sol = rebuilt
     assert nlp_residuals(params.with_payload(0.275), sol)["equality"] > 1e-3
+
+
+def test_one_nlp_serves_cold_and_warm_solves_and_payloads():
+    """The NLP is built once per structure: a warm re-solve and another payload reuse it."""
+    from flexarm.trajectory import problem
+
+    params = load_parameters()
+    problem._NLP_CACHE.clear()
+    cold = problem.solve_collocation(params, problem.RIGID_GROUPS, 20, 3, verbose=False)
+    warm = problem.solve_collocation(params.with_payload(0.275), problem.RIGID_GROUPS, 20, 3, guess=cold,
+                                     verbose=False)
+    (entry,) = problem._NLP_CACHE.values()
+    assert len(entry["solvers"]) == 2  # cold options and warm-start options, one NLP
+    # the payload is a parameter, not a constant of the NLP: it moves the optimum (more inertia, slower)
+    assert warm.t_f > cold.t_f * 1.001
+    assert warm.stats["iterations"] < cold.stats["iterations"]
