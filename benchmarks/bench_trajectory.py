@@ -18,6 +18,7 @@ import numpy as np
 
 from flexarm import load_parameters
 from flexarm.trajectory import load_trajectory, solve_minimum_time
+from flexarm.trajectory.warm import solution_from_trajectory
 
 
 def _cpu() -> float:
@@ -52,7 +53,8 @@ def main(argv=None) -> int:
     loaded = params.with_payload(args.payload)
     if args.from_file:
         c0 = _cpu()
-        warm = solve_minimum_time(loaded, n_intervals=args.intervals, warm_start=committed, verbose=False)
+        guess = solution_from_trajectory(committed, params)
+        warm = solve_minimum_time(loaded, n_intervals=args.intervals, warm_start=guess, verbose=False)
         _report_warm(f"payload {args.payload} kg, from the committed file", warm, _cpu() - c0)
         return 0
     c0 = _cpu()

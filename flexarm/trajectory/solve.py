@@ -38,7 +38,6 @@ from .problem import (
     CollocationSolution,
     solve_collocation,
 )
-from .warm import solution_from_trajectory
 
 
 def solve_free_time(params: ArmParameters, n_intervals: int = 200, degree: int = 5,
@@ -59,8 +58,6 @@ def solve_free_time(params: ArmParameters, n_intervals: int = 200, degree: int =
     """
     stages = []
     guess = warm_start.solution if isinstance(warm_start, TrajectoryResult) else warm_start
-    if guess is None and isinstance(warm_start, TrajectoryResult):  # read from a file: rebuild the solution
-        guess = solution_from_trajectory(warm_start, params)
     if guess is None:
         rigid = solve_collocation(params, RIGID_GROUPS, rigid_intervals, 3, label="rigid two-link", **common)
         stages.append(rigid.stats)
@@ -88,8 +85,9 @@ def solve_minimum_time(params: ArmParameters | None = None, n_intervals: int = 2
         Radau points per interval.
     warm_start : TrajectoryResult or CollocationSolution, optional
         A previous solution (e.g. for another payload); skips the rigid stage. A trajectory
-        read from a file is rebuilt into its collocation solution
-        (:func:`flexarm.trajectory.warm.solution_from_trajectory`).
+        read from a file holds no solution: the solve is cold. Rebuilding one with
+        :func:`flexarm.trajectory.warm.solution_from_trajectory` gives a primal point without
+        multipliers, measured slower than a cold solve (docs/trajectory.md).
     verbose : bool
         Print progress (IPOPT every 10 iterations).
     elbow : {1, -1}
