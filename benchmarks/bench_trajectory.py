@@ -1,38 +1,82 @@
-"""Wall time of the minimum-time solve: cold (rigid warm-up included) and warm after a payload change.
+"""CPU time of the minimum-time solve: a cold solve, then a re-plan for a payload warm-started from it.
 
-Run: ``python benchmarks/bench_trajectory.py [--intervals N]``. Goals: cold < 60 s, warm < 10 s.
+Run: ``python benchmarks/bench_trajectory.py [--payload KG] [--from-file] [--intervals N]``.
+Goals (issue 32): warm re-plan <= 10 CPU-s, cold solve <= 60 CPU-s. CPU time (os.times, this
+process and its children), not wall time: the machine is shared. Peak memory is the process's
+largest resident set so far (it only grows: each figure covers everything before it).
+The cold solve is compared with the committed trajectory (t_f, torques, angles): the same
+problem solved again must give the same file to the solver's tolerance.
 """
 
 from __future__ import annotations
 
 import argparse
-import time
+import os
+import resource
+
+import numpy as np
 
 from flexarm import load_parameters
-from flexarm.trajectory import solve_minimum_time
+from flexarm.trajectory import load_trajectory, solve_minimum_time
+from flexarm.trajectory.warm import solution_from_trajectory
+
+
+def _cpu() -> float:
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def _peak_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # kB on Linux
+
+
+def _stages(r) -> str:
+    return ", ".join(f"{s['label']} {s['iterations']}" for s in r.metadata["solver"]["stages"])
+
+
+def _report_warm(label: str, r, cpu: float) -> None:
+    print(f"warm re-plan, {label}: {cpu:6.1f} CPU-s (goal <= 10), {r.metadata['solver']['iterations']} iterations "
+          f"({_stages(r)}), t_f = {r.t_f:.3f} s (continuous {r.metadata['t_f_continuous_s']:.5f} s), "
+          f"peak memory {_peak_mb():.0f} MB", flush=True)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--intervals", type=int, default=200)
-    ap.add_argument("--payload", type=float, default=0.275, help="payload of the warm-started re-solve, kg")
+    ap.add_argument("--payload", type=float, default=0.275, help="payload of the warm-started re-plan, kg")
+    ap.add_argument("--from-file", action="store_true",
+                    help="warm-start from the committed file (primal point only: the file holds no multipliers) "
+                         "instead of the cold solve's primal-dual solution, and skip the cold solve")
     args = ap.parse_args(argv)
     params = load_parameters()
-    t0 = time.perf_counter()
-    base = solve_minimum_time(params, n_intervals=args.intervals, verbose=False)
-    cold = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    warm = solve_minimum_time(params.with_payload(args.payload), n_intervals=args.intervals, warm_start=base,
-                              verbose=False)
-    warm_time = time.perf_counter() - t0
-
-    def iters(r):
-        return r.metadata["solver"]["iterations"]
-
-    print(f"cold solve  : {cold:6.1f} s (goal < 60 s), {iters(base)} iterations, t_f = {base.t_f:.3f} s")
-    print(f"warm re-solve, payload {args.payload} kg: {warm_time:6.1f} s (goal < 10 s), {iters(warm)} iterations, "
-          f"t_f = {warm.t_f:.3f} s")
-    return 0
+    committed = load_trajectory()
+    loaded = params.with_payload(args.payload)
+    if args.from_file:
+        c0 = _cpu()
+        guess = solution_from_trajectory(committed, params)
+        warm = solve_minimum_time(loaded, n_intervals=args.intervals, warm_start=guess, verbose=False)
+        _report_warm(f"payload {args.payload} kg, from the committed file", warm, _cpu() - c0)
+        return 0
+    c0 = _cpu()
+    cold = solve_minimum_time(params, n_intervals=args.intervals, verbose=False)
+    cold_cpu = _cpu() - c0
+    print(f"cold solve: {cold_cpu:6.1f} CPU-s (goal <= 60), {cold.metadata['solver']['iterations']} iterations "
+          f"({_stages(cold)}), t_f = {cold.t_f:.3f} s (continuous {cold.metadata['t_f_continuous_s']:.6f} s), "
+          f"peak memory {_peak_mb():.0f} MB", flush=True)
+    status = 0
+    if len(cold.t) != len(committed.t):
+        print(f"against the committed file: t_f {cold.t_f:.3f} s differs from {committed.t_f:.3f} s")
+        status = 1
+    else:
+        dtau = np.abs(cold.tau - committed.tau).max(axis=0)
+        dtf = cold.metadata["t_f_continuous_s"] - committed.metadata["t_f_continuous_s"]
+        dth = np.abs(cold.theta - committed.theta).max()
+        print(f"against the committed file: continuous t_f {dtf:+.2e} s, largest torque difference "
+              f"{dtau[0]:.2e} / {dtau[1]:.2e} N·m, angles {dth:.2e} rad", flush=True)
+    c0 = _cpu()
+    warm = solve_minimum_time(loaded, n_intervals=args.intervals, warm_start=cold, verbose=False)
+    _report_warm(f"payload {args.payload} kg, from the cold solve", warm, _cpu() - c0)
+    return status
 
 
 if __name__ == "__main__":

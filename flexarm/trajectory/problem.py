@@ -367,17 +367,8 @@ def solve_collocation(params: ArmParameters, groups, n_intervals: int, degree: i
         # t_f's own multiplier absorbs the objective's dt_f term).
         opts["ipopt"].update(warm_start_init_point="yes", warm_start_bound_push=1e-9,
                              warm_start_mult_bound_push=1e-9, mu_init=1e-5)
-    key = (red.groups, N, d, float(regularisation), torque_rate_limit,
-           tuple(map(tuple, red.stiffness_pattern())), json.dumps(opts, sort_keys=True))
-    if key not in _NLP_CACHE:
-        if len(_NLP_CACHE) >= 3:  # they are large: keep the latest few (cold and warm variants)
-            _NLP_CACHE.pop(next(iter(_NLP_CACHE)))
-        _NLP_CACHE[key] = _build_nlp(red, N, d, regularisation, torque_rate_limit, opts)
-    solver, n_eq, n_line, n_rate, n_g = _NLP_CACHE[key]
-    dvec = (params.line_end - params.line_start) / np.linalg.norm(params.line_end - params.line_start)
-    lengths = red.T.T @ red.length
-    p = np.concatenate([[0.0 if t_fixed is not None else 1.0], red.coefficient_vector(), lim, th0, lengths,
-                        params.line_start, [-dvec[1], dvec[0]]])
+    solver, n_eq, n_line, n_rate, n_g = _cached_solver(red, N, d, regularisation, torque_rate_limit, opts)
+    p = nlp_parameters(params, red, th0, free_time=t_fixed is None)
 
     # bounds: final state fixed (rest, undeformed, tip at the end: the rigid
     # configuration of the end point), torque limits, t_f
@@ -458,7 +449,46 @@ def solve_collocation(params: ArmParameters, groups, n_intervals: int, degree: i
 _NLP_CACHE: dict = {}
 
 
-def _build_nlp(red: ReducedModel, N: int, d: int, regularisation: float, torque_rate_limit, opts: dict):
+def nlp_parameters(params: ArmParameters, red: ReducedModel, th0: np.ndarray, free_time: bool) -> np.ndarray:
+    """The parameter vector p of :func:`nlp_expressions` (its docstring gives the layout)."""
+    dvec = (params.line_end - params.line_start) / np.linalg.norm(params.line_end - params.line_start)
+    return np.concatenate([[1.0 if free_time else 0.0], red.coefficient_vector(), params.torque_limit, th0,
+                           red.T.T @ red.length, params.line_start, [-dvec[1], dvec[0]]])
+
+
+def _cached_solver(red: ReducedModel, N: int, d: int, regularisation: float, torque_rate_limit, opts: dict):
+    """IPOPT on :func:`nlp_expressions`; returns (solver, n_eq, n_line, n_rate, n_g).
+
+    The NLP is built once per structure (the model constants, payload included, are parameters).
+    IPOPT's options are fixed when a CasADi solver is made and a warm start needs other ones
+    (warm_start_init_point, mu_init), so each option set gets its own solver; the second one
+    reuses the first one's derivative functions (the exact Hessian and Jacobian: for the flexible
+    problem the second solver then takes about 5 CPU-s to make instead of about 22).
+    """
+    key = (red.groups, N, d, float(regularisation), torque_rate_limit, tuple(map(tuple, red.stiffness_pattern())))
+    if key not in _NLP_CACHE:
+        if len(_NLP_CACHE) >= 2:  # they are large: keep the latest (rigid and flexible)
+            _NLP_CACHE.pop(next(iter(_NLP_CACHE)))
+        nlp, *counts = nlp_expressions(red, N, d, regularisation, torque_rate_limit)
+        f = ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]]).expand()
+        x, p = ca.SX.sym("x", f.size1_in(0)), ca.SX.sym("p", f.size1_in(1))
+        fx, gx = f(x, p)
+        _NLP_CACHE[key] = {"nlp": {"x": x, "p": p, "f": fx, "g": gx}, "counts": counts, "derivatives": {},
+                           "solvers": {}}
+    entry = _NLP_CACHE[key]
+    okey = json.dumps(opts, sort_keys=True)
+    if okey not in entry["solvers"]:
+        full = {**opts, "expand": False, **entry["derivatives"]}
+        solver = ca.nlpsol("slew", "ipopt", entry["nlp"], full)
+        if not entry["derivatives"]:
+            entry["derivatives"] = {"hess_lag": solver.get_function("nlp_hess_l"),
+                                    "jac_g": solver.get_function("nlp_jac_g"),
+                                    "grad_f": solver.get_function("nlp_grad_f")}
+        entry["solvers"][okey] = solver
+    return (entry["solvers"][okey], *entry["counts"])
+
+
+def nlp_expressions(red: ReducedModel, N: int, d: int, regularisation: float, torque_rate_limit):
     """The collocation NLP for one structure; model constants, start and line are parameters.
 
     Parameters p = [w_tf, model coefficients, τ_limit (2), θ_r(0) (n), group lengths (n),
@@ -517,8 +547,7 @@ def _build_nlp(red: ReducedModel, N: int, d: int, regularisation: float, torque_
     g = ca.vertcat(*[ca.vec(c) for c in cons])
     x = ca.vertcat(ca.vec(TH), ca.vec(OM), ca.vec(AC), ca.vec(U), tf)
     f = w_tf * tf + regularisation * ca.sumsqr(dU)
-    solver = ca.nlpsol("slew", "ipopt", {"x": x, "f": f, "g": g, "p": P}, opts)
-    return solver, n_eq, n_line, n_rate, int(g.shape[0])
+    return {"x": x, "f": f, "g": g, "p": P}, n_eq, n_line, n_rate, int(g.shape[0])
 
 
 def _straight_guess(params, red: ReducedModel, elbow: int, s_cols, N) -> np.ndarray:

@@ -84,7 +84,10 @@ def solve_minimum_time(params: ArmParameters | None = None, n_intervals: int = 2
     degree : int
         Radau points per interval.
     warm_start : TrajectoryResult or CollocationSolution, optional
-        A previous solution (e.g. for another payload); skips the rigid stage.
+        A previous solution (e.g. for another payload); skips the rigid stage. A trajectory
+        read from a file holds no solution: the solve is cold. Rebuilding one with
+        :func:`flexarm.trajectory.warm.solution_from_trajectory` gives a primal point without
+        multipliers, measured slower than a cold solve (docs/trajectory.md).
     verbose : bool
         Print progress (IPOPT every 10 iterations).
     elbow : {1, -1}
