@@ -77,17 +77,6 @@ def facts(model: ArmModel, q_rad) -> dict[str, float]:
             "joint1_acceleration_deg_s2": float(acc[0]), "joint2_acceleration_deg_s2": float(acc[1])}
 
 
-def calibrated_unknowns(params, design: dict) -> dict[str, float]:
-    """The calibrated unknowns read back from a parameter set (inverse of ``build_from_design``)."""
-    mb = design["chosen"]["bracket_mass_kg"]
-    return {
-        "hub_inertia_kgm2": float(params.inertia[0]),
-        "stator_mass_kg": float(params.mass[5] - mb),
-        "rotor2_inertia_kgm2": float(params.inertia[6]),
-        "accelerometer2_mass_kg": float(params.point_mass[-1]),
-    }
-
-
 def calibrate(design: dict, verbose: bool = True, fixed: dict[str, float] | None = None) -> CalibrationResult:
     """Least-squares fit of the unknowns not in `fixed` to the static facts.
 

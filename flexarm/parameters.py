@@ -430,3 +430,14 @@ def write_parameter_file(path: str | os.PathLike, params: ArmParameters, records
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(text)
     os.replace(tmp, path)
+
+
+def calibrated_unknowns(params, design: dict) -> dict[str, float]:
+    """The calibrated unknowns read back from a parameter set (inverse of ``build_from_design``)."""
+    mb = design["chosen"]["bracket_mass_kg"]
+    return {
+        "hub_inertia_kgm2": float(params.inertia[0]),
+        "stator_mass_kg": float(params.mass[5] - mb),
+        "rotor2_inertia_kgm2": float(params.inertia[6]),
+        "accelerometer2_mass_kg": float(params.point_mass[-1]),
+    }

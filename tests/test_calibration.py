@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from flexarm import ArmModel, load_parameters
-from flexarm.calibration import MINIMUM_TIME_TOLERANCE, TOLERANCES, calibrated_unknowns, facts
+from flexarm.calibration import MINIMUM_TIME_TOLERANCE, TOLERANCES, facts
 from flexarm.calibration import main as calibration_main
 from flexarm.modes import modal_analysis, rigid_joint_accelerations
-from flexarm.parameters import DEFAULT_PARAMETER_FILE, DESIGN_FILE, load_design
+from flexarm.parameters import DEFAULT_PARAMETER_FILE, DESIGN_FILE, calibrated_unknowns, load_design
 from flexarm.provenance import sha256_file
 
 PAPER = {"link1_mode_Hz": 20.0, "link2_mode_Hz": 8.0,

@@ -19,15 +19,11 @@ import zipfile
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..parameters import DATA_DIR, DEFAULT_PARAMETER_FILE, N_ELEMENTS
 from ..provenance import DataFileError, jsonable, read_sealed_json, sha256_file, write_atomic, write_sealed_json
-
-if TYPE_CHECKING:  # the optimiser's raw result; importing it would import CasADi
-    from .problem import CollocationSolution
 
 DEFAULT_TRAJECTORY_FILE = DATA_DIR / "trajectory.npz"
 DEFAULT_PLOT_FILE = DATA_DIR / "trajectory.png"
@@ -73,7 +69,7 @@ class TrajectoryResult:
     omega: np.ndarray
     tip: np.ndarray
     metadata: dict
-    solution: CollocationSolution | None = None
+    solution: object | None = None  # a flexarm.trajectory.problem.CollocationSolution (not imported: CasADi)
 
     @property
     def t_f(self) -> float:

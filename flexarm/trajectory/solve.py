@@ -194,8 +194,7 @@ def sensitivity(base: TrajectoryResult, params: ArmParameters | None = None, cha
         One row per case: parameter, factor, t_f (continuous optimum, s), t_f
         of the file (whole ms), iterations, wall time.
     """
-    from ..calibration import calibrated_unknowns
-    from ..parameters import build_from_design, load_design
+    from ..parameters import build_from_design, calibrated_unknowns, load_design
 
     params = params if params is not None else load_parameters()
     design = load_design()
