@@ -523,6 +523,17 @@ class SensorBank:
         self.n_samples += 1
         return y
 
+    def skip(self) -> np.ndarray:
+        """A sample with nothing to measure (a master's placeholder before its first exchange).
+
+        The noise stream advances by its draws of one sample, so that every later sample's noise is the one of
+        its index, as in a run that measured this sample; the filters keep their state (unprimed until the first
+        real sample primes them). Returns zeros, shape (12,): the placeholder passed on, never a measurement.
+        """
+        self._rng.random(N_SIGNALS)
+        self.n_samples += 1
+        return np.zeros(N_SIGNALS)
+
     def measure_state(self, model: ArmModel, z, tau) -> np.ndarray:
         """:meth:`measure` of :func:`true_signals_from_state` ``(model, z, tau)``; shape (12,)."""
         return self.measure(true_signals_from_state(model, z, tau))

@@ -282,6 +282,7 @@ def test_saturation_is_said_in_the_table_and_the_json(tmp_path, capsys, kind):
     text = text.replace("step_size_s = 0.001", "step_size_s = 0.004").replace('name = "lqg_jacobi"',
                                                                               'name = "jacobi_4ms"')
     text = text.replace("[scenario]\n", f'[scenario]\nkind = "{kind}"\n', 1)
+    text = text.replace("[parameters.controller]\n", "[parameters.controller]\nloop_delay_samples = 2\n", 1)
     for inst, fmu in (("plant", "plant"), ("sensors", "sensors"), ("controller", "controller_lqg")):
         text = text.replace(f'{inst} = "{fmu}"\n', f'{inst} = "{fmus[fmu].as_posix()}"\n', 1)
     path = write(tmp_path, text + ONE_CASE)

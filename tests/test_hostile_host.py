@@ -1,7 +1,7 @@
 """A deliberately hostile FMI host (issue 21): the result may not depend on how a master reads, sets and initialises.
 
-:class:`HostileHost` runs a scenario's FMUs on fmpy's low-level ``FMU2Slave`` with the exchange of the
-scenario's stepping (Gauss-Seidel or Jacobi, as ``scenarios/master.py`` defines them), but the way a stranger's
+:class:`~scenarios.conformance_hosts.HostileHost` runs a scenario's FMUs on fmpy's ``FMU2Slave`` with the exchange of
+the scenario's stepping (Gauss-Seidel or Jacobi, as ``scenarios/master.py`` defines them), but the way a stranger's
 tool may do it: every output of an FMU is read twice before and twice after every single ``fmi2SetReal``, the
 inputs are set one by one in a random (seeded) order, and the FMUs go through zero or three exchange rounds in
 initialisation mode. Its rms position error must equal our master's within 1 % or 1e-4 deg (the larger), for
@@ -22,131 +22,11 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 from scenarios.config import load_scenario
+from scenarios.conformance_hosts import HostileHost
 from scenarios.runner import prepare, simulate_case
 
 #: Cases of lqg_jacobi the host runs (issue 21's table), and all of table2's.
 LQG_CASES = ("none", "none_bank", "noise_bank", "tip_bank_integral")
-
-
-class HostileHost:
-    """Runs a :class:`scenarios.runner.Setup`'s FMUs like :meth:`scenarios.master.Master.run`, hostilely.
-
-    Parameters
-    ----------
-    setup : Setup
-    algorithm : {"gauss-seidel", "jacobi"}
-    init_rounds : int
-        Exchange rounds in initialisation mode (Jacobi exchange).
-    seed : int
-        Seed of the order in which inputs are set.
-    extra_reads : int
-        Reads of every output of an FMU before and after each single set (0: a plain host).
-    extra_tau_read : bool
-        Only this hostility: one more ``getReal(tau)`` after the controller's inputs are set (the Ecos pattern).
-    """
-
-    def __init__(self, setup, algorithm: str, init_rounds: int = 0, seed: int = 0, extra_reads: int = 2,
-                 shuffle: bool = True, extra_tau_read: bool = False):
-        self.setup, self.algorithm, self.init_rounds = setup, algorithm, init_rounds
-        self.rng = np.random.default_rng(seed)
-        self.extra_reads, self.shuffle, self.extra_tau_read = extra_reads, shuffle, extra_tau_read
-        self.order = setup.scenario.order
-        self.rank = {name: i for i, name in enumerate(self.order)}
-
-    # -- loading ------------------------------------------------------------------------------------
-    def _load(self):
-        self.tmp = tempfile.mkdtemp(prefix="hostile_")
-        self.slaves, self.vars, self.outputs = {}, {}, {}
-        for name in self.order:
-            path = self.setup.paths[name]
-            md = read_model_description(str(path))
-            s = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path), unzipdir=f"{self.tmp}/{name}"),
-                          modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
-            s.instantiate()
-            self.slaves[name] = s
-            self.vars[name] = {v.name: v for v in md.modelVariables}
-            self.outputs[name] = [v.valueReference for v in md.modelVariables if v.causality == "output"]
-
-    def _free(self):
-        for s in self.slaves.values():
-            s.terminate()
-            s.freeInstance()
-        shutil.rmtree(self.tmp, ignore_errors=True)
-
-    def _vr(self, fmu: str, var: str) -> int:
-        return self.vars[fmu][var].valueReference
-
-    def _set_parameter(self, fmu: str, var: str, value) -> None:
-        v, s = self.vars[fmu][var], self.slaves[fmu]
-        if v.type == "Real":
-            s.setReal([v.valueReference], [float(value)])
-        elif v.type == "Boolean":
-            s.setBoolean([v.valueReference], [bool(value)])
-        else:
-            s.setInteger([v.valueReference], [int(value)])
-
-    # -- hostile primitives ---------------------------------------------------------------------------
-    def _read_all(self, fmu: str) -> None:
-        for _ in range(self.extra_reads):
-            self.slaves[fmu].getReal(self.outputs[fmu])
-
-    def _get(self, fmu: str, var: str) -> float:
-        self._read_all(fmu)
-        return self.slaves[fmu].getReal([self._vr(fmu, var)])[0]
-
-    def _set_inputs(self, items: list[tuple[str, str, float]]) -> None:
-        """Set (fmu, input, value) one by one, in random order, reading every output around each set."""
-        order = self.rng.permutation(len(items)) if self.shuffle else range(len(items))
-        for i in order:
-            fmu, var, value = items[i]
-            self._read_all(fmu)
-            self.slaves[fmu].setReal([self._vr(fmu, var)], [value])
-            self._read_all(fmu)
-        if self.extra_tau_read:
-            for fmu in {f for f, _, _ in items}:
-                if "tau1" in self.vars[fmu]:
-                    self.slaves[fmu].getReal([self._vr(fmu, "tau1"), self._vr(fmu, "tau2")])
-
-    def _jacobi_exchange(self) -> None:
-        values = [(c, self._get(c.src_fmu, c.src_var)) for c in self.setup.connections]
-        self._set_inputs([(c.dst_fmu, c.dst_var, v) for c, v in values])
-
-    def _gauss_seidel_exchange(self) -> None:
-        for name in self.order:  # forward edges: sources earlier in the order, at this FMU's turn
-            edges = [c for c in self.setup.connections
-                     if c.dst_fmu == name and self.rank[c.src_fmu] < self.rank[name]]
-            self._set_inputs([(c.dst_fmu, c.dst_var, self._get(c.src_fmu, c.src_var)) for c in edges])
-        feedback = [c for c in self.setup.connections if self.rank[c.src_fmu] >= self.rank[c.dst_fmu]]
-        self._set_inputs([(c.dst_fmu, c.dst_var, self._get(c.src_fmu, c.src_var)) for c in feedback])
-
-    # -- Master.run's interface -------------------------------------------------------------------------
-    def run(self, parameters, record, n_steps, step_size, divergence_limit=1e4, progress=None, **_) -> dict:
-        self._load()
-        try:
-            for name, s in self.slaves.items():
-                s.setupExperiment(startTime=0.0)
-                for var, value in parameters.get(name, {}).items():
-                    self._set_parameter(name, var, value)
-                s.enterInitializationMode()
-            for _ in range(self.init_rounds):
-                self._jacobi_exchange()
-            for s in self.slaves.values():
-                s.exitInitializationMode()
-            data = np.full((n_steps + 1, len(record)), np.nan)
-            for k in range(n_steps + 1):
-                if self.algorithm == "jacobi":  # the values exchanged, read before any input changed
-                    data[k] = [self._get(f, v) for f, v in record]
-                    self._jacobi_exchange()
-                else:  # the values at t_k after every input is set
-                    self._gauss_seidel_exchange()
-                    data[k] = [self._get(f, v) for f, v in record]
-                if k < n_steps:
-                    for name in self.order:
-                        self.slaves[name].doStep(k * step_size, step_size)
-        finally:
-            self._free()
-        return {"status": "ok", "message": "", "time": np.arange(n_steps + 1) * step_size,
-                "signals": {f"{f}.{v}": data[:, i] for i, (f, v) in enumerate(record)}}
 
 
 #: Communication steps the Python kind runs (the native kind runs the whole slew): 0.7 s of the slew, where

@@ -199,6 +199,7 @@ def test_ssp_export_sets_the_loop_delay_of_its_step(tmp_path):
 
     sc = load_scenario("lqg_jacobi")
     sc.cases = [c for c in sc.cases if c.key == "none"]
+    sc.cases[0].parameters.setdefault("controller", {})["loop_delay_samples"] = 2  # an explicit value is honoured
     delays = {}
     for h in (1e-3, 4e-3):
         sc.step_size = h

@@ -201,9 +201,11 @@ def test_two_instances_with_different_seeds_are_independent(fmu_path, unzipped):
     c = Slave(fmu_path, unzipped, name="c", noise_seed=1, **params)
     try:
         na, nb, nc = [], [], []
-        for xk in x:  # interleaved, as a master would
+        for k, xk in enumerate(x):  # interleaved, as a master would
             for s, out in ((a, na), (b, nb), (c, nc)):
-                s.set_vector(TRUE_SIGNAL_NAMES, xk)
+                # all-zero signals with the sample's index: a measurement of zero (without the index they would be
+                # a master's placeholder, which is not measured: tests/test_sensors_placeholder.py)
+                s.set_vector([*TRUE_SIGNAL_NAMES, "sample_index"], [*xk, k + 1.0])
                 out.append(s.get(MEASURED_SIGNAL_NAMES))
             for s in (a, b, c):
                 s.step()

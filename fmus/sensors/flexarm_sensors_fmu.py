@@ -15,7 +15,10 @@ Interface (full table in ``docs/fmu-interface.md``):
   plus ``sample_period`` (s);
 * outputs: :data:`flexarm.sensors.MEASURED_SIGNAL_NAMES` (``q1_m`` … ``acc2_m``);
 * ``sample_index`` in, ``sample_index_m`` out: the index of the plant sample measured, passed on as it
-  was present at the sample (0: no sample yet; :mod:`flexarm.loop_index`).
+  was present at the sample (0: no sample yet; :mod:`flexarm.loop_index`). Inputs that are a master's
+  placeholder (index 0 and every true signal exactly 0, fmpy's ``simulate_ssp`` over its first step) are not
+  measured: the outputs are 0 with index 0, so the controller sees "no sample yet", and the filters are primed
+  by the first real sample (the noise stream advances as for a measured sample).
 
 Defaults: noise off (``noise_enabled`` false), 1 ms sample period; the
 default experiment lasts the committed trajectory's slew.
@@ -41,6 +44,7 @@ import numpy as np
 from flexarm_feedthrough import FeedthroughSlave, whole_samples
 from flexarm_fmu_base import Var, pin_module_namespace, slew_experiment, variable_table
 
+from flexarm.loop_index import is_placeholder
 from flexarm.sensors import MEASURED_SIGNALS, TRUE_SIGNALS, SensorBank, SensorSettings
 from flexarm.signals import signals
 
@@ -158,15 +162,22 @@ class FlexarmSensors(FeedthroughSlave):
         else:  # inputs changed after a read at this communication point: measure again from the same state
             self.bank.rewind(self._pre)
         values = self._values
-        measured = self.bank.measure(np.array([values[vr] for vr in self._true_vrs], dtype=float))
+        measured = self._sample(np.array([values[vr] for vr in self._true_vrs], dtype=float))
         return np.append(measured, values[self._index_vr])  # the index of the plant sample measured
+
+    def _sample(self, true: np.ndarray) -> np.ndarray:
+        """One sample of the bank; a master's placeholder (no index, every input exactly 0) is not measured:
+        zeros are passed on with index 0, the filters stay as they are (:meth:`SensorBank.skip`)."""
+        if is_placeholder(self._values[self._index_vr], true):
+            return self.bank.skip()
+        return self.bank.measure(true)
 
     def commit(self, t: float, h: float, n: int) -> None:
         # A step of n sample periods: the sample at t was taken; the n - 1 samples inside the step
         # measure the inputs held since t (one filter update and one noise draw each).
         held = np.array([self._values[vr] for vr in self._true_vrs], dtype=float)
         for _ in range(n - 1):
-            self.bank.measure(held)
+            self._sample(held)
         self._pre = None
 
     def samples_in_step(self, t: float, h: float) -> int:

@@ -11,13 +11,15 @@
  * present (computed into a pending copy; reads change nothing); fmi2DoStep commits the sample of the inputs
  * present then, and a step of n sample periods takes the n - 1 samples inside the step with the inputs held.
  * A step of 0 samples (within 1e-9 s) does nothing. The plant's sample_index is passed on as sample_index_m as
- * present at the sample (flexarm/loop_index.py).
+ * present at the sample (flexarm/loop_index.py); a master's placeholder (index 0, every input exactly 0) is not
+ * measured (sample_or_skip).
  */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "fmi2_glue.h"
+#include "loop_index.h"
 #include "model_vars.h"
 #include "pcg64.h"
 #include "portable_math.h"
@@ -209,6 +211,19 @@ static void measure(const SensorsState *s, Bank *bank, const double *x, double *
     bank->n_samples += 1;
 }
 
+/* flexarm.sensors.SensorBank.skip: a master's placeholder (no index, every input exactly 0) is not measured: the
+ * noise stream advances by one sample's draws, the filters keep their state, the outputs are 0. */
+static void sample_or_skip(const SensorsState *s, Bank *bank, const double *x, double index, double *y)
+{
+    if (!loop_is_placeholder(index, x, N_SIGNALS)) {
+        measure(s, bank, x, y);
+        return;
+    }
+    for (int i = 0; i < N_SIGNALS; i++) (void)pcg64_random(&bank->rng);
+    memset(y, 0, N_SIGNALS * sizeof *y);
+    bank->n_samples += 1;
+}
+
 /* -- model callbacks ------------------------------------------------------------------------------ */
 static int sensors_load(Instance *inst, char *const *contents, const size_t *sizes)
 {
@@ -282,7 +297,7 @@ static fmi2Status sensors_initialize(Instance *inst)
     double x[N_SIGNALS], y[N_SIGNALS];
     for (int i = 0; i < N_SIGNALS; i++) x[i] = VALUE(inst, TRUE_IDX[i]);
     s->pending = s->committed;
-    measure(s, &s->pending, x, y);
+    sample_or_skip(s, &s->pending, x, VALUE(inst, IDX_sample_index), y);
     for (int i = 0; i < N_SIGNALS; i++) VALUE(inst, MEASURED_IDX[i]) = y[i];
     VALUE(inst, IDX_sample_index_m) = VALUE(inst, IDX_sample_index); /* the plant sample measured */
     return fmi2OK;
@@ -294,7 +309,7 @@ static fmi2Status sensors_sample(Instance *inst)
     double x[N_SIGNALS], y[N_SIGNALS];
     for (int i = 0; i < N_SIGNALS; i++) x[i] = VALUE(inst, TRUE_IDX[i]);
     s->pending = s->committed; /* re-set inputs re-measure from the same state */
-    measure(s, &s->pending, x, y);
+    sample_or_skip(s, &s->pending, x, VALUE(inst, IDX_sample_index), y);
     for (int i = 0; i < N_SIGNALS; i++) VALUE(inst, MEASURED_IDX[i]) = y[i];
     VALUE(inst, IDX_sample_index_m) = VALUE(inst, IDX_sample_index); /* the plant sample measured */
     return fmi2OK;
@@ -314,7 +329,7 @@ static fmi2Status sensors_do_step(Instance *inst, double t, double h)
     if (n == 0) return fmi2OK; /* no sample instant in the step: nothing changes */
     double x[N_SIGNALS], y[N_SIGNALS];
     for (int i = 0; i < N_SIGNALS; i++) x[i] = VALUE(inst, TRUE_IDX[i]);
-    for (double k = 1; k < n; k++) measure(s, &s->pending, x, y);
+    for (double k = 1; k < n; k++) sample_or_skip(s, &s->pending, x, VALUE(inst, IDX_sample_index), y);
     s->committed = s->pending;
     return fmi2OK;
 }
