@@ -141,6 +141,14 @@ def main(argv=None) -> int:
     from .score.cli import add_parser as add_score
 
     add_score(sub, DEFAULT_OUT, DEFAULT_FMU_DIR, _kind_options)
+    sub.add_parser("conformance", add_help=False,
+                   help="the conformance matrix: each case's one archive in every FMI master "
+                        "(python -m scenarios conformance --help)")
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["conformance"]:  # its own command line (scenarios/conformance.py)
+        from .conformance import main as conformance_main
+
+        return conformance_main(argv[1:])
     _reserve_stdio()
     args = ap.parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None

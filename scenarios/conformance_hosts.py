@@ -13,6 +13,8 @@ baked values are the case.
 * :func:`run_oms_semantics` - a host stepping as OMSimulator's fixed-step master does (OMSimulator installs from
   no registry here): Gauss-Seidel in the SSD's connection order, no exchange in initialisation mode, the stop time
   reached by ``t += h`` in doubles with a last step of the rounding remainder;
+* :func:`run_omsimulator` - OMSimulator itself (its command-line tool, built from source: ``$FLEXARM_OMSIMULATOR``
+  or ``OMSimulator`` on the PATH), where it is installed;
 * :func:`run_hostile` - :class:`HostileHost`: reads every output twice around every single set, sets inputs one
   by one in a seeded random order, three exchange rounds in initialisation mode;
 * :func:`run_simulate_fmu` - fmpy's ``simulate_fmu`` on the plant alone, driven by given torques.
@@ -20,8 +22,11 @@ baked values are the case.
 
 from __future__ import annotations
 
+import csv
 import io
+import os
 import shutil
+import subprocess
 import tempfile
 import zipfile
 from dataclasses import dataclass
@@ -223,6 +228,45 @@ def run_oms_semantics(ssp: Path, folder: Path) -> Trace:
     # so that every master is judged on the same n + 1 communication points.
     keep = [0] + [k for k in range(1, len(times)) if times[k] - times[k - 1] > h / 2]
     return _trace(np.asarray(times)[keep], np.asarray(rows)[keep])
+
+
+def omsimulator() -> str | None:
+    """The OMSimulator command-line tool: ``$FLEXARM_OMSIMULATOR``, else ``OMSimulator`` on the PATH, else None."""
+    return os.environ.get("FLEXARM_OMSIMULATOR") or shutil.which("OMSimulator")
+
+
+def run_omsimulator(ssp: Path, folder: Path, timeout: float = 600.0) -> Trace:
+    """OMSimulator's command-line tool on the archive as it is: its fixed-step master at the SSD's step and stop
+    time, every variable to a CSV result file. The file holds each communication point twice (before and after
+    the exchange; the last one three times): the last row of each time is the one after the exchange."""
+    tool = omsimulator()
+    if tool is None:
+        raise RuntimeError("OMSimulator is not installed (set FLEXARM_OMSIMULATOR to its command-line tool)")
+    n, h = experiment(ssp)
+    folder.mkdir(parents=True, exist_ok=True)
+    result = folder / "omsimulator.csv"
+    done = subprocess.run([tool, f"--stopTime={n * h!r}", f"--stepSize={h!r}", f"--resultFile={result}",
+                           str(Path(ssp).resolve())], cwd=folder, capture_output=True, text=True, timeout=timeout)
+    errors = [ln for ln in (done.stdout + done.stderr).splitlines() if ln.startswith("error:")]
+    if done.returncode != 0 or not result.is_file():  # it exits 0 when its initialisation fails
+        raise RuntimeError(f"OMSimulator exited {done.returncode} without a result file: {' / '.join(errors)[-300:]}")
+    with open(result, newline="") as f:
+        rows = list(csv.reader(f))
+    header, data = rows[0], np.array(rows[1:], dtype=float)
+
+    def column(fmu: str, var: str) -> np.ndarray:
+        hits = [i for i, name in enumerate(header) if name.endswith(f".{fmu}.{var}")]
+        if len(hits) != 1:
+            raise RuntimeError(f"OMSimulator's result file has {len(hits)} columns for {fmu}.{var}")
+        return data[:, hits[0]]
+
+    time = data[:, 0]
+    last = np.flatnonzero(np.append(np.diff(time) > h / 2, True))  # the last row of each communication point
+    if len(last) != n + 1:
+        raise RuntimeError(f"OMSimulator's result file has {len(last)} communication points, not {n + 1}: "
+                           f"{' / '.join(errors)[-300:]}")
+    cols = [column("plant", v) for v in STATE] + [column("controller", "tau1"), column("controller", "tau2")]
+    return _trace(time[last], np.column_stack(cols)[last])
 
 
 def run_simulate_fmu(ssp: Path, torques: Trace, folder: Path) -> Trace:

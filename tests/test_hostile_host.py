@@ -69,17 +69,28 @@ def test_hostile_host_gives_our_masters_rms_position_error(name, kind):
 @pytest.mark.parametrize("kind", ["native", "python"])
 def test_an_extra_read_of_the_torques_changes_nothing(kind):
     """The issue's reproducer: a plain Jacobi loop over lqg_jacobi's `none` case, with and without one extra
-    getReal(tau) after the controller's setReal, and with 0 or 3 initialisation rounds: one run, bit for bit
-    (the torques had moved by 0.07 deg rms position error)."""
+    getReal(tau) after the controller's setReal: one run, bit for bit (the torques had moved by 0.07 deg rms
+    position error). With the delay given (loop_delay_samples = 2) the initialisation rounds (0, 1 or 3) change
+    nothing either; with it automatic they may (rounds give the controller a measurement at t = 0, a run without
+    them has none), and each count is one run with or without the extra read."""
     sc, setup = _setups("lqg_jacobi", kind, ("none",))
     params = setup.case_parameters(sc.cases[0].parameters)
-    runs = [HostileHost(setup, "jacobi", init_rounds=r, extra_reads=0, shuffle=False, extra_tau_read=x)
-            .run(params, setup.record, 600, sc.step_size) for r, x in ((3, False), (3, True), (0, True), (1, False))]
-    for other in runs[1:]:
-        for key, values in runs[0]["signals"].items():
-            np.testing.assert_array_equal(other["signals"][key], values, err_msg=key)
-    tau = runs[0]["signals"][f"{setup.driver}.tau1"]
-    assert np.ptp(tau) > 1.0  # the loop runs: the torques follow the slew
+    given = {**params, setup.driver: {**params.get(setup.driver, {}), "loop_delay_samples": 2}}
+
+    def run(p, rounds, extra):
+        return HostileHost(setup, "jacobi", init_rounds=rounds, extra_reads=0, shuffle=False,
+                           extra_tau_read=extra).run(p, setup.record, 600, sc.step_size)["signals"]
+
+    def same(a, b):
+        for key, values in a.items():
+            np.testing.assert_array_equal(b[key], values, err_msg=key)
+
+    first = run(given, 3, False)
+    for rounds, extra in ((3, True), (0, True), (1, False)):
+        same(first, run(given, rounds, extra))
+    for rounds in (0, 3):
+        same(run(params, rounds, False), run(params, rounds, True))
+    assert np.ptp(first[f"{setup.driver}.tau1"]) > 1.0  # the loop runs: the torques follow the slew
 
 
 def _stepped(path, params: dict, steps: list[float]) -> tuple[np.ndarray, list[str]]:

@@ -120,6 +120,7 @@ class FlexarmControllerLQG(ControllerSlave):
         self._unwired_warned = False
         #: sample -> the torque the plant held over it where that was not this controller's (tau_lag != 0)
         self._foreign: dict[int, list[float]] = {}
+        self._switch_end = 0
         self._lag_vr = self._vr["tau_lag"]
         self._applied_vrs = (self._vr["tau1_applied"], self._vr["tau2_applied"])
 
@@ -146,6 +147,7 @@ class FlexarmControllerLQG(ControllerSlave):
 
     def setup(self) -> None:
         self.delay_contradictions, self._unwired_warned, self._foreign = 0, False, {}
+        self._switch_end = 0  # automatic: 1 + the last sample whose torque the law before the switch published
         requested = int(self.value("loop_delay_samples"))
         if requested < AUTOMATIC:
             raise ValueError(f"loop_delay_samples: {requested!r} is not -1 (automatic) or 0..{MAX_DELAY_SAMPLES}")
@@ -188,13 +190,19 @@ class FlexarmControllerLQG(ControllerSlave):
         tau, self._pending = self.law.step(self._with_applied(self.state, self._applied(k)), k, measurements)
         return np.concatenate([tau, self.index_outputs(k, index, 0)])
 
-    def _applied(self, k: int) -> tuple[int, list[float]] | None:
+    def _applied(self, k: int, before_switch: bool = False) -> tuple[int, list[float]] | None:
         """(k - 1, the torque the plant held over sample k - 1) when the plant reports that it was not this
         controller's for that sample (tau_lag != 0: a master's fill before the first exchange, a late torque),
-        else None. An unwired tau_lag holds 0: nothing to correct."""
-        if k < 1 or self._values[self._lag_vr] == 0.0:
+        else None. With `before_switch` (automatic, no delay measured yet) also when it was, so that a switch
+        re-runs the first samples with the torques the plant really held (the law before the switch used those
+        samples' measurements, the law after it has none for them). An unwired tau_lag holds 0 and unwired
+        torques 0: nothing to correct, nothing to remember."""
+        if k < 1:
             return None
-        return k - 1, [float(self._values[vr]) for vr in self._applied_vrs]
+        torque = [float(self._values[vr]) for vr in self._applied_vrs]
+        if self._values[self._lag_vr] != 0.0 or (before_switch and any(x != 0.0 for x in torque)):
+            return k - 1, torque
+        return None
 
     def _with_applied(self, state, applied: tuple[int, list[float]] | None):
         """`state` with the torque its filter assumes for sample s replaced by the one the plant held (a copy)."""
@@ -219,7 +227,8 @@ class FlexarmControllerLQG(ControllerSlave):
         index = self._values[self._index_vr]
         k = self.law.sample_index(t)
         self._warn_unwired(t, index, held)
-        applied = self._applied(k)
+        # automatic: the torques held over the samples up to the switch were the law's before it (its own reports too)
+        applied = self._applied(k, before_switch=self.automatic and (self.law.delay == 0 or k <= self._switch_end))
         self._remember(applied)
         if self.law.delay > 0:  # samples k + 1 .. k + n; the last one's torques are published
             if self.state.k != k + 1:
@@ -253,6 +262,7 @@ class FlexarmControllerLQG(ControllerSlave):
         switch happens at the first steps), then k + 1 .. k + n from the inputs present."""
         delay = min(delay, MAX_DELAY_SAMPLES)
         self._build(delay)
+        self._switch_end = k + 1
         self.log(f"{self.instance_name}: loop_delay_samples = -1 (automatic): the loop delay measured at "
                  f"fmi2DoStep(t = {t!r} s) is {delay} samples (the master reads the torques before it sets the "
                  f"measurements); predicting over {delay} samples from sample {k + 1} on", Fmi2Status.ok)
@@ -284,7 +294,8 @@ class FlexarmControllerLQG(ControllerSlave):
         return {"lqg": as_dict(self.state), "pending": as_dict(self._pending),
                 "tau": None if self._tau is None else self._tau.tolist(), "delay": self.delay,
                 "delay_contradictions": self.delay_contradictions, "unwired_warned": self._unwired_warned,
-                "foreign": {str(s): v for s, v in self._foreign.items()}}
+                "foreign": {str(s): v for s, v in self._foreign.items()},
+                "switch_end": self._switch_end}
 
     def set_sample_state(self, state: dict) -> None:
         delay = int(state.get("delay", self.delay))
@@ -298,4 +309,5 @@ class FlexarmControllerLQG(ControllerSlave):
         self._tau = None if state.get("tau") is None else np.array(state["tau"], dtype=float)
         self.delay_contradictions = int(state.get("delay_contradictions", 0))
         self._unwired_warned = bool(state.get("unwired_warned", False))
+        self._switch_end = int(state.get("switch_end", 0))
         self._foreign = {int(s): list(v) for s, v in state.get("foreign", {}).items()}

@@ -59,6 +59,7 @@ typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
     int delay_contradictions, unwired_warned; /* what the log says once per run */
     double foreign[N_FOREIGN][3]; /* sample, torques: the plant held another torque than this law's (tau_lag != 0) */
     int n_foreign;
+    long long switch_end; /* automatic: 1 + the last sample whose torque the law before the switch published */
 } FmuState;
 
 /* -- resources -------------------------------------------------------------------------------------------- */
@@ -310,12 +311,17 @@ static void law_step(const LqgData *d, const LqgState *s, long long k, const dou
     else lqg_step(d, s, k, m, limit, tau, next);
 }
 
-/* The plant's report that the torque it held over sample k - 1 was not this law's (tau_lag != 0): 1 and the torque. */
-static int plant_applied(Instance *inst, long long k, double torque[2])
+/* The plant's report of the torque it held over sample k - 1: 1 and the torque when it was not this law's
+   (tau_lag != 0); with `before_switch` (automatic, no delay measured yet) also when it was, so that a switch
+   re-runs the first samples with the torques the plant really held (the law before the switch used the
+   measurements of those samples; the law after it has none for them). An unwired tau_lag holds 0 and unwired
+   torques 0: nothing to correct, nothing to remember. */
+static int plant_applied(Instance *inst, long long k, int before_switch, double torque[2])
 {
-    if (k < 1 || VALUE(inst, IDX_tau_lag) == 0.0) return 0; /* an unwired tau_lag holds 0: nothing to correct */
+    if (k < 1) return 0;
     torque[0] = VALUE(inst, IDX_tau1_applied), torque[1] = VALUE(inst, IDX_tau2_applied);
-    return 1;
+    if (VALUE(inst, IDX_tau_lag) != 0.0) return 1;
+    return before_switch && (torque[0] != 0.0 || torque[1] != 0.0);
 }
 
 /* The torque deviation the filter of state s assumes for `sample` replaced by the plant's `torque`. */
@@ -405,7 +411,7 @@ static fmi2Status lqg_sample(Instance *inst)
     const double *used = loop_is_placeholder(index, m, N_MEAS) ? d->desired + clamp(d, (long long)k) * N_MEAS : m;
     LqgState base = st->committed;
     double applied[2];
-    if (plant_applied(inst, (long long)k, applied)) with_applied(d, &base, (long long)k - 1, applied);
+    if (plant_applied(inst, (long long)k, 0, applied)) with_applied(d, &base, (long long)k - 1, applied);
     law_step(d, &base, (long long)k, used, limit, tau, &st->pending);
     index_outputs(inst, (long long)k, index, 0, out);
     set_outputs(inst, tau, out);
@@ -477,6 +483,7 @@ static void switch_delay(Instance *inst, double t, long long k, int delay, doubl
     LqgData *d = inst->data;
     FmuState *st = inst->state;
     st->delay = delay;
+    st->switch_end = k + 1;
     configure(inst); /* the same parameters, now with the delay: cannot fail where it succeeded before */
     glue_log(inst, fmi2OK, "loop_delay_samples = -1 (automatic): the loop delay measured at fmi2DoStep(t = %.17g s) "
              "is %d samples (the master reads the torques before it sets the measurements); predicting over %d "
@@ -486,7 +493,7 @@ static void switch_delay(Instance *inst, double t, long long k, int delay, doubl
     if (d->use_bank) bank_initial_state(&d->bank, &st->committed);
     for (long long s = 0; s <= k; s++) {
         delayed_sample(inst, NULL, LOOP_NO_SAMPLE);
-        for (int i = 0; i < st->n_foreign; i++) /* the plant held another torque over s (fmpy's first step) */
+        for (int i = 0; i < st->n_foreign; i++) /* the torque the plant held over s (fmpy's fill, the old law's) */
             if (st->foreign[i][0] == (double)s) with_applied(d, &st->committed, s, &st->foreign[i][1]);
     }
     for (double i = 0; i < n; i++) delayed_sample(inst, m, index);
@@ -510,7 +517,10 @@ static fmi2Status lqg_do_step(Instance *inst, double t, double h)
     const double index = VALUE(inst, IDX_sample_index_m);
     warn_unwired(inst, t, index, m);
     double applied[2];
-    const int foreign = plant_applied(inst, (long long)nearbyint(t / d->dt), applied);
+    /* automatic: the torques held over the samples up to the switch were the law's before it (its own reports too) */
+    const int before_switch = VALUE(inst, IDX_loop_delay_samples) == LOOP_AUTOMATIC
+                              && (d->delay == 0 || nearbyint(t / d->dt) <= (double)st->switch_end);
+    const int foreign = plant_applied(inst, (long long)nearbyint(t / d->dt), before_switch, applied);
     if (foreign) remember(st, (long long)nearbyint(t / d->dt) - 1, applied);
     if (d->delay > 0) {
         if (nearbyint(t / d->dt) + 1 != (double)st->committed.k) {
