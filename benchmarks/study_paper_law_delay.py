@@ -1,4 +1,4 @@
-"""What the paper's law needs to give its Gauss-Seidel answer in a Jacobi master (issue 31, open): a study.
+"""What the paper's law needs to give its Gauss-Seidel answer in a Jacobi master (issue 31): a study.
 
 Runs the library plant (no FMI) for Table 2's no-payload case under the paper's feedforward + scheduled LQR
 (gamma = 0.1, 200 ms schedule) with the torque held over sample a computed from the measurement of sample
@@ -9,8 +9,8 @@ tables' tracking errors beside the delay-free run:
 * ``delayed``: the law on the measurement of a - d, with sample a's feedforward and desired values;
 * ``model prediction``: the reconstructed error of a - d (eqs. 21-31, the nine unmeasured velocities taken as
   0) carried to a by the linearised model along the slew (the LQG design's Phi, Gamma) with the torques sent;
-* ``Kalman predictor``: the LQG design's Kalman filter and predictor (flexarm.lqg.LqgController.estimate) to a,
-  fed to the paper's reduced gains K(t_a).
+* ``Kalman predictor``: the LQG design's Kalman filter and predictor to a, fed to the paper's reduced gains K(t_a)
+  (flexarm.lqg.PredictedTracking: what controller.fmu does in a Jacobi master).
 
     python benchmarks/study_paper_law_delay.py [--delay 2] [--payload 0.275]
 
@@ -27,7 +27,7 @@ import numpy as np
 from flexarm.control import TrackingController, tracking_errors
 from flexarm.gain_schedule import GainSchedule
 from flexarm.integrator import PlantSimulator
-from flexarm.lqg import LqgController, LqgState
+from flexarm.lqg import PredictedTracking
 from flexarm.lqg_design import LqgDesign
 from flexarm.lqr import default_trajectory_path
 from flexarm.model import ArmModel, joint_angles, joint_velocities, strain_gauge_angles
@@ -42,28 +42,23 @@ def measurements(z: np.ndarray) -> np.ndarray:
 def run(law: TrackingController, design: LqgDesign, model: ArmModel, how: str, d: int) -> dict[str, float]:
     n = law.n_steps
     plant = PlantSimulator(model, law.z[0])
-    lqg = LqgController(default_trajectory_path(), design, "gamma0.1", loop_delay_samples=d)
-    state = lqg.initial_state()
+    predictor = PredictedTracking(law, design, d) if how == "Kalman predictor" else None
+    state = None if predictor is None else predictor.initial_state()
     measured, states, held = [], [plant.z.copy()], {}
     for a in range(n):
         measured.append(measurements(plant.z))
         j = a - d
         if how == "no delay":
             tau = law.torque_from_measurements(a, measured[a])
+        elif predictor is not None:  # what controller.fmu does in a Jacobi master
+            tau, state = predictor.step(state, a, measured[j] if j >= 0 else predictor.desired_measurement(0))
         else:
-            ff, gain = law.feedforward(a), law._gains[law._gain_index[min(a, n)]]
-            if how == "Kalman predictor":
-                m = measured[j] if j >= 0 else design.C @ lqg.z[0]
-                x_post, error = lqg.estimate(state, a, m)
-            else:
-                error = law._estimator @ measured[max(j, 0)] - law._x_hat_d[max(j, 0)]
-                if how == "model prediction":
-                    for i in range(max(j, 0), a):
-                        p = design.index_at(i * law.dt)
-                        error = design.Phi[p] @ error + design.Gamma[p] @ (held[i] - law.feedforward(i))
-            tau = np.clip(ff - gain @ error, -law.saturation, law.saturation)
-            if how == "Kalman predictor":
-                state = LqgState(a + 1, x_post, np.vstack([state.du[1:], tau - ff]), state.xi, True)
+            error = law._estimator @ measured[max(j, 0)] - law._x_hat_d[max(j, 0)]
+            if how == "model prediction":
+                for i in range(max(j, 0), a):
+                    p = design.index_at(i * law.dt)
+                    error = design.Phi[p] @ error + design.Gamma[p] @ (held[i] - law.feedforward(i))
+            tau = np.clip(law.feedforward(a) - law.gain(a) @ error, -law.saturation, law.saturation)
         held[a] = tau
         plant.step(tau, law.dt)
         states.append(plant.z.copy())

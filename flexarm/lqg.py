@@ -246,6 +246,68 @@ class LqgController:
         return tau, LqgState(k + 1, x_post, du, xi, True)
 
 
+class PredictedTracking:
+    """The paper's tracking law over a loop delay of d ≥ 1 samples (issue 31): predict, then the paper's gains.
+
+    The paper's law (:class:`flexarm.control.TrackingController`) feeds back the state reconstructed from the
+    measurement of the sample it computes; in a Jacobi master that measurement is d samples old, and the stiff
+    γ = 0.1 loop goes unstable on it. Here the LQG design's Kalman filter of the same schedule takes the
+    measurement of sample k − d and predicts the error state to sample k with the torques actually sent
+    (:meth:`LqgController.estimate`, the linearised model along the slew), and the paper's reduced gain in force
+    at k acts on the prediction: τ_k = sat(τ_ff(k) − K(t_k) x̂_k). Feedforward, gains, saturation and the learned
+    correction are the paper law's; with d = 0 use that law itself. What it gives against the delay-free law:
+    ``benchmarks/study_paper_law_delay.py``.
+
+    Parameters
+    ----------
+    law : TrackingController
+        The paper's law (any mode; ``"ff"`` has no gains and sends the feedforward).
+    design : LqgDesign
+        The LQG design of the law's schedule (the same switching times).
+    delay : int
+        Loop delay, samples, 1..:data:`MAX_DELAY_SAMPLES`.
+    """
+
+    def __init__(self, law, design: LqgDesign, delay: int):
+        delay = check_loop_delay(delay)
+        if delay < 1:
+            raise LqgError("delay: PredictedTracking is for a delay of 1 or more samples (0: the law itself)")
+        if law.schedule is not None and not np.array_equal(np.asarray(law.schedule.times), design.times):
+            raise LqgError(f"design: schedule {design.schedule!r} switches at other times than the law's gains")
+        self.law, self.delay, self.dt, self.n_steps = law, delay, law.dt, law.n_steps
+        # its filter and predictor only: its gains, feedforward correction and saturation are not used
+        self.filter = LqgController(law.trajectory, design, "gamma0.1", delay)
+
+    def initial_state(self) -> LqgState:
+        """On the trajectory, nothing sent."""
+        return self.filter.initial_state()
+
+    def desired_measurement(self, j: int) -> np.ndarray:
+        """The ten measurements the trajectory predicts for the plant's sample j (zero innovation)."""
+        return self.filter.desired_measurement(j)
+
+    def step(self, state: LqgState, k: int, measurements) -> tuple[np.ndarray, LqgState]:
+        """Torques of sample k from the measurement of sample k − d, and the state after it (`state` unchanged).
+
+        Parameters
+        ----------
+        state : LqgState
+            After sample k − 1 (:meth:`initial_state` for k = 0).
+        k : int
+            Sample index; must be ``state.k``.
+        measurements : array_like, shape (10,)
+            q1, q2 (rad), q̇1, q̇2 (rad/s), ε1..ε6 (rad) of the plant at max(k − d, 0) (before k = d: the
+            desired measurement of t = 0).
+        """
+        m = check_sample_input(state.k, k, measurements)
+        x_post, x_now = self.filter.estimate(state, k, m)
+        tau = self.law.feedforward(k) - self.law.gain(k) @ x_now
+        if self.law.saturation is not None:
+            tau = np.minimum(np.maximum(tau, -self.law.saturation), self.law.saturation)
+        du = np.vstack([state.du[1:], tau - self.filter.feedforward(k)])  # about the nominal feedforward
+        return tau, LqgState(k + 1, x_post, du, state.xi, True)
+
+
 def lqg_controller(gain_set: str = "gamma0.1", schedule: str = "200ms", loop_delay_samples: int = 0,
                    integral_action: bool = False, saturation=None, feedforward_correction=None) -> LqgController:
     """The controller on the committed trajectory and LQG design files (torque limits from the parameter file;

@@ -363,10 +363,11 @@ def universal_macho(slices: list[bytes]) -> bytes:
 NATIVE_FMUS = {
     "plant": ("plant/plant.c", "plant/plant_linalg.h"),
     "sensors": ("sensors/sensors.c", "sensors/pcg64.c", "sensors/pcg64.h"),
-    **{name: ("controller/controller.c", "controller/learned_ff.c", "controller/learned_ff.h")
+    **{name: ("controller/controller.c", "controller/lqg_core.c", "controller/controller_lqg.h",
+              "controller/learned_ff.c", "controller/learned_ff.h")
        for name in ("controller", "controller_ff", "controller_fb", "controller_dlqr")},
-    "controller_lqg": ("controller/controller_lqg.c", "controller/controller_lqg.h", "controller/lqg_bank.c",
-                       "controller/learned_ff.c", "controller/learned_ff.h"),
+    "controller_lqg": ("controller/controller_lqg.c", "controller/controller_lqg.h", "controller/lqg_core.c",
+                       "controller/lqg_bank.c", "controller/learned_ff.c", "controller/learned_ff.h"),
     "reference": ("reference/reference.c",),
 }
 #: controller variants: (feedforward, feedback, discrete-time gains), as fmus/controller/*.py
@@ -439,6 +440,7 @@ def _stage_sources(name: str, staging: Path, python_fmu: Path) -> tuple[str, str
         native_codegen.write_trajectory_resource(res / native_codegen.TRAJECTORY_RESOURCE)
         if fb:
             native_codegen.write_gains_resource(res / native_codegen.GAINS_RESOURCE, discrete)
+            native_resources.write_lqg_resources(res, bank=False)  # the predictor over a measured delay
     resources = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(res.iterdir())}
     python_xml = interface_description(_read_description(python_fmu))
     root = ET.fromstring(python_xml)

@@ -88,9 +88,9 @@ def write_bank_resource(path: Path, schedule: str, desired_measurements: np.ndar
                    f"{POSTERIOR_FLOOR:g}, quiet filter re-seeded below p_0 = {QUIET_RESEED_BELOW:g}")
 
 
-def write_lqg_resources(directory: Path) -> list[Path]:
-    """Write the trajectory, the three design and the payload-bank resources into `directory`; returns their
-    paths."""
+def write_lqg_resources(directory: Path, bank: bool = True) -> list[Path]:
+    """Write the trajectory, the three design and (with `bank`) the payload-bank resources into `directory`;
+    returns their paths."""
     if [GAIN_SETS[v] for v in sorted(GAIN_SETS)] != list(WEIGHT_NAMES):
         raise RuntimeError(f"gain_set values {GAIN_SETS} are not in the order of the LQG weights {WEIGHT_NAMES}")
     law = lqg_controller()  # the committed trajectory, as the Python FMU's law reads it
@@ -111,7 +111,7 @@ def write_lqg_resources(directory: Path) -> list[Path]:
            f"source: lqg_{schedule}.npz sha256 {sha256_file(DEFAULT_LQG_DIR / f'lqg_{schedule}.npz')}\n"
            f"weights (gain_set 1..4): {', '.join(WEIGHT_NAMES)}")
         out.append(path)
-    for schedule in BANK_SCHEDULES:
+    for schedule in BANK_SCHEDULES if bank else ():
         out.append(directory / bank_resource(schedule))
         write_bank_resource(out[-1], schedule, law.z @ law.design.C.T)
     return out

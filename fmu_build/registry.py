@@ -78,6 +78,8 @@ _CONTINUOUS_GAINS = ("gains/gamma*", "gains/eq32*")
 _DISCRETE_GAINS = ("gains/dlqr-*",)
 #: The LQG's designs (Kalman filter and discrete LQR per schedule point), with sidecars.
 _LQG_DESIGNS = ("lqg/*",)
+#: The LQG's single-filter designs only (no payload bank): the paper's laws' predictor (flexarm.lqg.PredictedTracking).
+_LQG_FILTERS = ("lqg/lqg_*",)
 
 #: Every FMU of the project. The glue in fmus/common goes into every FMU.
 FMUS: dict[str, FmuSpec] = {
@@ -85,10 +87,11 @@ FMUS: dict[str, FmuSpec] = {
         FmuSpec("plant", SOURCES / "plant" / "flexarm_plant_fmu.py", data=_COMMON_DATA),
         FmuSpec("sensors", SOURCES / "sensors" / "flexarm_sensors_fmu.py",
                 data=(*_COMMON_DATA, "sensors_default.toml")),
-        _controller("", _CONTINUOUS_GAINS),
+        # the paper's laws with feedback carry the LQG's Kalman designs: their predictor over a measured delay
+        _controller("", (*_CONTINUOUS_GAINS, *_LQG_FILTERS)),
         _controller("_ff", ()),
-        _controller("_fb", _CONTINUOUS_GAINS),
-        _controller("_dlqr", _DISCRETE_GAINS),
+        _controller("_fb", (*_CONTINUOUS_GAINS, *_LQG_FILTERS)),
+        _controller("_dlqr", (*_DISCRETE_GAINS, *_LQG_FILTERS)),
         _controller("_lqg", _LQG_DESIGNS),
         # The slew's reference signals for a user's controller (docs/own-controller.md).
         FmuSpec("reference", SOURCES / "reference" / "flexarm_reference_fmu.py", data=(*_COMMON_DATA, *_TRAJECTORY)),

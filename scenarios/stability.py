@@ -25,7 +25,9 @@ horizon, and those within it (Gauss at 128 and 256 per ms, the RK4 references) a
 
 The LQG controller with one Kalman filter per schedule point (``controller_lqg``, estimator = kalman, 1 ms, its
 ``loop_delay_samples`` equal to the master's delay) is linear too and checked the same way
-(:func:`lqg_loop_growth`: plant, filter, predictor, gain). Every other case is recorded as not checked
+(:func:`lqg_loop_growth`: plant, filter, predictor, gain), and so is the paper's law under Jacobi
+stepping, where it measures the delay and predicts over it with the LQG's filter
+(:func:`predicted_loop_growth`). Every other case is recorded as not checked
 (:func:`unchecked`: the payload bank, a user's controller, a step of no whole number of milliseconds), and its
 run warns when its plant scheme damps or misplaces a bracket mode beyond what the schemes the closed-loop table
 shows within 5 % of the reference do to it (:func:`resolved_envelope`), on an arm whose structural decay of that
@@ -265,6 +267,14 @@ def loop_stability(paths: dict, plant: str, driver: str, params: dict, step_s: f
         exact = lqg_loop_growth(*args, delay=delay, integral=integral)
         own = lqg_loop_growth(*args, integrator=integrator, substeps=substeps, delay=delay, integral=integral)
         common.update(estimator=estimator, integral_action=integral)
+    elif delay:  # the paper's law measures the master's delay and predicts over it (flexarm.lqg.PredictedTracking)
+        if samples != 1:
+            return skip(f"the paper's law predicting over a delay at a {samples} ms step (its loop is built at 1 ms)")
+        gain = CONTROLLERS[stem] + gain
+        args = (gain, schedule, ratio, payload)
+        exact = predicted_loop_growth(*args, delay=delay)
+        own = predicted_loop_growth(*args, integrator=integrator, substeps=substeps, delay=delay)
+        common.update(predicted_over_delay=True)
     else:
         prefix = CONTROLLERS[stem]
         gain = prefix + gain
@@ -460,6 +470,36 @@ def lqg_loop_growth(gain_name: str, schedule: str, damping_ratio: float, payload
         else:
             K, K_xi = design.K[i, w], None
         loop = lqg_closed_loop(phi, gam, design.Phi[i], design.Gamma[i], design.M[i], design.C, K, K_xi, delay, dt)
+        worst = _growth_at(worst, loop, A, dt, t_k)
+    return worst
+
+
+@functools.lru_cache(maxsize=64)
+def predicted_loop_growth(gain_name: str, schedule: str, damping_ratio: float, payload_mass: float,
+                          integrator: str = "exact", substeps: int = 2, delay: int = 2) -> dict:
+    """As :func:`lqg_loop_growth` for the paper's law predicting over `delay` samples (a Jacobi master: the law
+    measures the delay; :class:`flexarm.lqg.PredictedTracking`): the LQG design's filter and predictor of the
+    schedule, the paper's reduced gain (:meth:`flexarm.lqr.GainSchedule.reduced_gains`) on the prediction."""
+    from flexarm.lqg_design import LqgDesign
+    from flexarm.lqr import GainSchedule
+    from flexarm.model import ArmModel, numpy_kernels
+    from flexarm.parameters import load_parameters
+    from flexarm.trajectory import load_trajectory
+    from flexarm.trajectory.io import SAMPLE_TIME
+
+    dt = 1e-3
+    traj = load_trajectory()
+    design = LqgDesign.load(schedule)
+    gains = GainSchedule.load(gain_name, schedule).reduced_gains()
+    kernels = numpy_kernels()
+    model = ArmModel(load_parameters(payload_mass=payload_mass), damping_ratio=damping_ratio, kernels=kernels)
+    worst = {"growth_per_s": -np.inf}
+    for i, t_k in enumerate(design.times):
+        k = min(int(round(t_k / SAMPLE_TIME)), traj.n_samples)
+        A, B = model.linearize(traj.state(k))
+        phi, gam = plant_zoh(A, B, dt, integrator, substeps, expm=kernels.expm)
+        loop = lqg_closed_loop(phi, gam, design.Phi[i], design.Gamma[i], design.M[i], design.C, gains[i], None,
+                               delay, dt)
         worst = _growth_at(worst, loop, A, dt, t_k)
     return worst
 

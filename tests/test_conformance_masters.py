@@ -92,7 +92,8 @@ def test_every_master_gives_our_gauss_seidel_figures(kind, name, case, archives)
     """Issue 31 acceptance: the same archive in every master, within 5 % or 0.005 deg / 0.05 deg/s.
 
     Every master outside :func:`scenarios.conformance.known_to_differ` must agree; those inside it are an
-    expected failure while issue 31 is open (the paper's law in a Jacobi master, fmpy's first millisecond)."""
+    expected failure while issue 31 is open (the paper's law's velocity error in a Jacobi master, fmpy's first
+    millisecond)."""
     pytest.importorskip("ecospy", reason="ecospy is not installed: pip install ecospy (needs libtbb12)")
     pytest.importorskip("libcosimpy", reason="libcosimpy is not installed: pip install libcosimpy")
     ssp = archives[(kind, name, case)]
@@ -104,7 +105,7 @@ def test_every_master_gives_our_gauss_seidel_figures(kind, name, case, archives)
     # the plant alone in simulate_fmu, driven by our torques, is our run: equal to the last digits that matter
     assert abs(cells["simulate_fmu"]["rms_position_error"] - ref["rms_position_error"]) <= \
         1e-6 * max(ref["rms_position_error"], 1e-3)  # both integrate the same binary on the same torques
-    known = conformance.known_to_differ(conformance.measures_delay(ssp))
+    known = conformance.known_to_differ(conformance.has_loop_delay_parameter(ssp))
     assert not {m: c for m, c in wrong.items() if m not in known}, (ref, wrong)
     if wrong:
         pytest.xfail(f"issue 31, open: {sorted(wrong)} (conformance.known_to_differ): {ref} vs {wrong}")
@@ -157,7 +158,7 @@ def _loop_delays(ssp: Path) -> dict[str, str]:
 
 @pytest.mark.parametrize("kind", ["native", "python"])
 def test_no_archive_is_stepping_specific(kind, archives, folders, tmp_path):
-    """Issue 31 item 3: a controller that measures the loop delay has it automatic in every archive (the FMU's
+    """Issue 31 item 3: a controller with loop_delay_samples has it automatic in every archive (the FMU's
     start value -1, nothing baked, nothing in the .ssv) whatever stepping its scenario names: lqg_jacobi's archive
     is lqg's."""
     automatic = {"start": "-1", "baked": None, "ssv": None}
@@ -166,5 +167,5 @@ def test_no_archive_is_stepping_specific(kind, archives, folders, tmp_path):
                          **folders)["none"]
         assert _loop_delays(ssp) == automatic, name
     for (k, name, case), ssp in archives.items():
-        if k == kind and conformance.measures_delay(ssp):
+        if k == kind and conformance.has_loop_delay_parameter(ssp):
             assert _loop_delays(ssp) == automatic, (name, case)

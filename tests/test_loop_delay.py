@@ -90,10 +90,21 @@ def test_a_contradicting_explicit_delay_is_warned_in_the_log_and_the_json(kind_f
     assert np.all(out["loop_delay_assumed"][3:] == setting) and np.all(out["loop_delay"][3:] != setting)
 
 
-def test_the_papers_controller_warns_in_a_jacobi_master(kind_fmus):
-    out = run(kind_fmus, "table2", "none", "jacobi", n=20)
-    assert len(delay_warnings(out["log"])) == 1 and out["warnings"]
-    assert np.array_equal(out["loop_delay"][2:], np.full(19, 2.0))  # what the torques the plant got were
+def test_the_papers_controller_predicts_over_a_jacobi_masters_delay(kind_fmus):
+    """The paper's law measures the delay and predicts over it (flexarm.lqg.PredictedTracking): in a Jacobi master
+    its rms position error is its Gauss-Seidel figure within the issue's tolerance (2.25 deg without the
+    prediction: the loop goes unstable). Its rms velocity error is not (the filter's bracket modes are not the
+    reconstruction's): bounded here at three times the Gauss-Seidel figure, twice being what it gives."""
+    gs = run(kind_fmus, "table2", "none", "gauss-seidel")
+    jacobi = run(kind_fmus, "table2", "none", "jacobi")
+    assert np.array_equal(gs["loop_delay_assumed"], np.zeros(len(gs["tau"])))  # the paper's law, no delay
+    ref = gs["metrics"]["rms_position_error"]
+    assert abs(jacobi["metrics"]["rms_position_error"] - ref) <= tolerance(ref), (jacobi["metrics"], ref)
+    assert jacobi["metrics"]["rms_velocity_error"] < 3.0 * gs["metrics"]["rms_velocity_error"]
+    assert np.array_equal(jacobi["loop_delay_assumed"][2:], np.full(len(jacobi["tau"]) - 2, 2.0))
+    assert np.array_equal(jacobi["loop_delay"][3:], np.full(len(jacobi["tau"]) - 3, 2.0))
+    for out in (gs, jacobi):
+        assert not delay_warnings(out["log"]) and not out["warnings"]
 
 
 def test_a_loop_without_the_indices_warns_and_keeps_the_setting(kind_fmus):

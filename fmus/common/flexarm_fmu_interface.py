@@ -75,6 +75,11 @@ class Var:
         communication point (its ``<Outputs>`` dependencies). ``()`` means
         no direct feedthrough; None (default) writes no attribute, i.e.
         "may depend on every input".
+    initial_depends_on : tuple of str, optional
+        Outputs only: the inputs an output depends on at initialisation (its ``<InitialUnknowns>``
+        dependencies, with every parameter). None (default): `depends_on` when it names inputs, else no
+        attribute ("may depend on every known"). A master that solves initialisation as one system
+        (OMSimulator) sees an algebraic loop through every output left without a list.
     choices : tuple of (int, str, str)
         Integer parameters that select one of several named choices: (value,
         name, description) of each. The allowed values are exactly these;
@@ -94,6 +99,7 @@ class Var:
     type: str = "Real"
     depends_on: tuple[str, ...] | None = None
     choices: tuple[tuple[int, str, str], ...] = ()
+    initial_depends_on: tuple[str, ...] | None = None
 
     def __post_init__(self):
         if self.causality not in _CAUSALITIES:
@@ -108,8 +114,8 @@ class Var:
             raise ValueError(f"{self.name}: a {self.causality} needs a start value")
         if self.causality == "output" and self.start is not None:
             raise ValueError(f"{self.name}: outputs are calculated and take no start value")
-        if self.depends_on is not None and self.causality != "output":
-            raise ValueError(f"{self.name}: depends_on applies to outputs only")
+        if (self.depends_on is not None or self.initial_depends_on is not None) and self.causality != "output":
+            raise ValueError(f"{self.name}: depends_on and initial_depends_on apply to outputs only")
         if self.choices:
             if self.type != "Integer":
                 raise ValueError(f"{self.name}: only an Integer can have choices")
@@ -235,10 +241,9 @@ def complete_model_description(root: Element, variables: list[Var], units: dict[
     * ``<ModelStructure>``: ``<Outputs>`` with the declared dependencies and
       ``<InitialUnknowns>`` (every output, whose ``initial`` defaults to
       "calculated" in co-simulation, and every calculated parameter). An
-      output with direct feedthrough (non-empty ``depends_on``) depends at
-      initialisation on those inputs and the parameters; the others declare
-      no list, i.e. every known (the plant's outputs at the start use the
-      torque present then).
+      output depends at initialisation on the inputs of its
+      ``initial_depends_on`` (else of a non-empty ``depends_on``) and the
+      parameters; the others declare no list, i.e. every known.
 
     Parameters
     ----------
@@ -308,8 +313,12 @@ def complete_model_description(root: Element, variables: list[Var], units: dict[
         knowns = [v.name for v in variables if v.causality == "parameter"]
         for v in initial:  # table order = value-reference order, as FMI 2.0 requires
             attrib = {"index": str(index[v.name])}
-            if v.causality == "output" and v.depends_on:  # its inputs and the parameters (sorted indices)
-                attrib["dependencies"] = " ".join(str(i) for i in sorted(index[d] for d in {*v.depends_on, *knowns}))
+            deps = v.initial_depends_on if v.initial_depends_on is not None else (v.depends_on or None)
+            if v.causality == "output" and deps is not None:  # its inputs and the parameters (sorted indices)
+                for dep in deps:
+                    if dep not in index:
+                        raise ValueError(f"{v.name}: initial_depends_on names unknown variable {dep!r}")
+                attrib["dependencies"] = " ".join(str(i) for i in sorted(index[d] for d in {*deps, *knowns}))
             SubElement(node, "Unknown", attrib)
 
 

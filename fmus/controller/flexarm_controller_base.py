@@ -38,6 +38,7 @@ samples (within 1e-9 s; 0 samples: nothing happens).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from pathlib import Path
 from typing import ClassVar
@@ -49,7 +50,8 @@ from pythonfmu.enums import Fmi2Status
 
 from flexarm.control import PEAK_TORQUE, TrackingController
 from flexarm.ilc import read_learned_feedforward  # imported here, so the build bundles it (fmu_build traces imports)
-from flexarm.loop_index import index_of_time, measured_delay
+from flexarm.loop_index import NO_SAMPLE, index_of_time, is_placeholder, measured_delay
+from flexarm.lqg import MAX_DELAY_SAMPLES, LqgState, PredictedTracking
 from flexarm.lqr import OMEGA7_CHOICES, canonical_name, default_trajectory_path
 from flexarm.signals import names, signals
 
@@ -93,7 +95,8 @@ VARIABLES = variable_table([
       for s in signals("controller", "output", indices=False)],
     # the index of the torques' sample: a function of the time alone (flexarm.loop_index)
     *[Var(s.name, "output", "continuous", s.unit, s.description,
-          depends_on=("sample_index_m",) if s.name == "loop_delay" else ())
+          depends_on=("sample_index_m",) if s.name == "loop_delay" else (),
+          initial_depends_on=("sample_index_m",) if s.name == "loop_delay" else ())
       for s in signals("controller", "output", "index")],
     # Last, so that the native twins (no Strings in their glue) leave it out without a gap in the references.
     Var(FEEDFORWARD_CORRECTION, "parameter", "fixed", None,
@@ -148,6 +151,16 @@ def _tracking_controller(data: str | None, mode: str, name: str, schedule: str, 
                               feedforward_correction=learned)
 
 
+@functools.lru_cache(maxsize=16)
+def _predictor(data: str | None, mode: str, key: tuple, delay: int) -> PredictedTracking:
+    """The law of `key` (:meth:`ControllerSlave._law_key`) predicting over `delay` samples with the LQG design of
+    its schedule (built once per process)."""
+    from flexarm.lqg_design import LqgDesign
+
+    design = LqgDesign.load(key[1], directory=None if data is None else Path(data) / "lqg")
+    return PredictedTracking(_tracking_controller(data, mode, *key), design, delay)
+
+
 class ControllerSlave(FeedthroughSlave):
     """A tracking controller as an FMI 2.0 co-simulation slave (direct feedthrough, stateless).
 
@@ -167,6 +180,16 @@ class ControllerSlave(FeedthroughSlave):
         self._used_vrs = [self._vr[n] for n in USED_INPUTS]
         self._index_vr = self._vr["sample_index_m"]
         self.delay_contradictions = 0  # fmi2DoSteps whose measured loop delay contradicted the law's (warn_delay)
+        # the measured loop delay (docs/control.md, "The loop measures its own delay"): 0 until a step shows one;
+        # then the law predicts over it (flexarm.lqg.PredictedTracking), its state and held outputs here
+        self.delay = 0
+        self.predictor: PredictedTracking | None = None
+        self.state: LqgState | None = None
+        self._tau: np.ndarray | None = None
+        self._foreign: dict[int, list[float]] = {}  # sample -> the torque the plant held over it (as reported)
+        self._switch_end = 0  # 1 + the last sample whose torque the law before the switch published
+        self._lag_vr = self._vr["tau_lag"]
+        self._applied_vrs = (self._vr["tau1_applied"], self._vr["tau2_applied"])
 
     def _config(self) -> tuple:
         omega7 = dict((v, n) for v, n, _ in OMEGA7_ITEMS).get(self.value("omega7_estimate"))
@@ -193,6 +216,7 @@ class ControllerSlave(FeedthroughSlave):
 
     def setup(self) -> None:
         self.delay_contradictions = 0
+        self.delay, self.predictor, self.state, self._tau, self._foreign, self._switch_end = 0, None, None, None, {}, 0
         key = self._law_key()
         if self.law is not None and key == self._key:
             return
@@ -205,10 +229,75 @@ class ControllerSlave(FeedthroughSlave):
         self._key = key
 
     def evaluate(self) -> np.ndarray:
+        if self.delay > 0:  # predicting over a measured delay: the torques computed at the last fmi2DoStep
+            return self._tau
         x = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)  # q1_m .. eps6_m
         k = self.law.sample_index(self.time)
-        return np.concatenate([self.law.torque_from_measurements(k, x),
-                               self.index_outputs(k, self._values[self._index_vr], 0)])
+        index = self._values[self._index_vr]
+        # a master's placeholder (fmpy's first step: no index, all zero) is no measurement of q = 0: no feedback
+        tau = self.law.feedforward(k) if is_placeholder(index, x) else self.law.torque_from_measurements(k, x)
+        if is_placeholder(index, x) and self.law.saturation is not None:
+            tau = np.minimum(np.maximum(tau, -self.law.saturation), self.law.saturation)
+        return np.concatenate([tau, self.index_outputs(k, index, 0)])
+
+    @property
+    def predicts(self) -> bool:
+        """Whether the law feeds back measurements, so that a loop delay matters (not the feedforward alone)."""
+        return self.MODE != "ff"
+
+    def _applied(self, k: int, any_lag: bool) -> tuple[int, list[float]] | None:
+        """(k - 1, the torque the plant held over sample k - 1) when the plant reports that it was not this law's
+        (tau_lag != 0) or, with `any_lag` (up to the switch to a measured delay), whatever tau_lag says (the law
+        before the switch sent it). An unwired tau_lag holds 0 and unwired torques 0: nothing to remember."""
+        if k < 1:
+            return None
+        torque = [float(self._values[vr]) for vr in self._applied_vrs]
+        if self._values[self._lag_vr] != 0.0 or (any_lag and any(x != 0.0 for x in torque)):
+            return k - 1, torque
+        return None
+
+    def _with_applied(self, state: LqgState, applied: tuple[int, list[float]] | None) -> LqgState:
+        """`state` with the torque its filter assumes for sample s replaced by the one the plant held (a copy)."""
+        if applied is None:
+            return state
+        s, torque = applied
+        row = len(state.du) - (state.k - s)  # du: the torques of samples state.k - len(du) .. state.k - 1
+        if not 0 <= row < len(state.du):
+            return state
+        du = state.du.copy()
+        du[row] = np.asarray(torque) - self.predictor.filter.feedforward(s)
+        return dataclasses.replace(state, du=du)
+
+    def _sample(self, k: int, measurements, index: float) -> None:
+        """Run sample k of the predicting law and hold its torques (flexarm.lqg.PredictedTracking.step).
+
+        Before k = d there is no measurement (of the plant before t = 0): the desired one of t = 0; a master's
+        placeholder is no measurement either (the desired one of its sample)."""
+        d = self.delay
+        if k < d:
+            measurements, index = self.predictor.desired_measurement(0), NO_SAMPLE
+        elif measurements is None or is_placeholder(index, measurements):
+            measurements, index = self.predictor.desired_measurement(k - d), NO_SAMPLE
+        tau, self.state = self.predictor.step(self.state, k, measurements)
+        self._tau = np.concatenate([tau, self.index_outputs(k, index, d)])
+
+    def _switch(self, t: float, k: int, delay: int, n: int, held, index: float) -> None:
+        """The measurements present at fmi2DoStep(t_k) are `delay` - n samples old (the master reads the torques
+        before it sets them): from now on predict over `delay` without feedthrough. Samples 0 .. k again from the
+        trajectory alone, with the torques the plant held (as reported), then k + 1 .. k + n from the inputs."""
+        self.delay = min(delay, MAX_DELAY_SAMPLES)
+        self.predictor = _predictor(own_data_dir(self.resources), self.MODE, self._law_key(), self.delay)
+        self._switch_end = k + 1
+        self.log(f"{self.instance_name}: the loop delay measured at fmi2DoStep(t = {t!r} s) is {self.delay} samples "
+                 "(the master reads the torques before it sets the measurements); predicting the state over it "
+                 f"with the linearised model along the slew (Kalman filter) from sample {k + 1} on", Fmi2Status.ok)
+        self.state = self.predictor.initial_state()
+        for s in range(k + 1):
+            self._sample(s, None, NO_SAMPLE)
+            if s in self._foreign:
+                self.state = self._with_applied(self.state, (s, self._foreign[s]))
+        for _ in range(n):
+            self._sample(self.state.k, held, index)
 
     def index_outputs(self, k: int, index: float, assumed: int) -> list[float]:
         """``tau_index``, ``loop_delay``, ``loop_delay_assumed`` of the torques of sample k computed from
@@ -235,16 +324,47 @@ class ControllerSlave(FeedthroughSlave):
 
     def commit(self, t: float, h: float, n: int) -> None:
         # the outputs were just evaluated from the inputs present at fmi2DoStep
-        self.warn_delay(t, self._values[self._vr["loop_delay"]], 0, "the paper's law assumes no delay")
+        if not self.predicts:
+            return
+        k = self.law.sample_index(t)
+        held = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)
+        index = self._values[self._index_vr]
+        applied = self._applied(k, any_lag=self.delay == 0 or k <= self._switch_end)
+        if applied is not None:
+            self._foreign[applied[0]] = applied[1]
+            for s in sorted(self._foreign)[:-16]:  # a switch comes within the first steps: a few are enough
+                del self._foreign[s]
+        if self.delay > 0:  # samples k + 1 .. k + n; the last one's torques are published
+            if self.state.k != k + 1:
+                raise ValueError(f"current_time: {t!r} s is sample {k}, but the controller computed sample "
+                                 f"{self.state.k - 1} last (one fmi2DoStep per communication point, from t = 0)")
+            self.state = self._with_applied(self.state, applied)  # late, filled or (up to the switch) the old law's
+            for _ in range(n):
+                self._sample(self.state.k, held, index)
+            self.warn_delay(t, self._tau[3], self.delay, "the delay measured at the switch")
+            return
+        measured = measured_delay(k, index)
+        if measured >= 1:  # the master sets the measurements after it reads the torques
+            self._switch(t, k, int(measured) + n, n, held, index)
 
     def samples_in_step(self, t: float, h: float) -> int:
         return whole_samples(h, self.law.dt, "the controller's sample (the trajectory's sample time)")
 
     def get_sample_state(self) -> dict:
-        # stateless: the torque is a function of the time and the inputs; the warning is said once per run
-        return {"delay_contradictions": self.delay_contradictions}
+        # with no delay measured the torque is a function of the time and the inputs
+        return {"delay_contradictions": self.delay_contradictions, "delay": self.delay,
+                "state": None if self.state is None else self.state.as_dict(),
+                "tau": None if self._tau is None else self._tau.tolist(),
+                "foreign": {str(s): v for s, v in self._foreign.items()}, "switch_end": self._switch_end}
 
     def set_sample_state(self, state: dict) -> None:
         if self.law is None or self._key != self._law_key():
             self.setup()
         self.delay_contradictions = int(state.get("delay_contradictions", 0))
+        self.delay = int(state.get("delay", 0))
+        self.predictor = None if self.delay == 0 else _predictor(own_data_dir(self.resources), self.MODE,
+                                                                 self._law_key(), self.delay)
+        self.state = None if state.get("state") is None else LqgState.from_dict(state["state"])
+        self._tau = None if state.get("tau") is None else np.array(state["tau"], dtype=float)
+        self._foreign = {int(s): list(v) for s, v in state.get("foreign", {}).items()}
+        self._switch_end = int(state.get("switch_end", 0))

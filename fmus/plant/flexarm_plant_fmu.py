@@ -103,12 +103,22 @@ pin_module_namespace(globals())  # pythonfmu 0.7.0 drops a reference per instant
 _SLEW = slew()
 
 
+#: Outputs that use the torque present at initialisation (no step has ended yet): the accelerations and the
+#: torque "held"; tau_lag uses the tau_index present then. The angles, rates and positions use the parameters only.
+_AT_START = {"link1_tip_ax": ("tau1", "tau2"), "link1_tip_ay": ("tau1", "tau2"), "link2_tip_ax": ("tau1", "tau2"),
+             "link2_tip_ay": ("tau1", "tau2"), "acc1_n": ("tau1", "tau2"), "acc2_n": ("tau1", "tau2"),
+             "tau_lag": ("tau_index",), "tau1_applied": ("tau1",), "tau2_applied": ("tau2",)}
+
+
 def _signal(s) -> Var:
     # Inputs are held over the step; outputs are functions of the state and the torque of the
-    # finished step: no direct feedthrough from the inputs (empty dependencies).
+    # finished step: no direct feedthrough from the inputs (empty dependencies). At initialisation they
+    # depend on the inputs of _AT_START only, so that a master solving initialisation as one system finds
+    # no algebraic loop through the controller (OMSimulator did, and failed on the LQG's archives).
     if s.causality == "input":
         return Var(s.name, "input", "continuous", s.unit, s.description, 0.0)
-    return Var(s.name, "output", "continuous", s.unit, s.description, depends_on=())
+    return Var(s.name, "output", "continuous", s.unit, s.description, depends_on=(),
+               initial_depends_on=_AT_START.get(s.name, ()))
 
 
 VARIABLES = variable_table([

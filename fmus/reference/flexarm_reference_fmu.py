@@ -40,7 +40,7 @@ VARIABLES = variable_table([
         "lead_samples. 0 for a Gauss-Seidel master; the communication step in samples for a Jacobi master "
         "(the controller's torques reach the plant one step late)",
         0, 0, MAX_LEAD_SAMPLES, type="Integer"),
-    *[Var(s.name, "output", "continuous", s.unit, s.description, depends_on=())
+    *[Var(s.name, "output", "continuous", s.unit, s.description, depends_on=(), initial_depends_on=())
       for s in signals("reference", "output")],
 ])
 

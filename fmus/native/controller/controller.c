@@ -16,12 +16,25 @@
  * A learned feedforward correction (flexarm.ilc) is read at initialisation from the String parameter
  * feedforward_correction_file (learned_ff.c; checked against TRAJECTORY_SHA256 and PARAMETER_SHA256 of
  * learned_ff_data.h, the files this FMU was built from). Row k is added to the feedforward of sample k (k < m).
+ *
+ * The loop delay (docs/control.md, "The loop measures its own delay"; flexarm_controller_base.ControllerSlave):
+ * the law above runs while the measurements present at fmi2DoStep are of the sample being committed (a
+ * Gauss-Seidel master). From the first fmi2DoStep whose measurements are older (a Jacobi master reads the torques
+ * before it sets them) the variants with feedback predict over the measured delay d (flexarm.lqg.PredictedTracking):
+ * the LQG design's Kalman filter of the schedule (lqg_core.c, resources lqg_<schedule>.txt, lqg_trajectory.txt)
+ * takes the measurement of sample k - d and predicts the error state x_k with the torques sent, and
+ *     tau = sat( tau_ff(t_k) - K(t_k) x_k )
+ * with the paper's reduced gain; no feedthrough then: the torques are computed at fmi2DoStep and held. The
+ * samples up to the switch are run again from the trajectory alone with the torques the plant reported holding.
+ * A master's placeholder (no index, every measurement exactly 0: fmpy's first step) is no measurement of q = 0:
+ * the feedforward alone.
  */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "controller_lqg.h"
 #include "controller_mode.h"
 #include "fmi2_glue.h"
 #include "learned_ff.h"
@@ -29,9 +42,11 @@
 #include "loop_index.h"
 #include "model_vars.h"
 
-#define N_MEAS 10
-#define N_STATE 22
 #define N_SETS 4
+#define N_FOREIGN 16 /* a switch to the measured delay comes within the first steps: a few are enough */
+static const char *const LQG_FILES[3] = {"lqg_200ms.txt", "lqg_20ms.txt", "lqg_single.txt"};
+static const int MEAS[N_MEAS] = {IDX_q1_m, IDX_q2_m, IDX_qd1_m, IDX_qd2_m, IDX_eps1_m,
+                                 IDX_eps2_m, IDX_eps3_m, IDX_eps4_m, IDX_eps5_m, IDX_eps6_m};
 static const char *const SCHEDULE_LABELS[3] = {"200ms", "20ms", "single"};
 static const double SCHEDULE_PERIODS[3] = {0.2, 0.02, 0.0};
 
@@ -54,6 +69,8 @@ typedef struct {
     double *offsets;      /* (n_steps + 1) x 2 */
     double *correction;   /* n_correction x 2: the learned feedforward correction (NULL: none) */
     long n_correction;
+    const Schedule *schedule; /* the gains in force (feedback variants) */
+    LqgData lqg;          /* the predictor over a measured delay: trajectory, designs (feedback variants) */
 } ControllerData;
 
 static int read_schedule(Instance *inst, const char *file, const char *text, int set, int s, Schedule *out)
@@ -72,6 +89,36 @@ static int read_schedule(Instance *inst, const char *file, const char *text, int
     return glue_read_doubles(inst, file, text, label, out->gains, (size_t)out->count * 2 * N_STATE);
 }
 
+/* The predictor's trajectory and designs (resources of the feedback variants, fmu_build/native_resources.py). */
+static int load_predictor(Instance *inst, char *const *contents, LqgData *p)
+{
+    p->designs = calloc(3, sizeof *p->designs);
+    if (p->designs == NULL) return -1;
+    for (size_t r = 0; r < MODEL_INFO.n_resources; r++) {
+        const char *file = MODEL_INFO.resources[r].file, *text = contents[r];
+        if (strcmp(file, "lqg_trajectory.txt") == 0) {
+            double n;
+            if (glue_read_doubles(inst, file, text, "n_steps", &n, 1) ||
+                glue_read_doubles(inst, file, text, "dt", &p->dt, 1))
+                return -1;
+            p->n_steps = (int)n;
+            p->feedforward = lqg_read_array(inst, file, text, "feedforward_torque", (size_t)(p->n_steps + 1) * 2);
+            p->desired = lqg_read_array(inst, file, text, "desired_measurements", (size_t)(p->n_steps + 1) * N_MEAS);
+            p->index = calloc((size_t)p->n_steps + 1, sizeof *p->index);
+            if (!p->feedforward || !p->desired || !p->index) return -1;
+        }
+        for (int s = 0; s < 3; s++)
+            if (strcmp(file, LQG_FILES[s]) == 0 && lqg_read_design(inst, file, text, &p->designs[s], p->c)) return -1;
+    }
+    for (int s = 0; s < 3; s++)
+        if (p->designs[s].times == NULL || p->index == NULL) {
+            glue_log(inst, fmi2Error, "fmi2Instantiate: resources %s or lqg_trajectory.txt missing from the build",
+                     LQG_FILES[s]);
+            return -1;
+        }
+    return 0;
+}
+
 static void controller_unload(Instance *inst)
 {
     ControllerData *d = inst->data;
@@ -80,6 +127,12 @@ static void controller_unload(Instance *inst)
     free(d->correction);
     for (int i = 0; i < N_SETS; i++)
         for (int s = 0; s < 3; s++) free(d->schedules[i][s].times), free(d->schedules[i][s].gains);
+    free(d->lqg.feedforward), free(d->lqg.desired), free(d->lqg.index);
+    for (int s = 0; d->lqg.designs != NULL && s < 3; s++) {
+        Design *g = &d->lqg.designs[s];
+        free(g->times), free(g->phi), free(g->gamma), free(g->m), free(g->k), free(g->k_integral);
+    }
+    free(d->lqg.designs);
     free(d);
     inst->data = NULL;
 }
@@ -116,6 +169,7 @@ static int controller_load(Instance *inst, char *const *contents, const size_t *
         for (int s = 0; s < 3; s++)
             if (read_schedule(inst, MODEL_INFO.resources[gains].file, contents[gains], i + 1, s, &d->schedules[i][s]))
                 goto fail;
+    if (load_predictor(inst, contents, &d->lqg)) goto fail;
 #else
     (void)read_schedule;
 #endif
@@ -161,6 +215,9 @@ static fmi2Status configure(Instance *inst)
     if (memcmp(key, d->key, sizeof key) == 0) return fmi2OK;
 #if CONTROLLER_FEEDBACK
     const Schedule *sch = &d->schedules[(int)key[0] - 1][s];
+    d->schedule = sch;
+    d->lqg.design = &d->lqg.designs[s]; /* the predictor's filter, of the same schedule */
+    lqg_schedule_index(d->lqg.design->times, d->lqg.design->count, d->lqg.n_steps, d->lqg.dt, d->lqg.index);
     const double *est = d->estimator[(int)key[2] - 1];
     free(d->gain_per_meas);
     d->gain_per_meas = malloc((size_t)sch->count * 2 * N_MEAS * sizeof(double));
@@ -194,48 +251,176 @@ static fmi2Status configure(Instance *inst)
     return fmi2OK;
 }
 
-static fmi2Status controller_sample(Instance *inst)
+typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
+    int delay_contradictions; /* what the log says once per run */
+    int delay;                /* the measured loop delay the law predicts over (0: none measured, the paper's law) */
+    LqgState committed;       /* delay > 0: the predictor after the last sample run */
+    double held[2], held_index[3]; /* delay > 0: the torques of the last sample run and their index outputs */
+    double foreign[N_FOREIGN][3];  /* sample, torques the plant reported holding (see plant_applied) */
+    int n_foreign;
+    long long switch_end; /* 1 + the last sample whose torque the law before the switch published */
+} ControllerState;
+
+/* The feedforward of sample k: the trajectory's (zero after the slew) plus the learned correction. */
+static void feedforward(const ControllerData *d, long k, double tau[2])
 {
-    ControllerData *d = inst->data;
-    fmi2Status status = configure(inst);
-    if (status != fmi2OK) return status;
-    long k = lround(inst->time / d->dt);
-    if (k < 0) k = 0;
-    int kc = k < d->n_steps ? (int)k : d->n_steps;
-    double tau[2] = {0.0, 0.0};
+    tau[0] = tau[1] = 0.0;
 #if CONTROLLER_FEEDFORWARD
     if (k < d->n_steps) tau[0] = d->feedforward[2 * k], tau[1] = d->feedforward[2 * k + 1];
     if (k < d->n_correction) tau[0] += d->correction[2 * k], tau[1] += d->correction[2 * k + 1];
+#else
+    (void)d, (void)k;
 #endif
+}
+
+static void set_outputs(Instance *inst, const double tau[2], const double index[3])
+{
+    VALUE(inst, IDX_tau1) = tau[0];
+    VALUE(inst, IDX_tau2) = tau[1];
+    VALUE(inst, IDX_tau_index) = index[0];
+    VALUE(inst, IDX_loop_delay) = index[1];
+    VALUE(inst, IDX_loop_delay_assumed) = index[2];
+}
+
+static fmi2Status controller_sample(Instance *inst)
+{
+    ControllerData *d = inst->data;
+    ControllerState *st = inst->state;
+    fmi2Status status = configure(inst);
+    if (status != fmi2OK) return status;
+    if (st->delay > 0) { /* predicting over a measured delay: the torques computed at the last fmi2DoStep */
+        set_outputs(inst, st->held, st->held_index);
+        return fmi2OK;
+    }
+    long k = lround(inst->time / d->dt);
+    if (k < 0) k = 0;
+    int kc = k < d->n_steps ? (int)k : d->n_steps;
+    double tau[2], m[N_MEAS];
+    feedforward(d, k, tau);
+    for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
+    const double index = VALUE(inst, IDX_sample_index_m);
 #if CONTROLLER_FEEDBACK
-    static const int MEAS[N_MEAS] = {IDX_q1_m, IDX_q2_m, IDX_qd1_m, IDX_qd2_m, IDX_eps1_m,
-                                     IDX_eps2_m, IDX_eps3_m, IDX_eps4_m, IDX_eps5_m, IDX_eps6_m};
-    const double *ke = d->gain_per_meas + (size_t)d->gain_index[kc] * 2 * N_MEAS;
-    for (int i = 0; i < 2; i++) {
-        double acc = 0.0;
-        for (int j = 0; j < N_MEAS; j++) acc += ke[i * N_MEAS + j] * VALUE(inst, MEAS[j]);
-        tau[i] -= acc - d->offsets[kc * 2 + i];
+    if (!loop_is_placeholder(index, m, N_MEAS)) { /* fmpy's first step: no sample yet, not a measurement of q = 0 */
+        const double *ke = d->gain_per_meas + (size_t)d->gain_index[kc] * 2 * N_MEAS;
+        for (int i = 0; i < 2; i++) {
+            double acc = 0.0;
+            for (int j = 0; j < N_MEAS; j++) acc += ke[i * N_MEAS + j] * m[j];
+            tau[i] -= acc - d->offsets[kc * 2 + i];
+        }
     }
 #else
     (void)kc;
 #endif
     const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
     for (int i = 0; i < 2; i++) tau[i] = fmin(fmax(tau[i], -limit[i]), limit[i]);
-    VALUE(inst, IDX_tau1) = tau[0];
-    VALUE(inst, IDX_tau2) = tau[1];
-    VALUE(inst, IDX_tau_index) = loop_index_of_time((double)k * d->dt); /* the torques' sample */
-    VALUE(inst, IDX_loop_delay) = loop_measured_delay((double)k, VALUE(inst, IDX_sample_index_m));
-    VALUE(inst, IDX_loop_delay_assumed) = 0.0; /* the paper's law predicts over no delay */
+    const double out[3] = {loop_index_of_time((double)k * d->dt), /* the torques' sample */
+                           loop_measured_delay((double)k, index), 0.0}; /* the paper's law: no delay */
+    set_outputs(inst, tau, out);
     return fmi2OK;
 }
 
-typedef struct { /* the FMU state: only what the log says once per run */
-    int delay_contradictions;
-} ControllerState;
+#if CONTROLLER_FEEDBACK
+/* One sample of the predicting law (flexarm.lqg.PredictedTracking.step): x_k from the measurement of k - d, then
+   tau = sat(tau_ff(k) - K(t_k) x_k); `next` the state after it. */
+static void predicted_step(Instance *inst, const LqgState *s, long long k, const double m[N_MEAS], double tau[2],
+                           LqgState *next)
+{
+    ControllerData *d = inst->data;
+    const int dl = d->lqg.delay;
+    double x_post[N_STATE], x_now[N_STATE], kx[2], nominal[2], command[2];
+    lqg_estimate(&d->lqg, s, k, m, x_post, x_now);
+    const long kc = k < d->n_steps ? (long)k : d->n_steps;
+    feedforward(d, (long)k, tau);
+    lqg_mat_vec(d->schedule->gains + (size_t)d->gain_index[kc] * 2 * N_STATE, 2, N_STATE, N_STATE, x_now, kx);
+    const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
+    for (int r = 0; r < 2; r++) tau[r] = fmin(fmax(tau[r] - kx[r], -limit[r]), limit[r]);
+    lqg_feedforward(&d->lqg, k, nominal, command); /* the filter's input: the deviation from the nominal */
+    memset(next, 0, sizeof *next);
+    for (int row = 0; row < dl; row++) next->du[row][0] = s->du[row + 1][0], next->du[row][1] = s->du[row + 1][1];
+    next->du[dl][0] = tau[0] - nominal[0], next->du[dl][1] = tau[1] - nominal[1];
+    memcpy(next->x_post[0], x_post, sizeof x_post);
+    next->xi[0] = s->xi[0], next->xi[1] = s->xi[1];
+    next->k = k + 1;
+    next->started = 1;
+}
+
+/* Run sample committed.k of the predicting law from measurements m carrying `index` and hold its torques. Before
+   sample d there is no measurement (y_d(0)); m NULL or a master's placeholder is none either (y_d of its sample). */
+static void delayed_sample(Instance *inst, const double *m_present, double index)
+{
+    ControllerData *d = inst->data;
+    ControllerState *st = inst->state;
+    const long long k = st->committed.k;
+    const double *m = m_present;
+    if (k < st->delay) m = d->lqg.desired, index = LOOP_NO_SAMPLE;
+    else if (m == NULL || loop_is_placeholder(index, m, N_MEAS))
+        m = d->lqg.desired + lqg_clamp(&d->lqg, k - st->delay) * N_MEAS, index = LOOP_NO_SAMPLE;
+    LqgState next;
+    predicted_step(inst, &st->committed, k, m, st->held, &next);
+    st->committed = next;
+    st->held_index[0] = loop_index_of_time((double)k * d->dt);
+    st->held_index[1] = loop_measured_delay((double)k, index);
+    st->held_index[2] = (double)st->delay;
+    set_outputs(inst, st->held, st->held_index);
+}
+
+/* The plant's report of the torque it held over sample k - 1: 1 and the torque when it was not this law's
+   (tau_lag != 0) or, with `any_lag` (up to the switch), whatever tau_lag says (the law before the switch sent it).
+   An unwired tau_lag holds 0 and unwired torques 0: nothing to remember. */
+static int plant_applied(Instance *inst, long long k, int any_lag, double torque[2])
+{
+    if (k < 1) return 0;
+    torque[0] = VALUE(inst, IDX_tau1_applied), torque[1] = VALUE(inst, IDX_tau2_applied);
+    if (VALUE(inst, IDX_tau_lag) != 0.0) return 1;
+    return any_lag && (torque[0] != 0.0 || torque[1] != 0.0);
+}
+
+/* The torque deviation the filter of state s assumes for `sample` replaced by the plant's `torque`. */
+static void with_applied(const LqgData *p, LqgState *s, long long sample, const double torque[2])
+{
+    const long long row = p->delay - (s->k - 1 - sample); /* du rows 0 .. d: samples s->k - 1 - d .. s->k - 1 */
+    if (row < 0 || row > p->delay) return;
+    double nominal[2], command[2];
+    lqg_feedforward(p, sample, nominal, command);
+    s->du[row][0] = torque[0] - nominal[0], s->du[row][1] = torque[1] - nominal[1];
+}
+
+static void remember(ControllerState *st, long long sample, const double torque[2])
+{
+    if (st->n_foreign == N_FOREIGN) { /* drop the oldest */
+        memmove(st->foreign[0], st->foreign[1], (N_FOREIGN - 1) * sizeof st->foreign[0]);
+        st->n_foreign--;
+    }
+    st->foreign[st->n_foreign][0] = (double)sample;
+    st->foreign[st->n_foreign][1] = torque[0], st->foreign[st->n_foreign][2] = torque[1];
+    st->n_foreign++;
+}
+
+/* From fmi2DoStep(t_k) on, predict over `delay` without feedthrough: samples 0 .. k again from the trajectory
+   alone with the torques the plant reported holding, then k + 1 .. k + n from the inputs present. */
+static void switch_delay(Instance *inst, double t, long long k, int delay, double n, const double m[N_MEAS],
+                         double index)
+{
+    ControllerData *d = inst->data;
+    ControllerState *st = inst->state;
+    st->delay = d->lqg.delay = delay;
+    st->switch_end = k + 1;
+    glue_log(inst, fmi2OK, "the loop delay measured at fmi2DoStep(t = %.17g s) is %d samples (the master reads the "
+             "torques before it sets the measurements); predicting the state over it with the linearised model along "
+             "the slew (Kalman filter) from sample %lld on", t, delay, k + 1);
+    memset(&st->committed, 0, sizeof st->committed);
+    for (long long s = 0; s <= k; s++) {
+        delayed_sample(inst, NULL, LOOP_NO_SAMPLE);
+        for (int i = 0; i < st->n_foreign; i++)
+            if (st->foreign[i][0] == (double)s) with_applied(&d->lqg, &st->committed, s, &st->foreign[i][1]);
+    }
+    for (double i = 0; i < n; i++) delayed_sample(inst, m, index);
+}
+#endif
 
 static fmi2Status controller_initialize(Instance *inst)
 {
-    ((ControllerState *)inst->state)->delay_contradictions = 0;
+    memset(inst->state, 0, sizeof(ControllerState)); /* the paper's law, no delay measured */
     fmi2Status status = configure(inst);
     if (status != fmi2OK) {
         glue_log(inst, fmi2Error, "fmi2ExitInitializationMode: schedule_period must be 0.2, 0.02 or 0");
@@ -256,18 +441,39 @@ static fmi2Status controller_do_step(Instance *inst, double t, double h)
                  GLUE_STEP_TOLERANCE);
         return fmi2Error;
     }
-    /* the outputs were just sampled from the inputs present at fmi2DoStep: a delay there contradicts the law's
-       (flexarm_controller_base.ControllerSlave.warn_delay); said once per run */
+#if CONTROLLER_FEEDBACK
+    if (n == 0) return fmi2OK; /* no sample instant in the step: nothing changes */
     ControllerState *st = inst->state;
-    const double measured = VALUE(inst, IDX_loop_delay);
-    if (measured >= 0.0 && measured != 0.0 && st->delay_contradictions++ == 0)
-        glue_log(inst, fmi2Warning, "loop delay contradiction at t = %.17g s: the measurements present at "
-                 "fmi2DoStep are of the plant's sample %g sample(s) before the one the torques are for (tau_index - "
-                 "sample_index_m), but the law predicts over 0 (the paper's law assumes no delay); the master's "
-                 "stepping differs from the one the law is set for (a Jacobi master reads the torques before it sets "
-                 "the measurements). Use controller_lqg with loop_delay_samples = -1 (automatic), which measures the "
-                 "delay and predicts over it", t, measured);
-    return fmi2OK; /* the torque is a function of the time and the inputs */
+    const double k = nearbyint(t / d->dt), index = VALUE(inst, IDX_sample_index_m);
+    double m[N_MEAS], applied[2];
+    for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]); /* present at fmi2DoStep, held in the step */
+    const int foreign = plant_applied(inst, (long long)k, st->delay == 0 || k <= (double)st->switch_end, applied);
+    if (foreign) remember(st, (long long)k - 1, applied);
+    if (st->delay > 0) { /* samples k + 1 .. k + n; the last one's torques are published */
+        d->lqg.delay = st->delay; /* (after fmi2SetFMUstate) */
+        if (k + 1 != (double)st->committed.k) {
+            glue_log(inst, fmi2Error, "fmi2DoStep: current_time: %.17g s is sample %.0f, but the controller computed "
+                     "sample %lld last (one fmi2DoStep per communication point, from t = 0)", t, k,
+                     st->committed.k - 1);
+            return fmi2Error;
+        }
+        if (foreign) with_applied(&d->lqg, &st->committed, (long long)k - 1, applied);
+        for (double i = 0; i < n; i++) delayed_sample(inst, m, index);
+        const double measured = st->held_index[1];
+        if (measured >= 0.0 && measured != (double)st->delay && st->delay_contradictions++ == 0)
+            glue_log(inst, fmi2Warning, "loop delay contradiction at t = %.17g s: the measurements present at "
+                     "fmi2DoStep are of the plant's sample %g sample(s) before the one the torques are for "
+                     "(tau_index - sample_index_m), but the law predicts over %d (the delay measured at the switch); "
+                     "the master's stepping changed during the run", t, measured, st->delay);
+        return fmi2OK;
+    }
+    const double measured = loop_measured_delay(k, index);
+    if (measured >= 1.0) /* the master sets the measurements after it reads the torques: predict over the delay */
+        switch_delay(inst, t, (long long)k, measured + n < MAX_DELAY ? (int)(measured + n) : MAX_DELAY, n, m, index);
+#else
+    (void)t;
+#endif
+    return fmi2OK; /* the paper's law: the torque is a function of the time and the inputs */
 }
 
 const ModelInfo MODEL_INFO = {

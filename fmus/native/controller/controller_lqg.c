@@ -63,14 +63,6 @@ typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
 } FmuState;
 
 /* -- resources -------------------------------------------------------------------------------------------- */
-double *lqg_read_array(Instance *inst, const char *file, const char *text, const char *name, size_t n)
-{
-    double *out = malloc(n * sizeof *out);
-    if (out == NULL) glue_log(inst, fmi2Error, "resources/%s: out of memory for '%s'", file, name);
-    else if (glue_read_doubles(inst, file, text, name, out, n)) free(out), out = NULL;
-    return out;
-}
-
 static void lqg_unload(Instance *inst)
 {
     LqgData *d = inst->data;
@@ -84,23 +76,6 @@ static void lqg_unload(Instance *inst)
     bank_free(&d->bank);
     free(d);
     inst->data = NULL;
-}
-
-static int read_design(Instance *inst, const char *file, const char *text, Design *g, double *c)
-{
-    double count;
-    if (glue_read_doubles(inst, file, text, "count", &count, 1) || glue_read_doubles(inst, file, text, "C", c,
-                                                                                       N_MEAS * N_STATE))
-        return -1;
-    size_t n = (size_t)count;
-    g->count = (int)count;
-    g->times = lqg_read_array(inst, file, text, "times", n);
-    g->phi = lqg_read_array(inst, file, text, "Phi", n * N_STATE * N_STATE);
-    g->gamma = lqg_read_array(inst, file, text, "Gamma", n * N_STATE * 2);
-    g->m = lqg_read_array(inst, file, text, "M", n * N_STATE * N_MEAS);
-    g->k = lqg_read_array(inst, file, text, "K", n * N_WEIGHTS * 2 * N_STATE);
-    g->k_integral = lqg_read_array(inst, file, text, "K_integral", n * N_WEIGHTS * 2 * N_AUG);
-    return g->times && g->phi && g->gamma && g->m && g->k && g->k_integral ? 0 : -1;
 }
 
 static int lqg_load(Instance *inst, char *const *contents, const size_t *sizes)
@@ -125,7 +100,7 @@ static int lqg_load(Instance *inst, char *const *contents, const size_t *sizes)
             if (!d->feedforward || !d->desired || !d->index) goto fail;
         }
         for (int s = 0; s < N_SCHEDULES; s++)
-            if (strcmp(file, SCHEDULE_FILES[s]) == 0 && read_design(inst, file, text, &d->designs[s], d->c)) goto fail;
+            if (strcmp(file, SCHEDULE_FILES[s]) == 0 && lqg_read_design(inst, file, text, &d->designs[s], d->c)) goto fail;
     }
     for (size_t r = 0; r < MODEL_INFO.n_resources; r++) /* after the trajectory: the drift needs n_steps, dt */
         if (strcmp(MODEL_INFO.resources[r].file, BANK_FILE) == 0 &&
@@ -148,64 +123,6 @@ fail:
     return -1;
 }
 
-/* -- the law -------------------------------------------------------------------------------------------------- */
-/* y = A x for A (rows x cols, row stride `stride`). Compensated (Neumaier) sums: the filter's lightly damped
-   modes accumulate rounding over thousands of samples, and nearly exact dot products keep the native law as
-   close to the exact one as NumPy's (BLAS) is. */
-/* sum += term, carry += the exact rounding error of that addition (Knuth's TwoSum: no branch; the error is the
-   one Neumaier's test-and-subtract gives, bit for bit, both being exact). */
-#define NEUMAIER(sum, carry, term)                                         \
-    do {                                                                   \
-        const double t_ = (sum) + (term), b_ = t_ - (sum);                 \
-        (carry) += ((sum) - (t_ - b_)) + ((term) - b_);                    \
-        (sum) = t_;                                                        \
-    } while (0)
-
-void lqg_mat_vec(const double *a, int rows, int cols, int stride, const double *x, double *y)
-{
-    int r = 0;
-    for (; r + 4 <= rows; r += 4) { /* four rows at a time: four independent chains (the same sums, faster) */
-        const double *a0 = a + r * stride, *a1 = a0 + stride, *a2 = a1 + stride, *a3 = a2 + stride;
-        double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0, c0 = 0.0, c1 = 0.0, c2 = 0.0, c3 = 0.0;
-        for (int c = 0; c < cols; c++) {
-            const double t0 = a0[c] * x[c], t1 = a1[c] * x[c], t2 = a2[c] * x[c], t3 = a3[c] * x[c];
-            NEUMAIER(s0, c0, t0);
-            NEUMAIER(s1, c1, t1);
-            NEUMAIER(s2, c2, t2);
-            NEUMAIER(s3, c3, t3);
-        }
-        y[r] = s0 + c0, y[r + 1] = s1 + c1, y[r + 2] = s2 + c2, y[r + 3] = s3 + c3;
-    }
-    for (; r < rows; r++) {
-        double sum = 0.0, carry = 0.0;
-        for (int c = 0; c < cols; c++) {
-            const double term = a[r * stride + c] * x[c];
-            NEUMAIER(sum, carry, term);
-        }
-        y[r] = sum + carry;
-    }
-}
-
-/* x <- Phi x + Gamma du at design point i. */
-void lqg_propagate(const Design *g, int i, double *x, const double du[2])
-{
-    double px[N_STATE], gu[N_STATE];
-    lqg_mat_vec(g->phi + (size_t)i * N_STATE * N_STATE, N_STATE, N_STATE, N_STATE, x, px);
-    lqg_mat_vec(g->gamma + (size_t)i * N_STATE * 2, N_STATE, 2, 2, du, gu);
-    for (int r = 0; r < N_STATE; r++) x[r] = px[r] + gu[r];
-}
-
-static long long clamp(const LqgData *d, long long k) { return k < d->n_steps ? k : d->n_steps; }
-
-void lqg_feedforward(const LqgData *d, long long k, double nominal[2], double command[2])
-{
-    const double *slew = k < d->n_steps ? d->feedforward + 2 * k : NULL; /* zero feedforward in the hold */
-    for (int r = 0; r < 2; r++) {
-        nominal[r] = slew ? slew[r] : 0.0;
-        command[r] = nominal[r] + (k < d->n_correction ? d->correction[2 * k + r] : 0.0);
-    }
-}
-
 /* Torques of sample k from measurements m and the state s after k - 1; `next` the state after k. */
 static void lqg_step(const LqgData *d, const LqgState *s, long long k, const double m[N_MEAS], const double limit[2],
                      double tau[2], LqgState *next)
@@ -213,21 +130,9 @@ static void lqg_step(const LqgData *d, const LqgState *s, long long k, const dou
     const Design *g = d->design;
     const int dl = d->delay;
     memset(next, 0, sizeof *next); /* the bank's rows unused */
-    long long j = k - dl > 0 ? k - dl : 0;
-    double x[N_STATE], cx[N_MEAS], innovation[N_MEAS], mi[N_STATE], x_post[N_STATE], x_now[N_STATE];
-    memcpy(x, s->x_post[0], sizeof x);
-    if (s->started && j > 0 && k - dl >= 0) lqg_propagate(g, d->index[clamp(d, j - 1)], x, s->du[0]); /* 1 */
-    const double *y_d = d->desired + clamp(d, j) * N_MEAS;                                            /* 2 */
-    lqg_mat_vec(d->c, N_MEAS, N_STATE, N_STATE, x, cx);
-    for (int r = 0; r < N_MEAS; r++) innovation[r] = (m[r] - y_d[r]) - cx[r];
-    lqg_mat_vec(g->m + (size_t)d->index[clamp(d, j)] * N_STATE * N_MEAS, N_STATE, N_MEAS, N_MEAS, innovation, mi);
-    for (int r = 0; r < N_STATE; r++) x_post[r] = x[r] + mi[r];
-    memcpy(x_now, x_post, sizeof x_now); /* 3: the torques of samples j .. k - 1 */
-    int first = k - dl >= 0 ? 1 : (int)(dl + 1 - k);
-    for (int row = first, n = 0; row <= dl; row++, n++)
-        lqg_propagate(g, d->index[clamp(d, j + n)], x_now, s->du[row]);
-
-    const int i_k = d->index[clamp(d, k)]; /* 4 */
+    double x_post[N_STATE], x_now[N_STATE];
+    lqg_estimate(d, s, k, m, x_post, x_now); /* 1 - 3 */
+    const int i_k = d->index[lqg_clamp(d, k)]; /* 4 */
     double ff[2], ff_cmd[2];
     lqg_feedforward(d, k, ff, ff_cmd);
     double kx[2], kxi[2] = {0.0, 0.0}, free_tau[2];
@@ -255,16 +160,6 @@ static void lqg_step(const LqgData *d, const LqgState *s, long long k, const dou
 }
 
 /* -- FMI side ------------------------------------------------------------------------------------------------- */
-void lqg_schedule_index(const double *times, int count, int n_steps, double dt, int *index)
-{
-    for (int k = 0; k <= n_steps; k++) { /* LqgDesign.index_at: the last operating time <= t + 1e-9 */
-        double t = k * dt + 1e-9;
-        int i = 0;
-        while (i + 1 < count && times[i + 1] <= t) i++;
-        index[k] = i;
-    }
-}
-
 /* The estimator, design, weights and schedule index of the current parameters (recomputed when they change). */
 static fmi2Status configure(Instance *inst)
 {
@@ -374,7 +269,7 @@ static void delayed_sample(Instance *inst, const double *m_present, double index
     const double *m = m_present;
     if (k < d->delay) m = d->desired, index = LOOP_NO_SAMPLE; /* no measurement before t = 0: y_d(0) */
     else if (m == NULL || loop_is_placeholder(index, m, N_MEAS))
-        m = d->desired + clamp(d, k - d->delay) * N_MEAS, index = LOOP_NO_SAMPLE;
+        m = d->desired + lqg_clamp(d, k - d->delay) * N_MEAS, index = LOOP_NO_SAMPLE;
     LqgState next;
     law_step(d, &st->committed, k, m, limit, st->held, &next);
     st->committed = next;
@@ -408,7 +303,7 @@ static fmi2Status lqg_sample(Instance *inst)
     for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
     const double index = VALUE(inst, IDX_sample_index_m);
     /* fmpy's first step: no sample yet, not a measurement of q = 0 */
-    const double *used = loop_is_placeholder(index, m, N_MEAS) ? d->desired + clamp(d, (long long)k) * N_MEAS : m;
+    const double *used = loop_is_placeholder(index, m, N_MEAS) ? d->desired + lqg_clamp(d, (long long)k) * N_MEAS : m;
     LqgState base = st->committed;
     double applied[2];
     if (plant_applied(inst, (long long)k, 0, applied)) with_applied(d, &base, (long long)k - 1, applied);

@@ -65,9 +65,16 @@ typedef struct {  /* flexarm.lqg.LqgState and flexarm.lqg_bank.BankState */
     double xi[2];                        /* integrated joint-angle errors, rad s */
 } LqgState;
 
+/* lqg_core.c (shared with controller.c) */
+static inline long long lqg_clamp(const LqgData *d, long long k) { return k < d->n_steps ? k : d->n_steps; }
+/* A design resource's arrays into g (count, times, Phi, Gamma, M, K, K_integral) and the sensor map into c. */
+int lqg_read_design(Instance *inst, const char *file, const char *text, Design *g, double *c);
+/* Steps 1-3: the posterior at j = max(k - d, 0) and the error predicted to sample k (d->design, d->delay). */
+void lqg_estimate(const LqgData *d, const LqgState *s, long long k, const double m[N_MEAS], double x_post[N_STATE],
+                  double x_now[N_STATE]);
 /* An array of n doubles labelled `name` in a resource text, malloc'ed (NULL after logging why not). */
 double *lqg_read_array(Instance *inst, const char *file, const char *text, const char *name, size_t n);
-/* y = A x, A rows x cols with row stride `stride`, compensated sums (controller_lqg.c). */
+/* y = A x, A rows x cols with row stride `stride`, compensated sums. */
 void lqg_mat_vec(const double *a, int rows, int cols, int stride, const double *x, double *y);
 /* x <- Phi x + Gamma du at design point i. */
 void lqg_propagate(const Design *g, int i, double *x, const double du[2]);
