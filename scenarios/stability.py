@@ -449,29 +449,16 @@ def lqg_loop_growth(gain_name: str, schedule: str, damping_ratio: float, payload
     """As :func:`sampled_loop_growth` for the LQG controller with one Kalman filter per schedule point
     (estimator = kalman) at 1 ms, along the design's operating points."""
     from flexarm.lqg_design import LqgDesign
-    from flexarm.model import ArmModel, numpy_kernels
-    from flexarm.parameters import load_parameters
-    from flexarm.trajectory import load_trajectory
-    from flexarm.trajectory.io import SAMPLE_TIME
 
-    dt = 1e-3
-    traj = load_trajectory()
     design = LqgDesign.load(schedule)
     w = design.weight_index(gain_name)
-    kernels = numpy_kernels()
-    model = ArmModel(load_parameters(payload_mass=payload_mass), damping_ratio=damping_ratio, kernels=kernels)
-    worst = {"growth_per_s": -np.inf}
-    for i, t_k in enumerate(design.times):
-        k = min(int(round(t_k / SAMPLE_TIME)), traj.n_samples)
-        A, B = model.linearize(traj.state(k))
-        phi, gam = plant_zoh(A, B, dt, integrator, substeps, expm=kernels.expm)
+
+    def gains(i: int, n: int):
         if integral:
-            K, K_xi = design.K_integral[i, w, :, :len(A)], design.K_integral[i, w, :, len(A):]
-        else:
-            K, K_xi = design.K[i, w], None
-        loop = lqg_closed_loop(phi, gam, design.Phi[i], design.Gamma[i], design.M[i], design.C, K, K_xi, delay, dt)
-        worst = _growth_at(worst, loop, A, dt, t_k)
-    return worst
+            return design.K_integral[i, w, :, :n], design.K_integral[i, w, :, n:]
+        return design.K[i, w], None
+
+    return _filtered_loop_growth(design, gains, damping_ratio, payload_mass, integrator, substeps, delay)
 
 
 @functools.lru_cache(maxsize=64)
@@ -482,6 +469,16 @@ def predicted_loop_growth(gain_name: str, schedule: str, damping_ratio: float, p
     schedule, the paper's reduced gain (:meth:`flexarm.lqr.GainSchedule.reduced_gains`) on the prediction."""
     from flexarm.lqg_design import LqgDesign
     from flexarm.lqr import GainSchedule
+
+    reduced = GainSchedule.load(gain_name, schedule).reduced_gains()
+    return _filtered_loop_growth(LqgDesign.load(schedule), lambda i, n: (reduced[i], None), damping_ratio,
+                                 payload_mass, integrator, substeps, delay)
+
+
+def _filtered_loop_growth(design, gains, damping_ratio: float, payload_mass: float, integrator: str, substeps: int,
+                          delay: int) -> dict:
+    """The growth of :func:`lqg_closed_loop` along the design's operating points, `gains(i, n_states)` giving the
+    gain (and the integral gain or None) at point i."""
     from flexarm.model import ArmModel, numpy_kernels
     from flexarm.parameters import load_parameters
     from flexarm.trajectory import load_trajectory
@@ -489,8 +486,6 @@ def predicted_loop_growth(gain_name: str, schedule: str, damping_ratio: float, p
 
     dt = 1e-3
     traj = load_trajectory()
-    design = LqgDesign.load(schedule)
-    gains = GainSchedule.load(gain_name, schedule).reduced_gains()
     kernels = numpy_kernels()
     model = ArmModel(load_parameters(payload_mass=payload_mass), damping_ratio=damping_ratio, kernels=kernels)
     worst = {"growth_per_s": -np.inf}
@@ -498,8 +493,8 @@ def predicted_loop_growth(gain_name: str, schedule: str, damping_ratio: float, p
         k = min(int(round(t_k / SAMPLE_TIME)), traj.n_samples)
         A, B = model.linearize(traj.state(k))
         phi, gam = plant_zoh(A, B, dt, integrator, substeps, expm=kernels.expm)
-        loop = lqg_closed_loop(phi, gam, design.Phi[i], design.Gamma[i], design.M[i], design.C, gains[i], None,
-                               delay, dt)
+        K, K_xi = gains(i, len(A))
+        loop = lqg_closed_loop(phi, gam, design.Phi[i], design.Gamma[i], design.M[i], design.C, K, K_xi, delay, dt)
         worst = _growth_at(worst, loop, A, dt, t_k)
     return worst
 
