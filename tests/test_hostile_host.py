@@ -162,8 +162,10 @@ def test_steps_rounded_by_a_masters_clock_count_as_whole_samples(kind):
 @pytest.mark.parametrize("kind", ["native", "python"])
 def test_model_structure_declares_what_the_outputs_depend_on(kind):
     """<Outputs>: the plant none (its outputs change only in fmi2DoStep), each sensor output its true signal,
-    the torques the ten measurements the law uses; <InitialUnknowns>: those inputs and every parameter (the
-    plant's: every known, as its start outputs use the torque present then)."""
+    the torques the ten measurements the law uses; <InitialUnknowns>: those inputs and every parameter, the
+    plant's the inputs its start outputs use (the torques for the accelerations and the torque held, tau_index for
+    tau_lag, none for the rest) and the index outputs none: a master that solves initialisation as one system
+    (OMSimulator) must find no algebraic loop through the controller."""
     _, table2 = _setups("table2", kind, ("none",))
     _, lqg = _setups("lqg_jacobi", kind, ("none",))
     for name, path in (*table2.paths.items(), ("controller_lqg", lqg.paths["controller"])):
@@ -183,8 +185,14 @@ def test_model_structure_declares_what_the_outputs_depend_on(kind):
             else:
                 assert len(deps) == 10 and deps <= inputs, (name, deps)
         for unknown in md.initialUnknowns:
-            if name == "plant" or unknown.variable.name in ("tau_index", "loop_delay_assumed"):
-                assert unknown.dependencies is None
+            deps = {d.name for d in unknown.dependencies}
+            if name == "plant":
+                accelerations = unknown.variable.name.startswith(("link", "acc"))
+                at_start = {"tau_lag": {"tau_index"}, "tau1_applied": {"tau1"}, "tau2_applied": {"tau2"}}.get(
+                    unknown.variable.name, {"tau1", "tau2"} if accelerations else set())
+                assert deps == at_start | params, (unknown.variable.name, deps - params)
+            elif unknown.variable.name in ("tau_index", "loop_delay_assumed"):
+                assert deps == params, (name, unknown.variable.name)
             else:
                 out = next(o for o in md.outputs if o.variable is unknown.variable)
                 assert {d.name for d in unknown.dependencies} == {d.name for d in out.dependencies} | params
