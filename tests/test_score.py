@@ -34,12 +34,11 @@ def test_the_baseline_file_is_of_this_battery():
     assert doc["kind"] == "native" and sorted(doc["controllers"]) == sorted(c.name for c in battery.BASELINES)
     for name, cases in doc["controllers"].items():
         assert list(cases) == keys, name
-    # the paper's LQR is stable under Gauss-Seidel and not under an uncompensated Jacobi master (issue 36's
-    # "until the loop delay is compensated"); the LQG with the payload bank holds in both
-    lqr, lqg = doc["controllers"]["lqr"], doc["controllers"]["lqg_bank"]
-    assert all(lqr[k]["status"] == "ok" for k in keys if k.endswith("_gs"))
-    assert all(lqr[k]["status"] != "ok" for k in keys if k.endswith("_jacobi"))
-    assert all(r["status"] == "ok" for r in lqg.values())
+    # every baseline compensates the loop delay it measures (issue 31: the paper's LQR and the DLQR predict over
+    # it), so each holds under Gauss-Seidel and Jacobi stepping alike: a stranger's controller that does not is
+    # the one whose Jacobi runs stand out
+    for name, cases in doc["controllers"].items():
+        assert all(r["status"] == "ok" for r in cases.values()), name
 
 
 def test_a_battery_change_is_refused_until_the_baseline_is_regenerated(tmp_path, monkeypatch):
