@@ -207,12 +207,14 @@ def test_libcosim_matches_our_jacobi_master_closed_loop(table2_ssp, tmp_path):
     assert delta <= SERIES_TOLERANCE, f"libcosim vs our jacobi master: {delta:.3g} in {worst}"
 
 
-def test_closed_loop_under_libcosim_stepping_is_unstable():
-    """Why the closed loop cannot agree across masters: Jacobi stepping delays the torque by two samples.
+def test_closed_loop_under_libcosim_stepping_predicts_over_the_delay():
+    """Why the closed loop differs across masters: Jacobi stepping delays the torque by two samples.
 
     Our "jacobi" mode reproduces libcosim bit for bit (test above); with the two-sample delay
-    (plant -> sensors -> controller, one sample per feedthrough FMU) the gamma = 0.1 loop that
-    tracks to 0.002 deg rms under Gauss-Seidel stepping grows unstable and saturates the motors.
+    (plant -> sensors -> controller, one sample per feedthrough FMU) the gamma = 0.1 loop as published grows
+    unstable and saturates the motors (tests/test_predicted_tracking.py). The controller measures the delay and
+    predicts over it: its rms position error stays within issue 31's tolerance (5 % or 0.005 deg) of the
+    Gauss-Seidel one, and the motors stay off their limits.
     """
     sc = load_scenario("table2")
     case = sc.cases[0]
@@ -221,6 +223,6 @@ def test_closed_loop_under_libcosim_stepping_is_unstable():
     for algorithm in ("gauss-seidel", "jacobi"):
         with setup.open_master(algorithm) as m:
             _, metrics[algorithm] = runner.simulate_case(setup, m, case.parameters)
-    assert metrics["gauss-seidel"]["rms_position_error"] < 0.01
-    assert metrics["jacobi"]["rms_position_error"] > 100 * metrics["gauss-seidel"]["rms_position_error"]
-    assert metrics["jacobi"]["peak_tau1"] == pytest.approx(7.0)  # saturated
+    gs, jacobi = metrics["gauss-seidel"]["rms_position_error"], metrics["jacobi"]["rms_position_error"]
+    assert gs < 0.01 and abs(jacobi - gs) <= max(0.05 * gs, 0.005), (gs, jacobi)
+    assert metrics["jacobi"]["peak_tau1"] < 6.5  # the feedforward's 5.6 N.m peak and a little feedback
