@@ -245,7 +245,7 @@ class ControllerSlave(FeedthroughSlave):
         """Whether the law feeds back measurements, so that a loop delay matters (not the feedforward alone)."""
         return self.MODE != "ff"
 
-    def _applied(self, k: int, any_lag: bool) -> tuple[int, list[float]] | None:
+    def _applied(self, k: int, any_lag: bool = False) -> tuple[int, list[float]] | None:
         """(k - 1, the torque the plant held over sample k - 1) when the plant reports that it was not this law's
         (tau_lag != 0) or, with `any_lag` (up to the switch to a measured delay), whatever tau_lag says (the law
         before the switch sent it). An unwired tau_lag holds 0 and unwired torques 0: nothing to remember."""
@@ -265,8 +265,19 @@ class ControllerSlave(FeedthroughSlave):
         if not 0 <= row < len(state.du):
             return state
         du = state.du.copy()
-        du[row] = np.asarray(torque) - self.predictor.filter.feedforward(s)
+        du[row] = np.asarray(torque) - self._nominal_feedforward(s)
         return dataclasses.replace(state, du=du)
+
+    def _nominal_feedforward(self, s: int) -> np.ndarray:
+        """The feedforward of sample s the filter's model is linearised about (the trajectory's, N·m)."""
+        return self.predictor.filter.feedforward(s)
+
+    def _remember(self, applied: tuple[int, list[float]] | None) -> None:
+        """Keep the plant's report of the torque it held over a sample (the last few: a switch comes early)."""
+        if applied is not None:
+            self._foreign[applied[0]] = applied[1]
+            for s in sorted(self._foreign)[:-16]:
+                del self._foreign[s]
 
     def _sample(self, k: int, measurements, index: float) -> None:
         """Run sample k of the predicting law and hold its torques (flexarm.lqg.PredictedTracking.step).
@@ -330,10 +341,7 @@ class ControllerSlave(FeedthroughSlave):
         held = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)
         index = self._values[self._index_vr]
         applied = self._applied(k, any_lag=self.delay == 0 or k <= self._switch_end)
-        if applied is not None:
-            self._foreign[applied[0]] = applied[1]
-            for s in sorted(self._foreign)[:-16]:  # a switch comes within the first steps: a few are enough
-                del self._foreign[s]
+        self._remember(applied)
         if self.delay > 0:  # samples k + 1 .. k + n; the last one's torques are published
             if self.state.k != k + 1:
                 raise ValueError(f"current_time: {t!r} s is sample {k}, but the controller computed sample "

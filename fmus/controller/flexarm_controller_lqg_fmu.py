@@ -43,7 +43,6 @@ rounding) does nothing; a step that is no whole number of samples (within
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 
 import numpy as np
@@ -190,37 +189,8 @@ class FlexarmControllerLQG(ControllerSlave):
         tau, self._pending = self.law.step(self._with_applied(self.state, self._applied(k)), k, measurements)
         return np.concatenate([tau, self.index_outputs(k, index, 0)])
 
-    def _applied(self, k: int, before_switch: bool = False) -> tuple[int, list[float]] | None:
-        """(k - 1, the torque the plant held over sample k - 1) when the plant reports that it was not this
-        controller's for that sample (tau_lag != 0: a master's fill before the first exchange, a late torque),
-        else None. With `before_switch` (automatic, no delay measured yet) also when it was, so that a switch
-        re-runs the first samples with the torques the plant really held (the law before the switch used those
-        samples' measurements, the law after it has none for them). An unwired tau_lag holds 0 and unwired
-        torques 0: nothing to correct, nothing to remember."""
-        if k < 1:
-            return None
-        torque = [float(self._values[vr]) for vr in self._applied_vrs]
-        if self._values[self._lag_vr] != 0.0 or (before_switch and any(x != 0.0 for x in torque)):
-            return k - 1, torque
-        return None
-
-    def _with_applied(self, state, applied: tuple[int, list[float]] | None):
-        """`state` with the torque its filter assumes for sample s replaced by the one the plant held (a copy)."""
-        if applied is None:
-            return state
-        s, torque = applied
-        row = len(state.du) - (state.k - s)  # du: the torques of samples state.k - len(du) .. state.k - 1
-        if not 0 <= row < len(state.du):
-            return state
-        du = state.du.copy()
-        du[row] = np.asarray(torque) - self.law.feedforward(s)
-        return dataclasses.replace(state, du=du)
-
-    def _remember(self, applied: tuple[int, list[float]] | None) -> None:
-        if applied is not None:
-            self._foreign[applied[0]] = applied[1]
-            for s in sorted(self._foreign)[:-16]:  # a switch comes within the first steps: a few are enough
-                del self._foreign[s]
+    def _nominal_feedforward(self, s: int) -> np.ndarray:
+        return self.law.feedforward(s)
 
     def commit(self, t: float, h: float, n: int) -> None:
         held = self._measurements()  # the inputs present at fmi2DoStep, held inside the step
@@ -228,7 +198,7 @@ class FlexarmControllerLQG(ControllerSlave):
         k = self.law.sample_index(t)
         self._warn_unwired(t, index, held)
         # automatic: the torques held over the samples up to the switch were the law's before it (its own reports too)
-        applied = self._applied(k, before_switch=self.automatic and (self.law.delay == 0 or k <= self._switch_end))
+        applied = self._applied(k, any_lag=self.automatic and (self.law.delay == 0 or k <= self._switch_end))
         self._remember(applied)
         if self.law.delay > 0:  # samples k + 1 .. k + n; the last one's torques are published
             if self.state.k != k + 1:

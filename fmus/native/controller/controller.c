@@ -43,7 +43,6 @@
 #include "model_vars.h"
 
 #define N_SETS 4
-#define N_FOREIGN 16 /* a switch to the measured delay comes within the first steps: a few are enough */
 static const char *const LQG_FILES[3] = {"lqg_200ms.txt", "lqg_20ms.txt", "lqg_single.txt"};
 static const int MEAS[N_MEAS] = {IDX_q1_m, IDX_q2_m, IDX_qd1_m, IDX_qd2_m, IDX_eps1_m,
                                  IDX_eps2_m, IDX_eps3_m, IDX_eps4_m, IDX_eps5_m, IDX_eps6_m};
@@ -256,7 +255,7 @@ typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
     int delay;                /* the measured loop delay the law predicts over (0: none measured, the paper's law) */
     LqgState committed;       /* delay > 0: the predictor after the last sample run */
     double held[2], held_index[3]; /* delay > 0: the torques of the last sample run and their index outputs */
-    double foreign[N_FOREIGN][3];  /* sample, torques the plant reported holding (see plant_applied) */
+    double foreign[LQG_N_FOREIGN][3];  /* sample, torques the plant reported holding (lqg_plant_applied) */
     int n_foreign;
     long long switch_end; /* 1 + the last sample whose torque the law before the switch published */
 } ControllerState;
@@ -364,38 +363,6 @@ static void delayed_sample(Instance *inst, const double *m_present, double index
     set_outputs(inst, st->held, st->held_index);
 }
 
-/* The plant's report of the torque it held over sample k - 1: 1 and the torque when it was not this law's
-   (tau_lag != 0) or, with `any_lag` (up to the switch), whatever tau_lag says (the law before the switch sent it).
-   An unwired tau_lag holds 0 and unwired torques 0: nothing to remember. */
-static int plant_applied(Instance *inst, long long k, int any_lag, double torque[2])
-{
-    if (k < 1) return 0;
-    torque[0] = VALUE(inst, IDX_tau1_applied), torque[1] = VALUE(inst, IDX_tau2_applied);
-    if (VALUE(inst, IDX_tau_lag) != 0.0) return 1;
-    return any_lag && (torque[0] != 0.0 || torque[1] != 0.0);
-}
-
-/* The torque deviation the filter of state s assumes for `sample` replaced by the plant's `torque`. */
-static void with_applied(const LqgData *p, LqgState *s, long long sample, const double torque[2])
-{
-    const long long row = p->delay - (s->k - 1 - sample); /* du rows 0 .. d: samples s->k - 1 - d .. s->k - 1 */
-    if (row < 0 || row > p->delay) return;
-    double nominal[2], command[2];
-    lqg_feedforward(p, sample, nominal, command);
-    s->du[row][0] = torque[0] - nominal[0], s->du[row][1] = torque[1] - nominal[1];
-}
-
-static void remember(ControllerState *st, long long sample, const double torque[2])
-{
-    if (st->n_foreign == N_FOREIGN) { /* drop the oldest */
-        memmove(st->foreign[0], st->foreign[1], (N_FOREIGN - 1) * sizeof st->foreign[0]);
-        st->n_foreign--;
-    }
-    st->foreign[st->n_foreign][0] = (double)sample;
-    st->foreign[st->n_foreign][1] = torque[0], st->foreign[st->n_foreign][2] = torque[1];
-    st->n_foreign++;
-}
-
 /* From fmi2DoStep(t_k) on, predict over `delay` without feedthrough: samples 0 .. k again from the trajectory
    alone with the torques the plant reported holding, then k + 1 .. k + n from the inputs present. */
 static void switch_delay(Instance *inst, double t, long long k, int delay, double n, const double m[N_MEAS],
@@ -412,7 +379,7 @@ static void switch_delay(Instance *inst, double t, long long k, int delay, doubl
     for (long long s = 0; s <= k; s++) {
         delayed_sample(inst, NULL, LOOP_NO_SAMPLE);
         for (int i = 0; i < st->n_foreign; i++)
-            if (st->foreign[i][0] == (double)s) with_applied(&d->lqg, &st->committed, s, &st->foreign[i][1]);
+            if (st->foreign[i][0] == (double)s) lqg_with_applied(&d->lqg, &st->committed, s, &st->foreign[i][1]);
     }
     for (double i = 0; i < n; i++) delayed_sample(inst, m, index);
 }
@@ -447,8 +414,8 @@ static fmi2Status controller_do_step(Instance *inst, double t, double h)
     const double k = nearbyint(t / d->dt), index = VALUE(inst, IDX_sample_index_m);
     double m[N_MEAS], applied[2];
     for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]); /* present at fmi2DoStep, held in the step */
-    const int foreign = plant_applied(inst, (long long)k, st->delay == 0 || k <= (double)st->switch_end, applied);
-    if (foreign) remember(st, (long long)k - 1, applied);
+    const int foreign = lqg_plant_applied(inst, (long long)k, st->delay == 0 || k <= (double)st->switch_end, applied);
+    if (foreign) lqg_remember(st->foreign, &st->n_foreign, (long long)k - 1, applied);
     if (st->delay > 0) { /* samples k + 1 .. k + n; the last one's torques are published */
         d->lqg.delay = st->delay; /* (after fmi2SetFMUstate) */
         if (k + 1 != (double)st->committed.k) {
@@ -457,7 +424,7 @@ static fmi2Status controller_do_step(Instance *inst, double t, double h)
                      st->committed.k - 1);
             return fmi2Error;
         }
-        if (foreign) with_applied(&d->lqg, &st->committed, (long long)k - 1, applied);
+        if (foreign) lqg_with_applied(&d->lqg, &st->committed, (long long)k - 1, applied);
         for (double i = 0; i < n; i++) delayed_sample(inst, m, index);
         const double measured = st->held_index[1];
         if (measured >= 0.0 && measured != (double)st->delay && st->delay_contradictions++ == 0)

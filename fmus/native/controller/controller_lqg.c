@@ -48,7 +48,6 @@ static const double SCHEDULE_PERIODS[N_SCHEDULES] = {0.2, 0.02, 0.0};
 static const int MEAS[N_MEAS] = {IDX_q1_m, IDX_q2_m, IDX_qd1_m, IDX_qd2_m, IDX_eps1_m,
                                  IDX_eps2_m, IDX_eps3_m, IDX_eps4_m, IDX_eps5_m, IDX_eps6_m};
 
-#define N_FOREIGN 16 /* a switch to the measured delay comes within the first steps: a few are enough */
 
 typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
     LqgState committed; /* after the last sample run */
@@ -57,7 +56,7 @@ typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
     double held_index[3]; /* d > 0: their tau_index, loop_delay, loop_delay_assumed */
     int delay;          /* loop_delay_samples = -1 (automatic): the delay the law predicts over (0 until measured) */
     int delay_contradictions, unwired_warned; /* what the log says once per run */
-    double foreign[N_FOREIGN][3]; /* sample, torques: the plant held another torque than this law's (tau_lag != 0) */
+    double foreign[LQG_N_FOREIGN][3]; /* sample, torques: the plant held another torque than this law's (tau_lag != 0) */
     int n_foreign;
     long long switch_end; /* automatic: 1 + the last sample whose torque the law before the switch published */
 } FmuState;
@@ -206,40 +205,6 @@ static void law_step(const LqgData *d, const LqgState *s, long long k, const dou
     else lqg_step(d, s, k, m, limit, tau, next);
 }
 
-/* The plant's report of the torque it held over sample k - 1: 1 and the torque when it was not this law's
-   (tau_lag != 0); with `before_switch` (automatic, no delay measured yet) also when it was, so that a switch
-   re-runs the first samples with the torques the plant really held (the law before the switch used the
-   measurements of those samples; the law after it has none for them). An unwired tau_lag holds 0 and unwired
-   torques 0: nothing to correct, nothing to remember. */
-static int plant_applied(Instance *inst, long long k, int before_switch, double torque[2])
-{
-    if (k < 1) return 0;
-    torque[0] = VALUE(inst, IDX_tau1_applied), torque[1] = VALUE(inst, IDX_tau2_applied);
-    if (VALUE(inst, IDX_tau_lag) != 0.0) return 1;
-    return before_switch && (torque[0] != 0.0 || torque[1] != 0.0);
-}
-
-/* The torque deviation the filter of state s assumes for `sample` replaced by the plant's `torque`. */
-static void with_applied(const LqgData *d, LqgState *s, long long sample, const double torque[2])
-{
-    const long long row = d->delay - (s->k - 1 - sample); /* du rows 0 .. d: samples s->k - 1 - d .. s->k - 1 */
-    if (row < 0 || row > d->delay) return;
-    double nominal[2], command[2];
-    lqg_feedforward(d, sample, nominal, command);
-    s->du[row][0] = torque[0] - nominal[0], s->du[row][1] = torque[1] - nominal[1];
-}
-
-static void remember(FmuState *st, long long sample, const double torque[2])
-{
-    if (st->n_foreign == N_FOREIGN) { /* drop the oldest */
-        memmove(st->foreign[0], st->foreign[1], (N_FOREIGN - 1) * sizeof st->foreign[0]);
-        st->n_foreign--;
-    }
-    st->foreign[st->n_foreign][0] = (double)sample;
-    st->foreign[st->n_foreign][1] = torque[0], st->foreign[st->n_foreign][2] = torque[1];
-    st->n_foreign++;
-}
-
 /* The index outputs of the torques of sample k from measurements carrying `index`, by a law predicting over `assumed`. */
 static void index_outputs(Instance *inst, long long k, double index, int assumed, double out[3])
 {
@@ -306,7 +271,7 @@ static fmi2Status lqg_sample(Instance *inst)
     const double *used = loop_is_placeholder(index, m, N_MEAS) ? d->desired + lqg_clamp(d, (long long)k) * N_MEAS : m;
     LqgState base = st->committed;
     double applied[2];
-    if (plant_applied(inst, (long long)k, 0, applied)) with_applied(d, &base, (long long)k - 1, applied);
+    if (lqg_plant_applied(inst, (long long)k, 0, applied)) lqg_with_applied(d, &base, (long long)k - 1, applied);
     law_step(d, &base, (long long)k, used, limit, tau, &st->pending);
     index_outputs(inst, (long long)k, index, 0, out);
     set_outputs(inst, tau, out);
@@ -389,7 +354,7 @@ static void switch_delay(Instance *inst, double t, long long k, int delay, doubl
     for (long long s = 0; s <= k; s++) {
         delayed_sample(inst, NULL, LOOP_NO_SAMPLE);
         for (int i = 0; i < st->n_foreign; i++) /* the torque the plant held over s (fmpy's fill, the old law's) */
-            if (st->foreign[i][0] == (double)s) with_applied(d, &st->committed, s, &st->foreign[i][1]);
+            if (st->foreign[i][0] == (double)s) lqg_with_applied(d, &st->committed, s, &st->foreign[i][1]);
     }
     for (double i = 0; i < n; i++) delayed_sample(inst, m, index);
 }
@@ -415,8 +380,8 @@ static fmi2Status lqg_do_step(Instance *inst, double t, double h)
     /* automatic: the torques held over the samples up to the switch were the law's before it (its own reports too) */
     const int before_switch = VALUE(inst, IDX_loop_delay_samples) == LOOP_AUTOMATIC
                               && (d->delay == 0 || nearbyint(t / d->dt) <= (double)st->switch_end);
-    const int foreign = plant_applied(inst, (long long)nearbyint(t / d->dt), before_switch, applied);
-    if (foreign) remember(st, (long long)nearbyint(t / d->dt) - 1, applied);
+    const int foreign = lqg_plant_applied(inst, (long long)nearbyint(t / d->dt), before_switch, applied);
+    if (foreign) lqg_remember(st->foreign, &st->n_foreign, (long long)nearbyint(t / d->dt) - 1, applied);
     if (d->delay > 0) {
         if (nearbyint(t / d->dt) + 1 != (double)st->committed.k) {
             glue_log(inst, fmi2Error, "fmi2DoStep: current_time: %.17g s is sample %.0f, but the controller computed "
@@ -424,7 +389,7 @@ static fmi2Status lqg_do_step(Instance *inst, double t, double h)
                      nearbyint(t / d->dt), st->committed.k - 1);
             return fmi2Error;
         }
-        if (foreign) with_applied(d, &st->committed, (long long)nearbyint(t / d->dt) - 1, applied);
+        if (foreign) lqg_with_applied(d, &st->committed, (long long)nearbyint(t / d->dt) - 1, applied);
         for (double i = 0; i < n; i++) delayed_sample(inst, m, index);
         warn_delay(inst, t, st->held_index[1], d->delay);
         return fmi2OK;

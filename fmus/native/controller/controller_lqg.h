@@ -72,6 +72,11 @@ int lqg_read_design(Instance *inst, const char *file, const char *text, Design *
 /* Steps 1-3: the posterior at j = max(k - d, 0) and the error predicted to sample k (d->design, d->delay). */
 void lqg_estimate(const LqgData *d, const LqgState *s, long long k, const double m[N_MEAS], double x_post[N_STATE],
                   double x_now[N_STATE]);
+/* The plant's reports of the torque it held (see lqg_core.c): a few are enough, a switch comes early. */
+#define LQG_N_FOREIGN 16
+int lqg_plant_applied(Instance *inst, long long k, int any_lag, double torque[2]);
+void lqg_with_applied(const LqgData *d, LqgState *s, long long sample, const double torque[2]);
+void lqg_remember(double foreign[][3], int *n, long long sample, const double torque[2]);
 /* An array of n doubles labelled `name` in a resource text, malloc'ed (NULL after logging why not). */
 double *lqg_read_array(Instance *inst, const char *file, const char *text, const char *name, size_t n);
 /* y = A x, A rows x cols with row stride `stride`, compensated sums. */

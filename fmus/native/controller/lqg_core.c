@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "controller_lqg.h"
+#include "model_vars.h"
 
 double *lqg_read_array(Instance *inst, const char *file, const char *text, const char *name, size_t n)
 {
@@ -123,3 +124,35 @@ void lqg_schedule_index(const double *times, int count, int n_steps, double dt, 
     }
 }
 
+/* The plant's report of the torque it held over sample k - 1: 1 and the torque when it was not this law's
+   (tau_lag != 0) or, with `any_lag` (up to a switch to the measured delay), whatever tau_lag says: the law before
+   the switch used those samples' measurements, the law after it has none for them. An unwired tau_lag holds 0
+   and unwired torques 0: nothing to correct, nothing to remember. */
+int lqg_plant_applied(Instance *inst, long long k, int any_lag, double torque[2])
+{
+    if (k < 1) return 0;
+    torque[0] = VALUE(inst, IDX_tau1_applied), torque[1] = VALUE(inst, IDX_tau2_applied);
+    if (VALUE(inst, IDX_tau_lag) != 0.0) return 1;
+    return any_lag && (torque[0] != 0.0 || torque[1] != 0.0);
+}
+
+/* The torque deviation the filter of state s assumes for `sample` replaced by the plant's `torque`. */
+void lqg_with_applied(const LqgData *d, LqgState *s, long long sample, const double torque[2])
+{
+    const long long row = d->delay - (s->k - 1 - sample); /* du rows 0 .. d: samples s->k - 1 - d .. s->k - 1 */
+    if (row < 0 || row > d->delay) return;
+    double nominal[2], command[2];
+    lqg_feedforward(d, sample, nominal, command);
+    s->du[row][0] = torque[0] - nominal[0], s->du[row][1] = torque[1] - nominal[1];
+}
+
+/* Keep (sample, torque) in the last LQG_N_FOREIGN reports (`*n` of them so far, oldest dropped). */
+void lqg_remember(double foreign[][3], int *n, long long sample, const double torque[2])
+{
+    if (*n == LQG_N_FOREIGN) {
+        memmove(foreign[0], foreign[1], (LQG_N_FOREIGN - 1) * sizeof foreign[0]);
+        (*n)--;
+    }
+    foreign[*n][0] = (double)sample, foreign[*n][1] = torque[0], foreign[*n][2] = torque[1];
+    (*n)++;
+}
