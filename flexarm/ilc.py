@@ -45,9 +45,10 @@ Design files
 :func:`write_learned_feedforward` writes the learned correction as a design-file pair
 (``<stem>.npz`` + ``.json``, :func:`flexarm.gain_schedule.write_design_files`) with its provenance:
 the trajectory and parameter files with their SHA-256, the gain set and schedule, the ILC weights and
-Q-filter, the trials it came from (scenario, payload, seeds, per-trial errors). The controller FMUs take
-such a file through their ``feedforward_correction_file`` parameter; :func:`read_learned_feedforward`
-reads it and checks the data chain.
+Q-filter, the trials it came from (scenario, payload, seeds, per-trial errors). A controller FMU applies
+such a file when it ships in its resources as :data:`LEARNED_RESOURCE` (with the ``.json`` beside it; packed by
+``fmu_build.learned.with_learned_feedforward``): the correction travels with the FMU, and no tool needs to set
+a String. :func:`read_learned_feedforward` reads it and checks the data chain.
 """
 
 from __future__ import annotations
@@ -88,6 +89,9 @@ MODEL_SCHEDULE = "20ms"
 #: Modes above this frequency are left out of the lifted model (the bracket modes), Hz.
 MODE_CUTOFF_HZ = 1000.0
 FILE_FORMAT = "flexarm-learned-feedforward/1"
+#: A learned correction inside a controller FMU: ``resources/<this>`` and its ``.json`` beside it (both kinds read
+#: it at every initialisation; none without the file).
+LEARNED_RESOURCE = "learned_feedforward.npz"
 #: How a learned-feedforward file is written anew (named when one is stale or unreadable).
 RELEARN_COMMAND = "python -m scenarios run ilc_payload (or the ILC scenario its .json names under 'scenario')"
 

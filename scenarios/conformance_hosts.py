@@ -245,8 +245,13 @@ def run_omsimulator(ssp: Path, folder: Path, timeout: float = 600.0) -> Trace:
     n, h = experiment(ssp)
     folder.mkdir(parents=True, exist_ok=True)
     result = folder / "omsimulator.csv"
+    # A Python FMU runs Python inside the tool's process; NumPy and SciPy must be importable there, which is what
+    # its own error message asks a user to set (docs/fmus-in-other-tools.md): this interpreter's site-packages.
+    site = str(Path(np.__file__).resolve().parent.parent)
+    path = [site, *(p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p)]
     done = subprocess.run([tool, f"--stopTime={n * h!r}", f"--stepSize={h!r}", f"--resultFile={result}",
-                           str(Path(ssp).resolve())], cwd=folder, capture_output=True, text=True, timeout=timeout)
+                           str(Path(ssp).resolve())], cwd=folder, capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, "PYTHONPATH": os.pathsep.join(path)})
     errors = [ln for ln in (done.stdout + done.stderr).splitlines() if ln.startswith("error:")]
     if done.returncode != 0 or not result.is_file():  # it exits 0 when its initialisation fails
         raise RuntimeError(f"OMSimulator exited {done.returncode} without a result file: {' / '.join(errors)[-300:]}")

@@ -4,8 +4,8 @@ A scenario file with an ``[ilc]`` table (``scenarios/ilc_payload.toml``) runs wi
 ``python -m scenarios run NAME`` (the command line hands such files here, :func:`is_ilc_scenario`):
 
 1. trial j = 0, 1, ..., ``trials`` − 1 of the ``learn_case`` runs the FMUs (plant at rest on the trajectory's
-   start, as every run; the sensors' ``noise_seed`` = ``seed_base`` + j) with the controller's
-   ``feedforward_correction_file`` set to the correction learnt so far (none in trial 0);
+   start, as every run; the sensors' ``noise_seed`` = ``seed_base`` + j) with a copy of the controller FMU that
+   carries the correction learnt so far in its resources (none in trial 0; ``fmu_build.learned``);
 2. from the *recorded sensor measurements* of the trial (encoders ``q1_m``, ``q2_m`` and strain gauges
    ``eps1_m`` .. ``eps6_m``; never the plant's states) :mod:`flexarm.ilc` computes the next correction, which
    is written as a learned-feedforward design file with its provenance;
@@ -13,8 +13,9 @@ A scenario file with an ``[ilc]`` table (``scenarios/ilc_payload.toml``) runs wi
    its last finished trial, with the correction that trial produced. A journal written with another scenario
    file, other FMUs or another commit's ILC settings is refused rather than mixed;
 4. after the last trial the ``evaluate_cases`` run without and with the final correction (a payload change);
-   ``trials.csv``, ``evaluation.json``, ``convergence.png`` and ``learned_feedforward.npz``/``.json`` are
-   written.
+   ``trials.csv``, ``evaluation.json``, ``convergence.png``, ``learned_feedforward.npz``/``.json`` and
+   ``learned_controller.fmu`` (the controller FMU with the final correction inside it: it runs in any FMI tool,
+   no file or String parameter to set) are written.
 
 The plant's true states are read only to score the trials (the metrics of the paper's tables over the slew,
 and the tip's distance to the end point), exactly as the other scenarios score theirs.
@@ -22,7 +23,9 @@ and the tip's distance to the end point), exactly as the other scenarios score t
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import shutil
 import sys
 import time
 import tomllib
@@ -32,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from flexarm.provenance import git_commit, sha256_file, write_atomic, write_json
+from fmu_build.learned import LEARNING_CONTROLLERS, takes_learned_feedforward, with_learned_feedforward
 
 from .config import SCENARIO_DIR, Scenario, ScenarioError, load_scenario
 from .metrics import table_metrics
@@ -76,7 +80,8 @@ ILC_KEYS = {
 }
 #: Tip distance to the end point that counts as arrived, m.
 TIP_TOLERANCE_M = 1e-3
-CORRECTION_PARAMETER = "feedforward_correction_file"
+#: In an ILC result folder: the controller FMU with the final correction inside it.
+LEARNED_CONTROLLER = "learned_controller.fmu"
 
 
 @dataclass
@@ -252,9 +257,9 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         ctrl = setup.driver
         if not sensors:
             raise ScenarioError(f"{scenario.path.name}: no FMU outputs the measurements {list(MEASURED)}")
-        if not any(v.name == CORRECTION_PARAMETER for v in setup.descriptions[ctrl].modelVariables):
-            raise ScenarioError(f"fmus.{ctrl}: {setup.paths[ctrl].name} has no parameter {CORRECTION_PARAMETER} "
-                                "(the learned feedforward); ILC runs need a controller that takes it")
+        if not takes_learned_feedforward(setup.descriptions[ctrl]):
+            raise ScenarioError(f"fmus.{ctrl}: {setup.paths[ctrl].name} does not read a learned feedforward; ILC "
+                                f"runs need one of our controllers that does ({', '.join(LEARNING_CONTROLLERS)})")
         record = setup.record + [(sensors[0], m) for m in MEASURED if (sensors[0], m) not in setup.record]
         traj = desired_trajectory()
         n = setup.n_steps
@@ -297,7 +302,17 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         done = len(rows)
         if done and rows[-1]["status"] != "ok":
             stopped = f"trial {done - 1}: {rows[-1]['status']} ({rows[-1].get('message', '')})"
-        m = setup.open_master(scenario.algorithm)
+        trial_fmus = folder / ".trial_fmus"  # the controller with each trial's correction (removed at the end)
+        trial_fmus.mkdir(exist_ok=True)
+
+        def open_master(correction: str):
+            """A master whose controller carries `correction` ("" : none; a copy even then, so that a
+            controller FMU that already carried one runs without it)."""
+            fmu = with_learned_feedforward(setup.paths[ctrl], Path(correction) if correction else None,
+                                           trial_fmus / setup.paths[ctrl].name)
+            return dataclasses.replace(setup, paths={**setup.paths, ctrl: fmu}).open_master(scenario.algorithm)
+
+        m = None
         try:
             learn = cases[settings.learn_case]
             if done:
@@ -308,14 +323,14 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
             for j in range(done, settings.trials if stopped is None else done):
                 stem = corrections / f"trial_{j:03d}"
                 file = f"{stem}.npz" if j else ""
-                if j:
-                    ilc.read_learned_feedforward(file)  # the correction this trial runs with (checked)
-                params = _with(learn.parameters, ctrl, {CORRECTION_PARAMETER: file})
-                params = _with(params, sensors[0], {"noise_seed": settings.seed_base + j, "noise_enabled":
+                m = open_master(file)  # checks the correction this trial runs with
+                params = _with(learn.parameters, sensors[0], {"noise_seed": settings.seed_base + j, "noise_enabled":
                                                     learn.parameters.get(sensors[0], {}).get("noise_enabled", True)})
                 t0 = time.perf_counter()
                 res = m.run(setup.case_parameters(params), record, n, scenario.step_size)
                 wall = time.perf_counter() - t0
+                m.close()
+                m = None
                 row = {"key": f"trial-{j:03d}", "trial": j, "seed": settings.seed_base + j, "status": res["status"],
                        "message": res["message"], "wall_time_s": wall, "correction_file": _relative(Path(file))
                        if file else "", "commit": commit}
@@ -342,27 +357,36 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                 write_atomic(folder / "learned_feedforward.npz", final.read_bytes())
                 write_atomic(folder / "learned_feedforward.json", (corrections / f"trial_{len(rows):03d}.json")
                              .read_bytes())
+                with_learned_feedforward(setup.paths[ctrl], folder / "learned_feedforward.npz",
+                                         folder / LEARNED_CONTROLLER)
                 n_eval = settings.evaluate_samples
                 des_eval = desired_states(traj, np.arange(n_eval + 1) * scenario.step_size)
                 for key in settings.evaluate_cases:
                     case = cases[key]
                     evaluation[key] = {}
                     for label, file in (("unlearned", ""), ("learned", str(final))):
-                        params = _with(case.parameters, ctrl, {CORRECTION_PARAMETER: file})
-                        params = _with(params, sensors[0], {"noise_seed": settings.seed_base + len(rows)})
+                        params = _with(case.parameters, sensors[0], {"noise_seed": settings.seed_base + len(rows)})
+                        m = open_master(file)
                         res = m.run(setup.case_parameters(params), record, n_eval, scenario.step_size)
+                        m.close()
+                        m = None
                         evaluation[key][label] = {"status": res["status"], "message": res["message"]}
                         if res["status"] == "ok":
                             evaluation[key][label]["metrics"] = trial_metrics(res, setup, traj, n_slew, float("nan"),
                                                                               des_eval)
         finally:
             journal.close()
-            m.close()
+            if m is not None:
+                m.close()
+            shutil.rmtree(trial_fmus, ignore_errors=True)
         summary = {"scenario": scenario.name, "scenario_sha256": sha256_file(scenario.path), "commit": commit,
                    "settings": settings.as_dict(), "fmu_kind": setup.kind,
                    "fmu_sha256": {i: sha256_file(p) for i, p in setup.paths.items()}, "data_sha256": chain,
                    "samples": n, "slew_samples": n_slew, "trials": rows, "stopped": stopped,
                    "evaluation": evaluation}
+        if evaluation:
+            summary["learned_controller"] = {"file": LEARNED_CONTROLLER,
+                                             "sha256": sha256_file(folder / LEARNED_CONTROLLER)}
         write_json(folder / "evaluation.json", portable(summary, folder))
         _write_csv(folder / "trials.csv", rows)
         if plots and rows:

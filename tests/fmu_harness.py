@@ -147,17 +147,14 @@ _BUILT: dict[str, Path] = {}
 
 
 def built_fmus() -> dict[str, Path]:
-    """Every FMU of fmu_build.FMUS, freshly built (force) into a temporary folder once per process."""
-    import atexit
-    import shutil
-    import tempfile
-
+    """Every FMU of fmu_build.FMUS in the checkout's build folder (the one ``python build_fmus.py`` and the scenarios
+    use), rebuilt where older than a source (fmu_build's up-to-date check); once per process. Issue 34: no FMU is
+    built twice in one test run, nor again after ``.ci/run`` has built them (builds are reproducible, so a forced
+    rebuild would give the same bytes). Tests copy an FMU before they change it."""
     if not _BUILT:
         from fmu_build import build_all
 
-        out = Path(tempfile.mkdtemp(prefix="flexarm_fmus_"))
-        atexit.register(shutil.rmtree, out, True)
-        _BUILT.update(build_all(out, force=True))
+        _BUILT.update(build_all())
     return dict(_BUILT)
 
 

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import atexit
 import os
 import shutil
 import subprocess
-import tempfile
 import zipfile
 from pathlib import Path
 
@@ -16,7 +14,7 @@ from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmu_harness import built_fmus
 
-from fmu_build.native_build import NATIVE_FMUS, PLATFORMS, build_native_fmus
+from fmu_build.native_build import NATIVE_FMUS, PLATFORMS
 
 ROOT = Path(__file__).resolve().parents[1]
 HOST_SOURCE = ROOT / "tests" / "native_host" / "fmi2_host.c"
@@ -25,12 +23,13 @@ _BUILT: dict[str, Path] = {}
 
 
 def native_fmus() -> dict[str, Path]:
-    """Every native FMU (all platforms), built once per test process into a temporary folder."""
+    """Every native FMU (all platforms) in the checkout's build folder, rebuilt where stale, once per test process
+    (as :func:`fmu_harness.built_fmus`)."""
     if not _BUILT:
-        out = Path(tempfile.mkdtemp(prefix="flexarm_native_"))
-        atexit.register(shutil.rmtree, out, True)
+        from fmu_build import build_native_all
+
         python = built_fmus()
-        _BUILT.update(build_native_fmus(out, {n: python[n] for n in NATIVE_FMUS}, platforms=tuple(PLATFORMS)))
+        _BUILT.update(build_native_all({n: python[n] for n in NATIVE_FMUS}))
     return dict(_BUILT)
 
 

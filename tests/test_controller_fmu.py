@@ -90,9 +90,9 @@ def test_inputs_are_the_sensor_outputs_and_outputs_the_plant_inputs(fmus):
     for unknown in md.outputs:
         assert [v.name for v in unknown.dependencies] == want[unknown.variable.name]
     assert by_name["schedule_period"].unit == "s"
-    # No String choices (issue 12): the choices are Integers listing their options in the description; the one
-    # String is a path, the learned feedforward file (issue 25, flexarm.ilc)
-    assert [v.name for v in md.modelVariables if v.type == "String"] == ["feedforward_correction_file"]
+    # No String (issues 12, 31): the choices are Integers listing their options in the description; a learned
+    # feedforward is a file in the FMU's resources (fmu_build.learned), so a tool that cannot set strings uses it
+    assert [v.name for v in md.modelVariables if v.type == "String"] == []
     for name, items, start in (("gain_set", ["gamma1", "gamma0.1", "gamma0", "eq32"], "2"),
                                ("omega7_estimate", ["tachometer", "rigid"], "1")):
         var = by_name[name]
@@ -103,6 +103,16 @@ def test_inputs_are_the_sensor_outputs_and_outputs_the_plant_inputs(fmus):
     others = {v.name for v in [*sensors.modelVariables, *plant.modelVariables]}
     assert not [v.name for v in md.modelVariables if v.causality == "parameter" and v.name in others]
     assert (float(by_name["tau1_max"].start), float(by_name["tau2_max"].start)) == (7.0, 2.25)
+
+
+def test_no_fmu_has_a_string_variable():
+    """Issue 31: a tool that cannot set strings (OMSimulator has no String connectors) uses every FMU of ours
+    fully, both kinds. A learned feedforward is a file in the controller FMU's resources, not a path parameter."""
+    from native_fmus import native_fmus
+
+    for fmu in [*built_fmus().values(), *native_fmus().values()]:
+        md = read_model_description(str(fmu))
+        assert [v.name for v in md.modelVariables if v.type == "String"] == [], fmu
 
 
 def test_docs_name_every_controller(fmus):

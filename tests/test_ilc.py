@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -282,6 +283,20 @@ def _learned_file(tmp_path, n: int):
     return u, ilc.write_learned_feedforward(tmp_path / "u", u, 1e-3, meta)
 
 
+def _carrying(fmu, tmp_path, name, npz=None, json=None):
+    """A copy of the controller FMU `fmu` with `npz` and `json` (paths, or None to leave one out) as its learned
+    correction in resources/, packed as they are (unchecked: to test what the FMU itself refuses)."""
+    from flexarm.ilc import LEARNED_RESOURCE
+
+    out = tmp_path / f"{name}_{fmu.name}"
+    shutil.copyfile(fmu, out)
+    with zipfile.ZipFile(out, "a") as z:
+        for file, suffix in ((npz, ".npz"), (json, ".json")):
+            if file is not None:
+                z.write(file, f"resources/{Path(LEARNED_RESOURCE).with_suffix(suffix)}")
+    return out
+
+
 def _torques(fmu, n, params):
     from fmu_harness import _controller_inputs
     from native_fmus import run_fmpy
@@ -291,7 +306,8 @@ def _torques(fmu, n, params):
 
 
 def test_controller_fmus_add_the_learned_correction_python_and_native_alike(tmp_path):
-    """Both kinds of controller FMU with feedforward_correction_file: the Python one equals the library law with
+    """Both kinds of controller FMU carrying a learned correction in their resources (fmu_build.learned): the Python
+    one equals the library law with
     the same correction bit for bit; the native one equals the Python one to 1e-13 N·m (their K·m products sum in
     different orders: the unlearned controllers differ by the same ~1e-14 N·m), a run past the file's end and the
     saturation included; a missing, stale or edited file (its seal broken) is refused by both."""
@@ -300,8 +316,12 @@ def test_controller_fmus_add_the_learned_correction_python_and_native_alike(tmp_
 
     n = 2200  # past the slew (2058 samples) and past the correction's 400 samples
     u, path = _learned_file(tmp_path, 400)
+    from fmu_build.learned import with_learned_feedforward
+
     py, native = built_fmus()["controller"], native_fmus()["controller"]
-    got = _torques(py, n, {"feedforward_correction_file": str(path)})
+    py_learned = with_learned_feedforward(py, path, tmp_path / "py_controller.fmu")
+    native_learned = with_learned_feedforward(native, path, tmp_path / "native_controller.fmu")
+    got = _torques(py_learned, n, {})
     law = TrackingController(DEFAULT_TRAJECTORY_FILE, "gamma0.1", feedforward_correction=u)
     keys = ("q1_m", "q2_m", "qd1_m", "qd2_m", *(f"eps{i}_m" for i in range(1, 7)))
     expect = np.array([law.torque_from_measurements(k, [_controller_inputs(k)[x] for x in keys])
@@ -309,7 +329,7 @@ def test_controller_fmus_add_the_learned_correction_python_and_native_alike(tmp_
     assert np.array_equal(got, expect)
     plain = _torques(py, n, {})
     assert not np.array_equal(plain[:400], got[:400]) and np.array_equal(plain[400:], got[400:])
-    native_got, native_plain = _torques(native, n, {"feedforward_correction_file": str(path)}), _torques(native, n, {})
+    native_got, native_plain = _torques(native_learned, n, {}), _torques(native, n, {})
     assert np.abs(native_got - got).max() <= 1e-13 and np.abs(native_plain - plain).max() <= 1e-13
     # the correction itself is applied identically: learned − unlearned agree where nothing saturates
     free = (np.abs(got) < [7.0, 2.25]).all(axis=1) & (np.abs(plain) < [7.0, 2.25]).all(axis=1)
@@ -330,10 +350,19 @@ def test_controller_fmus_add_the_learned_correction_python_and_native_alike(tmp_
         broken.append(tmp_path / f"{name}.npz")
         with pytest.raises(StaleDataError, match="json_sha256"):
             read_learned_feedforward(broken[-1])
+    with pytest.raises(StaleDataError):  # the packing refuses what the FMUs would refuse
+        with_learned_feedforward(py, stale, tmp_path / "refused.fmu")
     for fmu in (py, native):
-        for bad in (stale, tmp_path / "missing.npz", *broken):
+        carrying = [_carrying(fmu, tmp_path, "stale", stale, stale.with_suffix(".json")),
+                    _carrying(fmu, tmp_path, "no_json", path),  # one file of the pair missing
+                    _carrying(fmu, tmp_path, "no_npz", None, path.with_suffix(".json")),
+                    *(_carrying(fmu, tmp_path, b.stem, b, b.with_suffix(".json")) for b in broken)]
+        for bad in carrying:
             with pytest.raises(Exception):  # noqa: B017 - fmpy raises its own exception type for fmi2Error
-                _torques(fmu, 2, {"feedforward_correction_file": str(bad)})
+                _torques(bad, 2, {})
+        # packed again without a correction: the controller's own torques
+        assert np.array_equal(_torques(with_learned_feedforward(carrying[0], None, tmp_path / "stripped.fmu"), 5,
+                                       {}), (plain if fmu == py else native_plain)[:6])
 
 
 def test_ilc_scenario_learns_through_the_fmus_and_resumes(tmp_path):
@@ -365,6 +394,14 @@ def test_ilc_scenario_learns_through_the_fmus_and_resumes(tmp_path):
     assert page.startswith(MARKER) and f"| 2 | {rms[2]:.4f} |" in page and "Jacobi stepping" in page
     learned = ilc.read_learned_feedforward(out / "ilc_payload" / "learned_feedforward.npz")
     assert learned.metadata["trials_learned_from"] == 3 and learned.correction.shape == (400, 2)
+    # the learned controller as one self-contained FMU: the final correction inside it, its SHA-256 recorded
+    fmu = out / "ilc_payload" / second["learned_controller"]["file"]
+    from flexarm.provenance import sha256_file
+
+    assert sha256_file(fmu) == second["learned_controller"]["sha256"]
+    with zipfile.ZipFile(fmu) as z:
+        packed = z.read("resources/learned_feedforward.npz")
+    assert packed == (out / "ilc_payload" / "learned_feedforward.npz").read_bytes()
     for written in ("evaluation.json", "learned_feedforward.json"):  # no absolute path of this machine
         content = (out / "ilc_payload" / written).read_text()
         assert str(tmp_path) not in content and '"/' not in content, written
@@ -387,8 +424,8 @@ def test_ilc_scenario_learns_through_the_fmus_and_resumes(tmp_path):
 @pytest.mark.parametrize("params", [{"loop_delay_samples": 2, "integral_action": True},
                                     {"estimator": 2, "schedule_period": 0.2}], ids=["kalman-delay2-integral", "bank"])
 def test_controller_lqg_adds_the_learned_correction_python_and_native_alike(tmp_path, params):
-    """controller_lqg (both kinds) with feedforward_correction_file: the Python FMU equals the library law with
-    the same correction bit for bit (the filter's input is τ − τ_ff, the correction included); the native one
+    """controller_lqg (both kinds) carrying a learned correction in its resources: the Python FMU equals the library
+    law with the same correction bit for bit (the filter's input is τ − τ_ff, the correction included); the native one
     equals the Python one to 1e-10 of the peak torque (as without a correction, tests/test_native_lqg.py); the
     correction changes the torques; a stale file is refused by both."""
     from fmu_harness import built_fmus
@@ -400,14 +437,16 @@ def test_controller_lqg_adds_the_learned_correction_python_and_native_alike(tmp_
 
     n = 600
     u, path = _learned_file(tmp_path, 400)
+    from fmu_build.learned import with_learned_feedforward
+
     py, native = built_fmus()["controller_lqg"], native_fmus()["controller_lqg"]
-    learned = {**params, "feedforward_correction_file": str(path)}
 
     def torques(fmu, p):
         names, rows = run_fmpy(fmu, n, lqg_inputs, p)
         return np.asarray(rows)[:, [names.index("tau1"), names.index("tau2")]]
 
-    got, plain = torques(py, learned), torques(py, params)
+    got = torques(with_learned_feedforward(py, path, tmp_path / "py_lqg.fmu"), params)
+    plain = torques(py, params)
     delay = params.get("loop_delay_samples", 0)
     integral = params.get("integral_action", False)
     law = (bank_controller("gamma0.1", "200ms", delay, integral, feedforward_correction=u) if "estimator" in params
@@ -418,7 +457,7 @@ def test_controller_lqg_adds_the_learned_correction_python_and_native_alike(tmp_
         tau, state = law.step(state, k, m)
         expect.append(tau)
     assert not np.array_equal(got, plain)
-    native_got = torques(native, learned)
+    native_got = torques(with_learned_feedforward(native, path, tmp_path / "native_lqg.fmu"), params)
     assert np.abs(native_got - got).max() <= 1e-10 * np.abs(got).max()
     np.testing.assert_array_equal(got, np.array(expect))
     from flexarm.ilc import read_learned_feedforward
@@ -427,7 +466,7 @@ def test_controller_lqg_adds_the_learned_correction_python_and_native_alike(tmp_
                                           dict(read_learned_feedforward(path).metadata, trajectory_sha256="0" * 64))
     for fmu in (py, native):
         with pytest.raises(Exception):  # noqa: B017 - fmpy raises its own exception type for fmi2Error
-            torques(fmu, {**params, "feedforward_correction_file": str(stale)})
+            torques(_carrying(fmu, tmp_path, "stale", stale, stale.with_suffix(".json")), params)
 
 
 def test_an_fmu_error_in_the_middle_of_a_trial_stops_the_campaign(tmp_path, monkeypatch, capsys):

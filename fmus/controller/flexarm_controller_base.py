@@ -27,7 +27,9 @@ choices are Integer parameters whose description lists the choices
 String parameters, and no FMI Enumeration either, because libcosim 0.11
 ignores Enumeration variables. The
 trajectory (``flexarm/data/trajectory.npz``) and the gain schedules
-(``flexarm/data/gains/``) travel in the bundled ``flexarm`` package.
+(``flexarm/data/gains/``) travel in the bundled ``flexarm`` package. A learned feedforward correction
+(:mod:`flexarm.ilc`) is a file in the FMU's resources (:data:`FEEDFORWARD_CORRECTION`), not a parameter: it
+travels with the FMU, and a tool that cannot set strings runs it.
 
 Sampling (direct feedthrough, :mod:`flexarm_feedthrough`): the torques at
 communication point t_k are a pure function of the measurements present at
@@ -49,7 +51,7 @@ from flexarm_fmu_base import Var, own_data_dir, slew_experiment, variable_table
 from pythonfmu.enums import Fmi2Status
 
 from flexarm.control import PEAK_TORQUE, TrackingController
-from flexarm.ilc import read_learned_feedforward  # imported here, so the build bundles it (fmu_build traces imports)
+from flexarm.ilc import LEARNED_RESOURCE, read_learned_feedforward  # here, so the build bundles flexarm.ilc
 from flexarm.loop_index import NO_SAMPLE, index_of_time, is_placeholder, measured_delay
 from flexarm.lqg import MAX_DELAY_SAMPLES, LqgState, PredictedTracking
 from flexarm.lqr import OMEGA7_CHOICES, canonical_name, default_trajectory_path
@@ -74,8 +76,9 @@ OMEGA7_ITEMS = (
     (2, "rigid", "from both tachometers, rigid-body (qd1 + qd2 errors)"),
 )
 DEFAULT_GAIN_SET = 2  # gamma0.1
-#: String parameter: a learned feedforward correction file (:func:`flexarm.ilc.write_learned_feedforward`).
-FEEDFORWARD_CORRECTION = "feedforward_correction_file"
+#: In the FMU's resources: a learned feedforward correction (:data:`flexarm.ilc.LEARNED_RESOURCE`, written there
+#: by ``fmu_build.learned.with_learned_feedforward``), or no such file for none.
+FEEDFORWARD_CORRECTION = f"resources/{LEARNED_RESOURCE}"
 
 VARIABLES = variable_table([
     *[Var(s.name, "input", "continuous", s.unit, s.description, 0.0) for s in signals("controller", "input")],
@@ -98,10 +101,6 @@ VARIABLES = variable_table([
           depends_on=("sample_index_m",) if s.name == "loop_delay" else (),
           initial_depends_on=("sample_index_m",) if s.name == "loop_delay" else ())
       for s in signals("controller", "output", "index")],
-    # Last, so that the native twins (no Strings in their glue) leave it out without a gap in the references.
-    Var(FEEDFORWARD_CORRECTION, "parameter", "fixed", None,
-        "Learned feedforward correction: path of a flexarm.ilc design file (.npz with its .json); "
-        "empty: none", "", type="String"),
 ])
 
 
@@ -201,15 +200,21 @@ class ControllerSlave(FeedthroughSlave):
                 self.value("tau2_max"), omega7)
 
     def _correction(self) -> tuple[str, str]:
-        """The learned-feedforward file (absolute) and its SHA-256, ("", "") for none."""
-        path = self.value(FEEDFORWARD_CORRECTION)
-        if not path:
+        """The learned-feedforward file in this FMU's resources (absolute) and its SHA-256, ("", "") for none.
+
+        Read at every initialisation (the SHA-256 keys the cached law): a file, not a String parameter, so that
+        a tool that cannot set strings runs the learned controller, and the correction travels with the FMU.
+        """
+        if not self.resources:
+            return ("", "")
+        path = Path(self.resources) / LEARNED_RESOURCE
+        if not path.is_file() and not path.with_suffix(".json").is_file():
             return ("", "")
         from flexarm.provenance import sha256_file
 
-        if not Path(path).is_file():
-            raise ValueError(f"{FEEDFORWARD_CORRECTION}: no file {path!r}")
-        return (str(Path(path).resolve()), sha256_file(path))
+        if not path.is_file():
+            raise ValueError(f"{FEEDFORWARD_CORRECTION}: missing beside its .json")
+        return (str(path.resolve()), sha256_file(path))
 
     def _law_key(self) -> tuple:
         return (*self._config(), self._correction())
@@ -223,9 +228,9 @@ class ControllerSlave(FeedthroughSlave):
         try:
             self.law = _tracking_controller(own_data_dir(self.resources), self.MODE, *key)
         except (ValueError, OSError) as exc:
+            learned = f", {FEEDFORWARD_CORRECTION}" if key[-1][0] else ""
             raise ValueError(f"gain_set = {self.value('gain_set')!r}, schedule_period = "
-                             f"{self.value('schedule_period')!r} s, {FEEDFORWARD_CORRECTION} = "
-                             f"{self.value(FEEDFORWARD_CORRECTION)!r}: {exc}") from None
+                             f"{self.value('schedule_period')!r} s{learned}: {exc}") from None
         self._key = key
 
     def evaluate(self) -> np.ndarray:
@@ -235,9 +240,12 @@ class ControllerSlave(FeedthroughSlave):
         k = self.law.sample_index(self.time)
         index = self._values[self._index_vr]
         # a master's placeholder (fmpy's first step: no index, all zero) is no measurement of q = 0: no feedback
-        tau = self.law.feedforward(k) if is_placeholder(index, x) else self.law.torque_from_measurements(k, x)
-        if is_placeholder(index, x) and self.law.saturation is not None:
-            tau = np.minimum(np.maximum(tau, -self.law.saturation), self.law.saturation)
+        if not is_placeholder(index, x):
+            tau = self.law.torque_from_measurements(k, x)
+        else:
+            tau = self.law.feedforward(k)
+            if self.law.saturation is not None:
+                tau = np.minimum(np.maximum(tau, -self.law.saturation), self.law.saturation)
         return np.concatenate([tau, self.index_outputs(k, index, 0)])
 
     @property

@@ -9,9 +9,9 @@ schedule point, :mod:`flexarm.lqg`; 2 ``payload_bank``: a bank of filters, one
 per payload mass, :mod:`flexarm.lqg_bank`, 200 ms schedule only). ``gain_set``
 names the LQR weights (their discrete-time design);
 ``omega7`` / ``omega7_estimate`` is accepted and not used (the Kalman filter
-estimates every velocity). ``feedforward_correction_file`` (String, as the
-other controllers): a learned feedforward correction (:mod:`flexarm.ilc`),
-added to the feedforward; the filter's input includes it. The law: :mod:`flexarm.lqg`; the design files:
+estimates every velocity). A learned feedforward correction (:mod:`flexarm.ilc`) in the FMU's
+``resources/learned_feedforward.npz``, as in the other controllers, is added to the feedforward; the filter's
+input includes it. The law: :mod:`flexarm.lqg`; the design files:
 ``flexarm/data/lqg/`` (:mod:`flexarm.lqg_design`).
 
 The controller has a state (the filter's estimate, the torques sent, the
@@ -88,7 +88,7 @@ class FlexarmControllerLQG(ControllerSlave):
     """Feedforward + LQG (Kalman filter on the ten measurements, discrete LQR of the ``gain_set`` weights)."""
 
     VARIABLES = variable_table([
-        *[v for v in VARIABLES if v.name != FEEDFORWARD_CORRECTION],  # last here too (value references kept)
+        *VARIABLES,
         Var("loop_delay_samples", "parameter", "fixed", None,
             "Samples between the plant state measured and the sample whose torques use it; the estimator "
             "predicts across them. -1 (automatic, the start value): measured from the sample indices "
@@ -104,7 +104,6 @@ class FlexarmControllerLQG(ControllerSlave):
         Var("estimator", "parameter", "fixed", None,
             "State estimator: one Kalman filter (kalman) or a bank of filters, one per payload mass (payload_bank)",
             DEFAULT_ESTIMATOR, 1, len(ESTIMATOR_ITEMS), type="Integer", choices=ESTIMATOR_ITEMS),
-        *[v for v in VARIABLES if v.name == FEEDFORWARD_CORRECTION],
     ])
     DISCRETE = True
     description = "Sandia two-link flexible arm: feedforward + discrete-time LQG controller (Kalman filter, " \
@@ -140,8 +139,8 @@ class FlexarmControllerLQG(ControllerSlave):
         except (ValueError, OSError) as exc:
             raise ValueError(f"gain_set = {self.value('gain_set')!r}, schedule_period = "
                              f"{self.value('schedule_period')!r} s, loop_delay_samples = "
-                             f"{self.value('loop_delay_samples')!r}, estimator = {self.value('estimator')!r}, "
-                             f"{FEEDFORWARD_CORRECTION} = {self.value(FEEDFORWARD_CORRECTION)!r}: {exc}") from None
+                             f"{self.value('loop_delay_samples')!r}, estimator = {self.value('estimator')!r}"
+                             f"{', ' + FEEDFORWARD_CORRECTION if key[-1][0] else ''}: {exc}") from None
         self._key, self.delay = key, delay
 
     def setup(self) -> None:

@@ -118,7 +118,7 @@ static long find_var(fmi2ValueReference vr)
 
 static const char *type_name(VarType t)
 {
-    static const char *const names[] = {"Real", "Integer", "Boolean", "Enumeration", "String"};
+    static const char *const names[] = {"Real", "Integer", "Boolean", "Enumeration"};
     return names[t];
 }
 
@@ -131,19 +131,8 @@ static void range_text(const VarInfo *v, char *buf, size_t size)
     else snprintf(buf, size, "[%.17g, %.17g]", v->min, v->max);
 }
 
-static void free_strings(Instance *inst)
-{
-    for (size_t i = 0; inst->strings != NULL && i < MODEL_INFO.n_vars; i++) free(inst->strings[i]), inst->strings[i] = NULL;
-}
-
-const char *glue_string(const Instance *inst, size_t index)
-{
-    return index < MODEL_INFO.n_vars && inst->strings[index] != NULL ? inst->strings[index] : "";
-}
-
 static void reset_values(Instance *inst)
 {
-    free_strings(inst); /* every String starts as "" */
     memcpy(inst->values, inst->starts, MODEL_INFO.n_vars * sizeof *inst->values);
     memset(inst->invalid, 0, MODEL_INFO.n_vars);
     memset(inst->state, 0, MODEL_INFO.state_size ? MODEL_INFO.state_size : 1);
@@ -273,8 +262,8 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     inst->invalid = calloc(MODEL_INFO.n_vars, 1);
     inst->state = calloc(1, MODEL_INFO.state_size ? MODEL_INFO.state_size : 1);
     inst->starts = calloc(MODEL_INFO.n_vars, sizeof *inst->starts);
-    inst->strings = calloc(MODEL_INFO.n_vars, sizeof *inst->strings);
-    int ok = inst->values && inst->invalid && inst->state && inst->starts && inst->strings;
+    inst->resource_dir = glue_resource_dir(fmuResourceLocation);
+    int ok = inst->values && inst->invalid && inst->state && inst->starts;
     for (size_t i = 0; ok && i < MODEL_INFO.n_vars; i++) inst->starts[i] = MODEL_INFO.vars[i].start;
     if (ok && fmuType != fmi2CoSimulation) {
         glue_log(inst, fmi2Error, "fmi2Instantiate: %s is a co-simulation FMU only (fmuType must be "
@@ -294,7 +283,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     }
     if (!ok) {
         free(inst->values), free(inst->invalid), free(inst->state), free(inst->starts), free(inst->name);
-        free(inst->strings);
+        free(inst->resource_dir);
         inst->magic = 0;
         free(inst);
         return NULL;
@@ -313,9 +302,8 @@ void fmi2FreeInstance(fmi2Component c)
     for (void *snap; (snap = live_take_owned(&glue_live_states, inst)) != NULL;) glue_free_snapshot(snap);
     if (MODEL_INFO.unload != NULL) MODEL_INFO.unload(inst);
     inst->magic = 0;
-    free_strings(inst);
     free(inst->values), free(inst->invalid), free(inst->state), free(inst->starts), free(inst->name);
-    free(inst->strings);
+    free(inst->resource_dir);
     free(inst);
 }
 
@@ -436,24 +424,26 @@ fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
     return s;
 }
 
-fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[])
+/* No variable of these FMUs is a String (a tool that cannot set strings uses them fully), yet FMI 2.0 requires the
+   functions: an empty call is fine, any value reference refused, naming it. */
+static fmi2Status no_strings(fmi2Component c, int access, const char *function, const fmi2ValueReference vr[],
+                             size_t nvr, const void *value)
 {
-    Instance *inst = admit_as(c, F_GET, "fmi2GetString");
+    Instance *inst = admit_as(c, access, function);
     if (inst == NULL) return fmi2Error;
-    if (nvr > 0 && (vr == NULL || value == NULL)) {
-        glue_log(inst, fmi2Error, "fmi2GetString: vr[] and value[] must not be NULL");
+    if (nvr == 0) return fmi2OK;
+    if (vr == NULL || value == NULL) {
+        glue_log(inst, fmi2Error, "%s: vr[] and value[] must not be NULL", function);
         return fmi2Error;
     }
-    for (size_t k = 0; k < nvr; k++) {
-        long i = find_var(vr[k]);
-        if (i < 0 || MODEL_INFO.vars[i].type != VT_STRING) {
-            glue_log(inst, fmi2Error, "fmi2GetString: value reference %u: %s", (unsigned)vr[k],
-                     i < 0 ? "no such variable" : "not a String variable");
-            return fmi2Error;
-        }
-    }
-    for (size_t k = 0; k < nvr; k++) value[k] = glue_string(inst, (size_t)find_var(vr[k]));
-    return fmi2OK;
+    glue_log(inst, fmi2Error, "%s: value reference %u: %s", function, (unsigned)vr[0],
+             find_var(vr[0]) < 0 ? "no such variable" : "not a String variable (this FMU has none)");
+    return fmi2Error;
+}
+
+fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[])
+{
+    return no_strings(c, F_GET, "fmi2GetString", vr, nvr, value);
 }
 
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[])
@@ -486,39 +476,7 @@ fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
 
 fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[])
 {
-    Instance *inst = admit_as(c, F_SET, "fmi2SetString");
-    if (inst == NULL) return fmi2Error;
-    if (nvr > 0 && (vr == NULL || value == NULL)) {
-        glue_log(inst, fmi2Error, "fmi2SetString: vr[] and value[] must not be NULL");
-        return fmi2Error;
-    }
-    for (size_t k = 0; k < nvr; k++) { /* every value checked before any is applied */
-        long i = find_var(vr[k]);
-        if (i < 0 || MODEL_INFO.vars[i].type != VT_STRING) {
-            glue_log(inst, fmi2Error, "fmi2SetString: value reference %u: %s", (unsigned)vr[k],
-                     i < 0 ? "no such variable" : "not a String variable (this FMU's Strings are parameters)");
-            return fmi2Error;
-        }
-        if (inst->fmi_state > S_INIT) {
-            glue_log(inst, fmi2Error, "%s: a fixed parameter can be set only before fmi2ExitInitializationMode",
-                     MODEL_INFO.vars[i].name);
-            return fmi2Error;
-        }
-        if (value[k] == NULL) {
-            glue_log(inst, fmi2Error, "%s: NULL is no String value (use \"\")", MODEL_INFO.vars[i].name);
-            return fmi2Error;
-        }
-    }
-    for (size_t k = 0; k < nvr; k++) {
-        long i = find_var(vr[k]);
-        char *copy = malloc(strlen(value[k]) + 1);
-        if (copy == NULL) return fmi2Error;
-        strcpy(copy, value[k]);
-        free(inst->strings[i]);
-        inst->strings[i] = copy;
-        inst->outputs_stale = 1;
-    }
-    return fmi2OK;
+    return no_strings(c, F_SET, "fmi2SetString", vr, nvr, value);
 }
 
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[], size_t nUnknown,

@@ -9,8 +9,9 @@
  * callbacks of ModelInfo; it never sees an FMI call directly.
  *
  * Values live in one double per variable (Integer, Enumeration and Boolean as
- * whole numbers), indexed by the variable's position in the table; String
- * parameters (start "") in a string per variable beside them (glue_string).
+ * whole numbers), indexed by the variable's position in the table. No FMU has
+ * a String variable: a file a model may read (a learned correction) lies in
+ * its resources folder (glue_resource_file).
  */
 #ifndef FLEXARM_FMI2_GLUE_H
 #define FLEXARM_FMI2_GLUE_H
@@ -20,7 +21,7 @@
 #include "fmi2Functions.h"
 #include "libm_link.h" /* libm's functions through libm_link.c: the sources build and load without libm */
 
-typedef enum { VT_REAL, VT_INTEGER, VT_BOOLEAN, VT_ENUMERATION, VT_STRING } VarType;
+typedef enum { VT_REAL, VT_INTEGER, VT_BOOLEAN, VT_ENUMERATION } VarType;
 typedef enum { CA_PARAMETER, CA_INPUT, CA_OUTPUT } Causality;
 
 typedef struct {
@@ -76,7 +77,7 @@ typedef struct Instance {
     void *state;            /* model state, ModelInfo.state_size bytes */
     void *data;             /* model constants from the resources (not part of the FMU state) */
     double *starts;         /* start values: the table's, or a case's (glue_load_start_values) */
-    char **strings;         /* String parameters' values (NULL: "", the start of every String), one per variable */
+    char *resource_dir;     /* the resources folder's local path (NULL: the URI was no file:// URI) */
 } Instance;
 
 extern const ModelInfo MODEL_INFO;
@@ -88,8 +89,11 @@ void glue_log(const Instance *inst, fmi2Status status, const char *fmt, ...)
 #endif
     ;
 
-/* The value of String variable `index` ("" until set; fixed parameters: set before initialisation ends). */
-const char *glue_string(const Instance *inst, size_t index);
+/* The local path of the file `name` in the FMU's resources folder (malloc'ed), NULL without a folder. */
+char *glue_resource_file(const Instance *inst, const char *name);
+
+/* The local path of a file:// resources URI (malloc'ed), NULL for anything else. */
+char *glue_resource_dir(const char *uri);
 
 /* Value of variable `index` (position in MODEL_INFO.vars). */
 #define VALUE(inst, index) ((inst)->values[(index)])

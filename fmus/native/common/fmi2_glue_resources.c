@@ -24,6 +24,7 @@ static int hex_digit(char ch)
 static char *uri_to_path(const char *uri)
 {
     const char *p;
+    if (uri == NULL) return NULL;
     if (strncmp(uri, "file://localhost/", 17) == 0) p = uri + 16;
     else if (strncmp(uri, "file:///", 8) == 0) p = uri + 7;
     else if (strncmp(uri, "file:/", 6) == 0) p = uri + 5;
@@ -41,6 +42,21 @@ static char *uri_to_path(const char *uri)
     if (out[0] == '/' && out[1] && out[2] == ':') memmove(out, out + 1, strlen(out)); /* /C:/dir -> C:/dir */
 #endif
     return out;
+}
+
+char *glue_resource_dir(const char *uri)
+{
+    return uri_to_path(uri);
+}
+
+char *glue_resource_file(const Instance *inst, const char *name)
+{
+    const char *dir = inst->resource_dir;
+    if (dir == NULL) return NULL;
+    size_t n = strlen(dir) + strlen(name) + 2;
+    char *path = malloc(n);
+    if (path != NULL) snprintf(path, n, "%s%s%s", dir, dir[0] && dir[strlen(dir) - 1] == '/' ? "" : "/", name);
+    return path;
 }
 
 char *glue_read_file(const char *path, size_t *size)

@@ -13,8 +13,8 @@
  * (0/1) and the gains resource (continuous or discrete-time designs). Trajectory, estimators and gains are
  * resources (SHA-256 checked).
  *
- * A learned feedforward correction (flexarm.ilc) is read at initialisation from the String parameter
- * feedforward_correction_file (learned_ff.c; checked against TRAJECTORY_SHA256 and PARAMETER_SHA256 of
+ * A learned feedforward correction (flexarm.ilc) is read at initialisation from the FMU's resources
+ * (learned_ff.c, LEARNED_FF_RESOURCE; checked against TRAJECTORY_SHA256 and PARAMETER_SHA256 of
  * learned_ff_data.h, the files this FMU was built from). Row k is added to the feedforward of sample k (k < m).
  *
  * The loop delay (docs/control.md, "The loop measures its own delay"; flexarm_controller_base.ControllerSlave):
@@ -179,18 +179,19 @@ fail:
     return -1;
 }
 
-/* Read feedforward_correction_file into d->correction ("" : none); fmi2Error naming the file and the reason. */
+/* Read the learned correction in the resources into d->correction (none without the file); fmi2Error naming the
+   file and the reason. */
 static fmi2Status load_correction(Instance *inst)
 {
     ControllerData *d = inst->data;
     free(d->correction), d->correction = NULL, d->n_correction = 0;
-    const char *path = glue_string(inst, IDX_feedforward_correction_file);
-    if (path[0] == '\0') return fmi2OK;
-    if (!CONTROLLER_FEEDFORWARD) {
-        glue_log(inst, fmi2Error, "feedforward_correction_file: this controller has no feedforward to correct");
+    fmi2Status status = learned_ff_load(inst, TRAJECTORY_SHA256, PARAMETER_SHA256, &d->correction, &d->n_correction);
+    if (status == fmi2OK && d->correction != NULL && !CONTROLLER_FEEDFORWARD) {
+        glue_log(inst, fmi2Error, "resources/%s: this controller has no feedforward to correct", LEARNED_FF_RESOURCE);
+        free(d->correction), d->correction = NULL, d->n_correction = 0;
         return fmi2Error;
     }
-    return learned_ff_load(inst, path, TRAJECTORY_SHA256, PARAMETER_SHA256, &d->correction, &d->n_correction);
+    return status;
 }
 
 static int schedule_of(double period)
@@ -272,15 +273,6 @@ static void feedforward(const ControllerData *d, long k, double tau[2])
 #endif
 }
 
-static void set_outputs(Instance *inst, const double tau[2], const double index[3])
-{
-    VALUE(inst, IDX_tau1) = tau[0];
-    VALUE(inst, IDX_tau2) = tau[1];
-    VALUE(inst, IDX_tau_index) = index[0];
-    VALUE(inst, IDX_loop_delay) = index[1];
-    VALUE(inst, IDX_loop_delay_assumed) = index[2];
-}
-
 static fmi2Status controller_sample(Instance *inst)
 {
     ControllerData *d = inst->data;
@@ -288,7 +280,7 @@ static fmi2Status controller_sample(Instance *inst)
     fmi2Status status = configure(inst);
     if (status != fmi2OK) return status;
     if (st->delay > 0) { /* predicting over a measured delay: the torques computed at the last fmi2DoStep */
-        set_outputs(inst, st->held, st->held_index);
+        lqg_set_outputs(inst, st->held, st->held_index);
         return fmi2OK;
     }
     long k = lround(inst->time / d->dt);
@@ -314,7 +306,7 @@ static fmi2Status controller_sample(Instance *inst)
     for (int i = 0; i < 2; i++) tau[i] = fmin(fmax(tau[i], -limit[i]), limit[i]);
     const double out[3] = {loop_index_of_time((double)k * d->dt), /* the torques' sample */
                            loop_measured_delay((double)k, index), 0.0}; /* the paper's law: no delay */
-    set_outputs(inst, tau, out);
+    lqg_set_outputs(inst, tau, out);
     return fmi2OK;
 }
 
@@ -360,7 +352,7 @@ static void delayed_sample(Instance *inst, const double *m_present, double index
     st->held_index[0] = loop_index_of_time((double)k * d->dt);
     st->held_index[1] = loop_measured_delay((double)k, index);
     st->held_index[2] = (double)st->delay;
-    set_outputs(inst, st->held, st->held_index);
+    lqg_set_outputs(inst, st->held, st->held_index);
 }
 
 /* From fmi2DoStep(t_k) on, predict over `delay` without feedthrough: samples 0 .. k again from the trajectory

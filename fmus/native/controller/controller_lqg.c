@@ -7,7 +7,7 @@
  *   2. measurement update:   x_post = x + M (dm - C x),  dm = m - y_d(c(j))
  *   3. predictor to k:       x_now = x_post, then x_now = Phi x_now + Gamma du_i for the torques sent at j .. k-1
  *   4. torque:               tau = sat(tau_ff(k) + u(k) - K x_now - K_xi xi)    (tau_ff = 0 after the slew; u the
- *                            learned correction of feedforward_correction_file, learned_ff.c; zero without)
+ *                            learned correction in resources/learned_feedforward.npz, learned_ff.c; zero without)
  *   5. integral action:      xi += dt C_q x_now, only in a sample whose torque does not saturate (anti-windup)
  * The torque deviations tau - tau_ff of the last d + 1 samples (the correction included) are kept for steps 1, 3.
  *
@@ -214,15 +214,6 @@ static void index_outputs(Instance *inst, long long k, double index, int assumed
     out[2] = (double)assumed;
 }
 
-static void set_outputs(Instance *inst, const double tau[2], const double index[3])
-{
-    VALUE(inst, IDX_tau1) = tau[0];
-    VALUE(inst, IDX_tau2) = tau[1];
-    VALUE(inst, IDX_tau_index) = index[0];
-    VALUE(inst, IDX_loop_delay) = index[1];
-    VALUE(inst, IDX_loop_delay_assumed) = index[2];
-}
-
 /* d > 0: run sample committed.k from the measurements m carrying `index` and hold its torques. Before sample d
    there is no measurement (y_d(0)); m NULL or a master's placeholder is none either (y_d of the plant's sample). */
 static void delayed_sample(Instance *inst, const double *m_present, double index)
@@ -239,7 +230,7 @@ static void delayed_sample(Instance *inst, const double *m_present, double index
     law_step(d, &st->committed, k, m, limit, st->held, &next);
     st->committed = next;
     index_outputs(inst, k, index, d->delay, st->held_index);
-    set_outputs(inst, st->held, st->held_index);
+    lqg_set_outputs(inst, st->held, st->held_index);
 }
 
 static fmi2Status lqg_sample(Instance *inst)
@@ -249,7 +240,7 @@ static fmi2Status lqg_sample(Instance *inst)
     fmi2Status status = configure(inst);
     if (status != fmi2OK) return status;
     if (d->delay > 0) { /* no feedthrough: the torques held since the last step */
-        set_outputs(inst, st->held, st->held_index);
+        lqg_set_outputs(inst, st->held, st->held_index);
         return fmi2OK;
     }
     double t = inst->time;
@@ -274,7 +265,7 @@ static fmi2Status lqg_sample(Instance *inst)
     if (lqg_plant_applied(inst, (long long)k, 0, applied)) lqg_with_applied(d, &base, (long long)k - 1, applied);
     law_step(d, &base, (long long)k, used, limit, tau, &st->pending);
     index_outputs(inst, (long long)k, index, 0, out);
-    set_outputs(inst, tau, out);
+    lqg_set_outputs(inst, tau, out);
     return fmi2OK;
 }
 
@@ -285,8 +276,7 @@ static fmi2Status lqg_initialize(Instance *inst)
     fmi2Status status = configure(inst);
     if (status != fmi2OK) return status;
     free(d->correction), d->correction = NULL, d->n_correction = 0;
-    status = learned_ff_load(inst, glue_string(inst, IDX_feedforward_correction_file), TRAJECTORY_SHA256,
-                             PARAMETER_SHA256, &d->correction, &d->n_correction);
+    status = learned_ff_load(inst, TRAJECTORY_SHA256, PARAMETER_SHA256, &d->correction, &d->n_correction);
     if (status != fmi2OK) return status;
     memset(st, 0, sizeof *st); /* on the trajectory, nothing sent, integrators empty; automatic: delay 0 */
     status = configure(inst);

@@ -77,6 +77,8 @@ void lqg_estimate(const LqgData *d, const LqgState *s, long long k, const double
 int lqg_plant_applied(Instance *inst, long long k, int any_lag, double torque[2]);
 void lqg_with_applied(const LqgData *d, LqgState *s, long long sample, const double torque[2]);
 void lqg_remember(double foreign[][3], int *n, long long sample, const double torque[2]);
+/* The controller's outputs: the torques and the index outputs (tau_index, loop_delay, loop_delay_assumed). */
+void lqg_set_outputs(Instance *inst, const double tau[2], const double index[3]);
 /* An array of n doubles labelled `name` in a resource text, malloc'ed (NULL after logging why not). */
 double *lqg_read_array(Instance *inst, const char *file, const char *text, const char *name, size_t n);
 /* y = A x, A rows x cols with row stride `stride`, compensated sums. */

@@ -1,7 +1,8 @@
 /*
  * The learned feedforward correction of the controller FMUs (flexarm.ilc design files), read at initialisation
- * from the String parameter feedforward_correction_file: the .npz (numpy savez, stored, array correction of shape
- * (m, 2), little-endian doubles) and its .json beside it, which must record the npz's SHA-256 and the SHA-256 of
+ * from the FMU's resources (LEARNED_FF_RESOURCE, flexarm.ilc.LEARNED_RESOURCE, packed by
+ * fmu_build/learned.py): the .npz (numpy savez, stored, array correction of shape (m, 2), little-endian doubles)
+ * and its .json beside it, which must record the npz's SHA-256 and the SHA-256 of
  * the trajectory and parameter files the FMU was built from, and whose own seal (json_sha256, the SHA-256 of the
  * .json's bytes with the seal written as 64 zeros, flexarm.provenance.sealed_json_text) must hold: a stale or
  * edited file is refused, as flexarm.ilc.read_learned_feedforward refuses it. Shared by controller.c and
@@ -14,6 +15,7 @@
 
 #include "fmi2_glue.h"
 #include "learned_ff.h"
+#include "learned_ff_data.h"
 #include "sha256.h"
 
 /* The string value of "key": "value" in a JSON text into out (size 80); 0 if found. */
@@ -80,7 +82,7 @@ static int npz_correction(Instance *inst, const char *path, const unsigned char 
             memcmp(h + 30, member, name_len) != 0)
             continue;
         if (read_u16(h + 8) != 0) {
-            glue_log(inst, fmi2Error, "feedforward_correction_file: %s: correction.npy is compressed (write it with "
+            glue_log(inst, fmi2Error, "%s: correction.npy is compressed (write it with "
                      "flexarm.ilc.write_learned_feedforward, which stores it)", path);
             return -1;
         }
@@ -99,7 +101,7 @@ static int npz_correction(Instance *inst, const char *path, const unsigned char 
         if (strstr(header, "'descr': '<f8'") == NULL || strstr(header, "'fortran_order': False") == NULL ||
             shape == NULL || sscanf(shape, "'shape': (%ld, %ld)", &m, &cols) != 2 || cols != 2 || m < 1 ||
             start + (size_t)m * 2 * sizeof(double) > size) {
-            glue_log(inst, fmi2Error, "feedforward_correction_file: %s: correction must be little-endian doubles of "
+            glue_log(inst, fmi2Error, "%s: correction must be little-endian doubles of "
                      "shape (m, 2), C order (header: %s)", path, header);
             return -1;
         }
@@ -108,61 +110,65 @@ static int npz_correction(Instance *inst, const char *path, const unsigned char 
         memcpy(*out, zip + start, (size_t)m * 2 * sizeof(double)); /* every target of these FMUs is little-endian */
         for (long i = 0; i < 2 * m; i++)
             if (!isfinite((*out)[i])) {
-                glue_log(inst, fmi2Error, "feedforward_correction_file: %s: correction has a non-finite value", path);
+                glue_log(inst, fmi2Error, "%s: correction has a non-finite value", path);
                 free(*out), *out = NULL;
                 return -1;
             }
         *rows = m;
         return 0;
     }
-    glue_log(inst, fmi2Error, "feedforward_correction_file: %s: no stored member correction.npy (not a learned "
+    glue_log(inst, fmi2Error, "%s: no stored member correction.npy (not a learned "
              "feedforward file of flexarm.ilc)", path);
     return -1;
 }
 
-fmi2Status learned_ff_load(Instance *inst, const char *path, const char *trajectory_sha256,
-                           const char *parameter_sha256, double **correction, long *rows)
+fmi2Status learned_ff_load(Instance *inst, const char *trajectory_sha256, const char *parameter_sha256,
+                           double **correction, long *rows)
 {
     *correction = NULL, *rows = 0;
-    if (path[0] == '\0') return fmi2OK;
+    char *path = glue_resource_file(inst, LEARNED_FF_RESOURCE);
+    if (path == NULL) return fmi2OK; /* no resources folder: nothing learned */
     size_t n = strlen(path), size = 0, json_size = 0;
-    if (n < 5 || strcmp(path + n - 4, ".npz") != 0) {
-        glue_log(inst, fmi2Error, "feedforward_correction_file: %s: expected the .npz of a learned feedforward file",
-                 path);
+    char *json_path = malloc(n + 2);
+    if (json_path == NULL) {
+        free(path);
         return fmi2Error;
     }
-    char *json_path = malloc(n + 2);
-    if (json_path == NULL) return fmi2Error;
-    memcpy(json_path, path, n - 4);
+    memcpy(json_path, path, n - 4); /* LEARNED_FF_RESOURCE ends in .npz */
     strcpy(json_path + n - 4, ".json");
     char *zip = glue_read_file(path, &size), *json = glue_read_file(json_path, &json_size);
     fmi2Status status = fmi2Error;
     char digest[65], recorded[80];
+    if (zip == NULL && json == NULL) {
+        status = fmi2OK; /* this FMU carries no learned correction */
+        goto done;
+    }
     if (zip == NULL || json == NULL) {
-        glue_log(inst, fmi2Error, "feedforward_correction_file: cannot read %s", zip == NULL ? path : json_path);
+        glue_log(inst, fmi2Error, "%s: cannot be read (a learned correction is the .npz with its .json beside it)",
+                 zip == NULL ? path : json_path);
         goto done;
     }
     if (memchr(json, '\0', json_size) != NULL || json_seal_holds(json, json_size) != 0) {
-        glue_log(inst, fmi2Error, "feedforward_correction_file: %s: its seal (json_sha256, the SHA-256 of its own "
+        glue_log(inst, fmi2Error, "%s: its seal (json_sha256, the SHA-256 of its own "
                  "bytes) is missing or does not match: edited or corrupt (learn it again)", json_path);
         goto done;
     }
     sha256_hex((const unsigned char *)zip, size, digest);
     if (json_string(json, "format", recorded) || strcmp(recorded, "flexarm-learned-feedforward/1") != 0 ||
         json_string(json, "npz_sha256", recorded) || strcmp(recorded, digest) != 0) {
-        glue_log(inst, fmi2Error, "feedforward_correction_file: %s differs from the SHA-256 recorded in %s (or that "
+        glue_log(inst, fmi2Error, "%s differs from the SHA-256 recorded in %s (or that "
                  "is no learned-feedforward file)", path, json_path);
         goto done;
     }
     if (json_string(json, "trajectory_sha256", recorded) || strcmp(recorded, trajectory_sha256) != 0 ||
         json_string(json, "parameter_sha256", recorded) || strcmp(recorded, parameter_sha256) != 0) {
-        glue_log(inst, fmi2Error, "feedforward_correction_file: %s is stale: it was learnt on other trajectory or "
+        glue_log(inst, fmi2Error, "%s is stale: it was learnt on other trajectory or "
                  "parameter files than this FMU was built from (learn it again)", path);
         goto done;
     }
     if (npz_correction(inst, path, (const unsigned char *)zip, size, correction, rows) == 0)
         status = fmi2OK;
 done:
-    free(zip), free(json), free(json_path);
+    free(zip), free(json), free(json_path), free(path);
     return status;
 }

@@ -147,6 +147,15 @@ void lqg_with_applied(const LqgData *d, LqgState *s, long long sample, const dou
 }
 
 /* Keep (sample, torque) in the last LQG_N_FOREIGN reports (`*n` of them so far, oldest dropped). */
+void lqg_set_outputs(Instance *inst, const double tau[2], const double index[3])
+{
+    VALUE(inst, IDX_tau1) = tau[0];
+    VALUE(inst, IDX_tau2) = tau[1];
+    VALUE(inst, IDX_tau_index) = index[0];
+    VALUE(inst, IDX_loop_delay) = index[1];
+    VALUE(inst, IDX_loop_delay_assumed) = index[2];
+}
+
 void lqg_remember(double foreign[][3], int *n, long long sample, const double torque[2])
 {
     if (*n == LQG_N_FOREIGN) {
