@@ -13,7 +13,7 @@ import os
 import zipfile
 from pathlib import Path
 
-from flexarm.ilc import LEARNED_RESOURCE, read_learned_feedforward
+from flexarm.learned_feedforward import LEARNED_RESOURCE, read_learned_feedforward
 
 #: Model identifiers of our controllers that add a learned correction to a feedforward (controller_fb has none).
 LEARNING_CONTROLLERS = ("FlexarmController", "FlexarmControllerFF", "FlexarmControllerDLQR", "FlexarmControllerLQG")

@@ -387,7 +387,7 @@ def write_reference_resource(path: Path) -> None:
 def _write_learned_ff_data(path: Path, name: str) -> None:
     """learned_ff_data.h: the SHA-256 of the trajectory and parameter files a controller FMU is built from, which a
     learned feedforward file must have been learnt on (its .json records them; flexarm.ilc, learned_ff.c)."""
-    from flexarm.ilc import LEARNED_RESOURCE
+    from flexarm.learned_feedforward import LEARNED_RESOURCE
     from flexarm.parameters import DEFAULT_PARAMETER_FILE
     from flexarm.trajectory.io import DEFAULT_TRAJECTORY_FILE
 

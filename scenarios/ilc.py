@@ -35,7 +35,6 @@ from pathlib import Path
 import numpy as np
 
 from flexarm.provenance import git_commit, sha256_file, write_atomic, write_json
-from fmu_build.learned import LEARNING_CONTROLLERS, takes_learned_feedforward, with_learned_feedforward
 
 from .config import SCENARIO_DIR, Scenario, ScenarioError, load_scenario
 from .metrics import table_metrics
@@ -239,6 +238,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
     """
     from flexarm import ilc
     from flexarm.control import PEAK_TORQUE
+    from fmu_build.learned import LEARNING_CONTROLLERS, takes_learned_feedforward, with_learned_feedforward
 
     scenario, settings = load_ilc(name)
     if trials is not None:

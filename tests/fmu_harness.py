@@ -226,3 +226,25 @@ def extract_ssp_fmus(ssp, folder) -> dict[str, str]:
             target.write_bytes(zf.read(comp.get("source")))
             names[comp.get("name")] = str(target)
     return names
+
+
+_PD_IN_DO_STEP: list[Path] = []
+
+
+def pd_in_do_step_fmu() -> Path:
+    """tests/pd_in_do_step.py built with pythonfmu (a stranger's PD + feedforward, torques computed in do_step),
+    once per test process into a temporary folder."""
+    import atexit
+    import shutil
+    import subprocess
+    import sys
+    import tempfile
+
+    if not _PD_IN_DO_STEP:
+        root = Path(__file__).resolve().parents[1]
+        out = Path(tempfile.mkdtemp(prefix="flexarm_pd_"))
+        atexit.register(shutil.rmtree, out, True)
+        subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f", str(root / "tests" / "pd_in_do_step.py"),
+                        "-d", str(out)], check=True, capture_output=True, text=True, cwd=root)
+        _PD_IN_DO_STEP.append(out / "PDInDoStep.fmu")
+    return _PD_IN_DO_STEP[0]

@@ -7,7 +7,6 @@ import json
 import re
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +16,6 @@ from native_fmus import native_fmus
 
 from scenarios.score import baseline, battery
 
-ROOT = Path(__file__).resolve().parents[1]
 #: The same native binaries on the same inputs give the same bits; 1e-6 leaves room for a libm that rounds
 #: differently on another CPU (the runs go through exp/sin/cos), amplified at most e^6.4 (the fastest growth of a
 #: diverging baseline run, e-folds over the run) -- far below the page's 4 significant digits.
@@ -72,11 +70,11 @@ def test_score_of_the_shipped_lqr_equals_the_baseline():
 
 
 @pytest.fixture(scope="module")
-def pd_fmu(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("pd")
-    subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f", str(ROOT / "tests" / "pd_in_do_step.py"),
-                    "-d", str(out)], check=True, capture_output=True, text=True, cwd=ROOT)
-    return out / "PDInDoStep.fmu"
+def pd_fmu() -> Path:
+    """tests/pd_in_do_step.py built with pythonfmu (once per test process, shared with tests/test_verdict.py)."""
+    from fmu_harness import pd_in_do_step_fmu
+
+    return pd_in_do_step_fmu()
 
 
 def test_a_good_pd_is_stable_and_its_metrics_are_those_of_run(pd_fmu, tmp_path):

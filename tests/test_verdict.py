@@ -4,8 +4,6 @@ runs: an unstable PD is "diverging" with its growth rate, Table 2's cases and a 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +11,6 @@ import pytest
 
 from scenarios import verdict as V
 
-ROOT = Path(__file__).resolve().parents[1]
 T = np.arange(2059) * 1e-3  # a table run: 2.058 s at 1 ms
 LIMITS = (7.0, 2.25)
 #: The arm's closed-loop oscillations in the unstable runs measured are at 5-15 Hz; 8 Hz here.
@@ -85,12 +82,11 @@ def test_envelope_takes_the_largest_magnitude_over_columns_per_window():
 
 
 @pytest.fixture(scope="module")
-def pd_fmu(tmp_path_factory) -> Path:
-    """tests/pd_in_do_step.py built with pythonfmu: PD + feedforward, torques computed in do_step."""
-    out = tmp_path_factory.mktemp("pd")
-    subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f", str(ROOT / "tests" / "pd_in_do_step.py"),
-                    "-d", str(out)], check=True, capture_output=True, text=True, cwd=ROOT)
-    return out / "PDInDoStep.fmu"
+def pd_fmu() -> Path:
+    """tests/pd_in_do_step.py built with pythonfmu (once per test process, shared with tests/test_score.py)."""
+    from fmu_harness import pd_in_do_step_fmu
+
+    return pd_in_do_step_fmu()
 
 
 def test_unstable_pd_is_diverging_with_its_growth_rate_and_a_good_pd_is_ok(pd_fmu, tmp_path, capsys):

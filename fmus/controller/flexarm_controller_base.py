@@ -51,7 +51,7 @@ from flexarm_fmu_base import Var, own_data_dir, slew_experiment, variable_table
 from pythonfmu.enums import Fmi2Status
 
 from flexarm.control import PEAK_TORQUE, TrackingController
-from flexarm.ilc import LEARNED_RESOURCE, read_learned_feedforward  # here, so the build bundles flexarm.ilc
+from flexarm.learned_feedforward import LEARNED_RESOURCE, read_learned_feedforward
 from flexarm.loop_index import NO_SAMPLE, index_of_time, is_placeholder, measured_delay
 from flexarm.lqg import MAX_DELAY_SAMPLES, LqgState, PredictedTracking
 from flexarm.lqr import OMEGA7_CHOICES, canonical_name, default_trajectory_path

@@ -51,7 +51,7 @@ from flexarm_feedthrough import whole_samples
 from flexarm_fmu_base import Var, pin_module_namespace, variable_table
 from pythonfmu.enums import Fmi2Status
 
-from flexarm.ilc import read_learned_feedforward
+from flexarm.learned_feedforward import read_learned_feedforward
 from flexarm.loop_index import AUTOMATIC, NO_SAMPLE, is_placeholder, measured_delay, received_index
 from flexarm.lqg import MAX_DELAY_SAMPLES, LqgController, lqg_controller
 from flexarm.lqg_bank import BANK_SCHEDULES, BankController, bank_controller
