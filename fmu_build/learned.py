@@ -15,18 +15,10 @@ from pathlib import Path
 
 from flexarm.learned_feedforward import LEARNED_RESOURCE, read_learned_feedforward
 
+from .package import ZIP_DATE
+
 #: Model identifiers of our controllers that add a learned correction to a feedforward (controller_fb has none).
 LEARNING_CONTROLLERS = ("FlexarmController", "FlexarmControllerFF", "FlexarmControllerDLQR", "FlexarmControllerLQG")
-
-_ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # fixed timestamps: the same inputs give the same archive
-
-
-def takes_learned_feedforward(description) -> bool:
-    """Whether an FMU (its fmpy model description) is one of our controllers that reads a learned correction."""
-    tool = description.generationTool or ""
-    ours = tool.startswith("PythonFMU") or tool.startswith("flexarm-fmi native build")
-    identifier = description.coSimulation.modelIdentifier if description.coSimulation else None
-    return ours and identifier in LEARNING_CONTROLLERS
 
 
 def with_learned_feedforward(fmu: Path, correction: Path | None, out: Path) -> Path:
@@ -60,7 +52,7 @@ def with_learned_feedforward(fmu: Path, correction: Path | None, out: Path) -> P
             if info.filename not in ours:
                 dst.writestr(info, src.read(info))
         for suffix in (".npz", ".json") if stem is not None else ():
-            info = zipfile.ZipInfo(f"resources/{Path(LEARNED_RESOURCE).with_suffix(suffix)}", date_time=_ZIP_DATE)
+            info = zipfile.ZipInfo(f"resources/{Path(LEARNED_RESOURCE).with_suffix(suffix)}", date_time=ZIP_DATE)
             info.external_attr = 0o644 << 16
             info.compress_type = zipfile.ZIP_DEFLATED
             dst.writestr(info, stem.with_suffix(suffix).read_bytes())

@@ -74,7 +74,8 @@ FMU_OPTIONS = {
     "canGetAndSetFMUstate": True,
     "canSerializeFMUstate": True,
 }
-_ZIP_DATE = (2024, 1, 1, 0, 0, 0)
+#: Every member's timestamp in the archives we write: the same inputs give the same bytes.
+ZIP_DATE = (2024, 1, 1, 0, 0, 0)
 #: pythonfmu writes a time-based GUID and the build's date and time: two builds of the same sources would differ in
 #: every byte that carries them (the description, the front end the GUID is compiled into, the documentation).
 _GUID_ATTR = re.compile(r'\sguid="([^"]*)"')
@@ -398,7 +399,7 @@ def finish_fmu(raw_fmu: Path, dest: Path, spec: FmuSpec, peers: dict[str, dict],
         page = render_documentation(spec.name, md, peers)
         with zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as out:
             def put(name: str, data: bytes, mode: int = 0o644) -> None:
-                info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
+                info = zipfile.ZipInfo(name, date_time=ZIP_DATE)
                 info.external_attr = mode << 16
                 out.writestr(info, data, zipfile.ZIP_DEFLATED)
 

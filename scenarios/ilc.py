@@ -47,6 +47,7 @@ from .runner import (
     _relative,
     desired_states,
     desired_trajectory,
+    fmu_kind,
     prepare,
     verify_data_chain,
 )
@@ -238,7 +239,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
     """
     from flexarm import ilc
     from flexarm.control import PEAK_TORQUE
-    from fmu_build.learned import LEARNING_CONTROLLERS, takes_learned_feedforward, with_learned_feedforward
+    from fmu_build.learned import LEARNING_CONTROLLERS, with_learned_feedforward
 
     scenario, settings = load_ilc(name)
     if trials is not None:
@@ -257,7 +258,8 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         ctrl = setup.driver
         if not sensors:
             raise ScenarioError(f"{scenario.path.name}: no FMU outputs the measurements {list(MEASURED)}")
-        if not takes_learned_feedforward(setup.descriptions[ctrl]):
+        md = setup.descriptions[ctrl]
+        if fmu_kind(md) == "other" or md.coSimulation.modelIdentifier not in LEARNING_CONTROLLERS:
             raise ScenarioError(f"fmus.{ctrl}: {setup.paths[ctrl].name} does not read a learned feedforward; ILC "
                                 f"runs need one of our controllers that does ({', '.join(LEARNING_CONTROLLERS)})")
         record = setup.record + [(sensors[0], m) for m in MEASURED if (sensors[0], m) not in setup.record]

@@ -556,3 +556,18 @@ def test_an_ilc_scenario_refuses_the_options_it_would_not_honour(tmp_path, capsy
     err = capsys.readouterr().err
     assert code == EXIT_REFUSED == 2 and named in err and "learns the feedforward of its own controller" in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_an_ilc_scenario_refuses_a_controller_that_reads_no_learned_feedforward(tmp_path):
+    """controller_fb has no feedforward to correct: the ILC run is refused before any trial, naming the FMU and
+    the controllers that learn, rather than learning a correction nobody applies."""
+    from scenarios.config import ScenarioError
+    from scenarios.ilc import run_ilc
+
+    text = SCENARIO.read_text().replace('controller = "controller"', 'controller = "controller_fb"', 1)
+    scen = tmp_path / "ilc_fb.toml"
+    scen.write_text(text.replace("samples = 3058", "samples = 10"))
+    with pytest.raises(ScenarioError, match=r"controller_fb\.fmu does not read a learned feedforward.*"
+                                             r"FlexarmControllerLQG"):
+        run_ilc(scen, tmp_path / "out", plots=False, progress=lambda s: None)
+    assert not (tmp_path / "out" / "ilc_payload" / "journal.jsonl").exists()
