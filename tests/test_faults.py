@@ -447,6 +447,32 @@ def test_sweep_disk_full_closes_the_cluster_and_does_not_hang(tmp_path):
     assert "Traceback" not in proc.stderr
 
 
+def test_a_cancellation_in_dask_shutdown_is_not_logged_but_a_real_error_is():
+    """What the disk-full sweep printed under load in CI: a nanny's unregister, cancelled by our closing."""
+    import asyncio
+    import io
+    import logging
+
+    from scenarios.sweep import worker
+
+    stream = io.StringIO()
+    handler = logging.StreamHandler(stream)  # where Dask's records go: its own handler, or the host's root one
+    dask_log = logging.getLogger("distributed")
+    dask_log.addHandler(handler)
+    try:
+        worker._quiet_cancellations()
+        log = logging.getLogger("distributed.nanny")
+        for exc in (asyncio.CancelledError(), RuntimeError("worker lost")):
+            try:
+                raise exc
+            except BaseException:  # noqa: BLE001 - logged as Dask's log_errors does
+                log.exception("in _on_worker_exit")
+    finally:
+        dask_log.removeHandler(handler)
+    text = stream.getvalue()
+    assert text.count("Traceback") == 1 and "RuntimeError: worker lost" in text and "CancelledError" not in text
+
+
 def test_unpacked_fmus_of_a_killed_run_are_removed_by_the_next_one(tmp_path, table2_setup):
     env = {**os.environ, fmu_files.UNPACK_ENV: str(tmp_path),
            "FLEXARM_FMU_DIR": str(table2_setup.paths["plant"].parent)}

@@ -9,6 +9,8 @@ A point's record carries the run's typed outcome (:class:`scenarios.master.Outco
 
 from __future__ import annotations
 
+import asyncio
+import logging
 import os
 import socket
 import tempfile
@@ -201,6 +203,7 @@ def local_cluster(n_workers: int | None = None, allowed_failures: int = 1):
     import dask
     from distributed import LocalCluster
 
+    _quiet_cancellations()
     with dask.config.set({"distributed.scheduler.allowed-failures": allowed_failures,
                           "distributed.scheduler.worker-saturation": 1.0,
                           # the statistical profiler takes the GIL every 10 ms from the running co-simulation
@@ -213,6 +216,34 @@ def local_cluster(n_workers: int | None = None, allowed_failures: int = 1):
 #: is shorter than a busy machine takes to finalise a process that loaded NumPy, SciPy, Numba and the FMUs:
 #: its nanny then kills it with a warning).
 WORKER_EXIT_TIMEOUT_S = 30.0
+
+
+class _DropCancellations(logging.Filter):
+    """Drop Dask's log records of a cancelled coroutine (e.g. a nanny's unregister cut short by our closing).
+
+    Closing the cluster cancels what is still pending; under load a nanny can be half-way through telling the
+    scheduler that its worker exited, and Dask logs that cancellation as an ERROR with a traceback (issue 35:
+    a user saw a traceback after a one-line "disk full" message). A cancellation is not an error of the sweep;
+    every other record (a worker killed, a point lost) still reaches the user.
+    """
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        return not isinstance(exc, asyncio.CancelledError)
+
+
+_DROP_CANCELLATIONS = _DropCancellations()
+
+
+def _quiet_cancellations() -> None:
+    # On the handlers that Dask's records reach (its own, or the root's when a host configured logging first):
+    # a logger's own filters do not see the records its children propagate to it.
+    log: logging.Logger | None = logging.getLogger("distributed")
+    while log is not None:
+        for handler in log.handlers:
+            if _DROP_CANCELLATIONS not in handler.filters:
+                handler.addFilter(_DROP_CANCELLATIONS)
+        log = log.parent if log.propagate else None
 
 
 def close_local_cluster(cluster, timeout: float = WORKER_EXIT_TIMEOUT_S) -> None:
