@@ -9,10 +9,12 @@ tables' tracking errors beside the delay-free run:
 * ``delayed``: the law on the measurement of a - d, with sample a's feedforward and desired values;
 * ``model prediction``: the reconstructed error of a - d (eqs. 21-31, the nine unmeasured velocities taken as
   0) carried to a by the linearised model along the slew (the LQG design's Phi, Gamma) with the torques sent;
-* ``Kalman predictor``: the LQG design's Kalman filter and predictor to a, fed to the paper's reduced gains K(t_a)
-  (flexarm.lqg.PredictedTracking: what controller.fmu does in a Jacobi master).
+* ``Kalman predictor``: the LQG design's Kalman filter and predictor to a, and the paper's law on the measurement it
+  predicts for a, K(t_a) E C x_a (flexarm.lqg.PredictedTracking: what controller.fmu does in a Jacobi master);
+* ``filter state``: the paper's reduced gains on the filter's whole predicted state, K(t_a) x_a (what
+  controller.fmu did before: the filter's angles and unmeasured velocities are not the reconstruction's).
 
-    python benchmarks/study_paper_law_delay.py [--delay 2] [--payload 0.275]
+    python benchmarks/study_paper_law_delay.py [--delay 2] [--payload 0.275] [--gain-set gamma0] [--noise-seeds 5]
 
 The acceptance of issue 31 asks every master to give the Gauss-Seidel figures within 5 % or 0.005 deg
 (0.05 deg/s).
@@ -28,7 +30,7 @@ from flexarm.control import TrackingController, tracking_errors
 from flexarm.gain_schedule import GainSchedule
 from flexarm.integrator import PlantSimulator
 from flexarm.lqg import PredictedTracking
-from flexarm.lqg_design import LqgDesign
+from flexarm.lqg_design import LqgDesign, measurement_covariance
 from flexarm.lqr import default_trajectory_path
 from flexarm.model import ArmModel, joint_angles, joint_velocities, strain_gauge_angles
 from flexarm.parameters import load_parameters
@@ -39,19 +41,29 @@ def measurements(z: np.ndarray) -> np.ndarray:
     return np.concatenate([joint_angles(th), joint_velocities(om), strain_gauge_angles(th)])
 
 
-def run(law: TrackingController, design: LqgDesign, model: ArmModel, how: str, d: int) -> dict[str, float]:
+def run(law: TrackingController, design: LqgDesign, model: ArmModel, how: str, d: int,
+        noise_seed: int | None = None) -> dict[str, float]:
     n = law.n_steps
+    # the paper's uniform sensor noise (+-a per channel, the committed sensor file), seeded; None: noise-free
+    rng = None if noise_seed is None else np.random.default_rng(noise_seed)
+    half = np.sqrt(3.0 * np.diag(measurement_covariance()))
     plant = PlantSimulator(model, law.z[0])
-    predictor = PredictedTracking(law, design, d) if how == "Kalman predictor" else None
+    predictor = PredictedTracking(law, design, d) if how in ("Kalman predictor", "filter state") else None
     state = None if predictor is None else predictor.initial_state()
     measured, states, held = [], [plant.z.copy()], {}
     for a in range(n):
-        measured.append(measurements(plant.z))
+        measured.append(measurements(plant.z) + (0.0 if rng is None else rng.uniform(-half, half)))
         j = a - d
         if how == "no delay":
             tau = law.torque_from_measurements(a, measured[a])
-        elif predictor is not None:  # what controller.fmu does in a Jacobi master
+        elif how == "Kalman predictor":  # what controller.fmu does in a Jacobi master
             tau, state = predictor.step(state, a, measured[j] if j >= 0 else predictor.desired_measurement(0))
+        elif predictor is not None:  # "filter state"
+            x_post, x_now = predictor.filter.estimate(state, a, measured[j] if j >= 0 else
+                                                      predictor.desired_measurement(0))
+            tau = np.clip(law.feedforward(a) - law.gain(a) @ x_now, -law.saturation, law.saturation)
+            du = np.vstack([state.du[1:], tau - predictor.filter.feedforward(a)])
+            state = type(state)(a + 1, x_post, du, state.xi, True)
         else:
             error = law._estimator @ measured[max(j, 0)] - law._x_hat_d[max(j, 0)]
             if how == "model prediction":
@@ -69,15 +81,25 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--delay", type=int, default=2, help="loop delay, samples (default 2)")
     ap.add_argument("--payload", type=float, default=0.0, help="tip payload the law does not know, kg")
+    ap.add_argument("--gain-set", default="gamma0.1", help="gamma1 (Table 1), gamma0.1 (Table 2), gamma0 (Table 3)")
+    ap.add_argument("--noise-seeds", type=int, default=0,
+                    help="also run the delay-free law and the Kalman predictor under the paper's sensor noise with "
+                         "seeds 1..N: how far apart two noise realisations put one loop's figures")
     args = ap.parse_args()
-    law = TrackingController(default_trajectory_path(), GainSchedule.load("gamma0.1", "200ms"))
+    law = TrackingController(default_trajectory_path(), GainSchedule.load(args.gain_set, "200ms"))
     design = LqgDesign.load("200ms")
     model = ArmModel(load_parameters().with_payload(args.payload)) if args.payload else ArmModel(load_parameters())
-    print(f"Table 2 law, gamma = 0.1, 200 ms schedule, payload {args.payload} kg, loop delay {args.delay} samples")
-    print(f"{'':18} {'rms pos, deg':>13} {'rms vel, deg/s':>15} {'peak pos, deg':>14}")
-    for how in ("no delay", "delayed", "model prediction", "Kalman predictor"):
+    print(f"the paper's law, {args.gain_set}, 200 ms schedule, payload {args.payload} kg, loop delay {args.delay} "
+          "samples")
+    print(f"{'':26} {'rms pos, deg':>13} {'rms vel, deg/s':>15} {'peak pos, deg':>14}")
+    for how in ("no delay", "delayed", "model prediction", "Kalman predictor", "filter state"):
         r = run(law, design, model, how, 0 if how == "no delay" else args.delay)
-        print(f"{how:18} {r['pos_rms']:13.5g} {r['vel_rms']:15.5g} {r['pos_peak']:14.5g}", flush=True)
+        print(f"{how:26} {r['pos_rms']:13.5g} {r['vel_rms']:15.5g} {r['pos_peak']:14.5g}", flush=True)
+    for seed in range(1, args.noise_seeds + 1):
+        for how in ("no delay", "Kalman predictor"):
+            r = run(law, design, model, how, 0 if how == "no delay" else args.delay, seed)
+            label = f"{how}, noise {seed}"
+            print(f"{label:26} {r['pos_rms']:13.5g} {r['vel_rms']:15.5g} {r['pos_peak']:14.5g}", flush=True)
 
 
 if __name__ == "__main__":

@@ -165,6 +165,13 @@ class TrackingController:
             return np.zeros((2, 2 * N))
         return self._gains[self._gain_index[self._clamped(k)]]
 
+    def gain_per_measurement(self, k: int) -> np.ndarray:
+        """The reduced gain in force at sample k on the ten measurements, K(k) E, shape (2, 10): the law's feedback
+        is ``gain_per_measurement(k) @ (m − m_d(k))`` (zeros in mode ``"ff"``)."""
+        if self.schedule is None or self.mode == "ff":
+            return np.zeros((2, 10))
+        return self._gains_per_measurement[self._gain_index[self._clamped(k)]]
+
     def error_estimate(self, k: int, q, qdot, strain) -> np.ndarray:
         """x̂ − x̂_d at sample k from the sensor values, shape (22,).
 

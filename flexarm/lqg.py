@@ -253,10 +253,13 @@ class PredictedTracking:
     measurement of the sample it computes; in a Jacobi master that measurement is d samples old, and the stiff
     γ = 0.1 loop goes unstable on it. Here the LQG design's Kalman filter of the same schedule takes the
     measurement of sample k − d and predicts the error state to sample k with the torques actually sent
-    (:meth:`LqgController.estimate`, the linearised model along the slew), and the paper's reduced gain in force
-    at k acts on the prediction: τ_k = sat(τ_ff(k) − K(t_k) x̂_k). Feedforward, gains, saturation and the learned
-    correction are the paper law's; with d = 0 use that law itself. What it gives against the delay-free law:
-    ``benchmarks/study_paper_law_delay.py``.
+    (:meth:`LqgController.estimate`, the linearised model along the slew). The paper's law then runs on the
+    measurement that prediction gives for sample k, m_d(k) + C x̂_k: its own reconstruction (eqs. 21-31, E) and its
+    reduced gain in force at k, τ_k = sat(τ_ff(k) − K(t_k) E C x̂_k), the loop a Gauss-Seidel master runs with
+    the true measurement. (The reduced gain on the filter's whole state, K(t_k) x̂_k, is a different loop: the filter's
+    eleven angles and nine velocities are not the reconstruction's, and it doubled the rms velocity error.)
+    Feedforward, gains, saturation and the learned correction are the paper law's; with d = 0 use that law itself.
+    What it gives against the delay-free law: ``benchmarks/study_paper_law_delay.py``.
 
     Parameters
     ----------
@@ -301,7 +304,8 @@ class PredictedTracking:
         """
         m = check_sample_input(state.k, k, measurements)
         x_post, x_now = self.filter.estimate(state, k, m)
-        tau = self.law.feedforward(k) - self.law.gain(k) @ x_now
+        # the paper's law on the measurement predicted for k, m_d(k) + C x̂_k: its reconstruction, its gains
+        tau = self.law.feedforward(k) - self.law.gain_per_measurement(k) @ (self.filter.design.C @ x_now)
         if self.law.saturation is not None:
             tau = np.minimum(np.maximum(tau, -self.law.saturation), self.law.saturation)
         du = np.vstack([state.du[1:], tau - self.filter.feedforward(k)])  # about the nominal feedforward

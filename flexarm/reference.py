@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from .control import TrackingController
-from .model import N, joint_angles, joint_velocities
+from .model import JOINT2_PAIR, N
 from .signals import names
 
 #: The reference FMU's outputs, in order (signal catalogue, fmu "reference").
@@ -89,18 +89,19 @@ class ReferenceSignals:
         law = TrackingController(trajectory, None, mode="ff", saturation=None)  # the controllers' sampling
         self.dt, self.n_steps = law.dt, law.n_steps
         self._law = law
-        tip = np.asarray(law.trajectory.tip, dtype=float)
-        rows = []
-        for k in range(self.n_steps + 1):
-            z = law.desired_state(k)
-            theta, omega = z[:N], z[N:]
-            q, qd, tau = joint_angles(theta), joint_velocities(omega), law.feedforward(k)
-            values = {**{f"theta_ref{i + 1}": theta[i] for i in range(N)},
-                      **{f"omega_ref{i + 1}": omega[i] for i in range(N)},
-                      "q1_ref": q[0], "q2_ref": q[1], "qd1_ref": qd[0], "qd2_ref": qd[1],
-                      "tau1_ff": tau[0], "tau2_ff": tau[1], "tip_x_ref": tip[k, 0], "tip_y_ref": tip[k, 1],
-                      "progress": k / self.n_steps}
-            rows.append([values[name] for name in REFERENCE_OUTPUTS])
+        n = self.n_steps
+        z = np.array([law.desired_state(k) for k in range(n + 1)])
+        theta, omega = z[:, :N], z[:, N:]
+        # the motor angles and rates of every row at once (joint_angles is a difference of two elements)
+        q, qd = (np.column_stack([x[:, 0], x[:, JOINT2_PAIR[1]] - x[:, JOINT2_PAIR[0]]]) for x in (theta, omega))
+        tau = np.array([law.feedforward(k) for k in range(n + 1)])
+        tip = np.asarray(law.trajectory.tip, dtype=float)[: n + 1]
+        columns = {**{f"theta_ref{i + 1}": theta[:, i] for i in range(N)},
+                   **{f"omega_ref{i + 1}": omega[:, i] for i in range(N)},
+                   "q1_ref": q[:, 0], "q2_ref": q[:, 1], "qd1_ref": qd[:, 0], "qd2_ref": qd[:, 1],
+                   "tau1_ff": tau[:, 0], "tau2_ff": tau[:, 1], "tip_x_ref": tip[:, 0], "tip_y_ref": tip[:, 1],
+                   "progress": np.arange(n + 1) / n}
+        rows = np.column_stack([columns[name] for name in REFERENCE_OUTPUTS])
         self.table = np.array(rows, dtype=float)
         self.table.setflags(write=False)
 

@@ -466,12 +466,13 @@ def predicted_loop_growth(gain_name: str, schedule: str, damping_ratio: float, p
                           integrator: str = "exact", substeps: int = 2, delay: int = 2) -> dict:
     """As :func:`lqg_loop_growth` for the paper's law predicting over `delay` samples (a Jacobi master: the law
     measures the delay; :class:`flexarm.lqg.PredictedTracking`): the LQG design's filter and predictor of the
-    schedule, the paper's reduced gain (:meth:`flexarm.lqr.GainSchedule.reduced_gains`) on the prediction."""
+    schedule, the paper's law on the predicted measurement: its reduced gain on its reconstruction of it
+    (:func:`flexarm.lqr.effective_gain`, K E C)."""
     from flexarm.lqg_design import LqgDesign
-    from flexarm.lqr import GainSchedule
+    from flexarm.lqr import GainSchedule, effective_gain
 
-    reduced = GainSchedule.load(gain_name, schedule).reduced_gains()
-    return _filtered_loop_growth(LqgDesign.load(schedule), lambda i, n: (reduced[i], None), damping_ratio,
+    on_prediction = effective_gain(GainSchedule.load(gain_name, schedule).gains)
+    return _filtered_loop_growth(LqgDesign.load(schedule), lambda i, n: (on_prediction[i], None), damping_ratio,
                                  payload_mass, integrator, substeps, delay)
 
 

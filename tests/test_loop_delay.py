@@ -93,14 +93,18 @@ def test_a_contradicting_explicit_delay_is_warned_in_the_log_and_the_json(kind_f
 def test_the_papers_controller_predicts_over_a_jacobi_masters_delay(kind_fmus):
     """The paper's law measures the delay and predicts over it (flexarm.lqg.PredictedTracking): in a Jacobi master
     its rms position error is its Gauss-Seidel figure within the issue's tolerance (2.25 deg without the
-    prediction: the loop goes unstable). Its rms velocity error is not (the filter's bracket modes are not the
-    reconstruction's): bounded here at three times the Gauss-Seidel figure, twice being what it gives."""
+    prediction: the loop goes unstable). Its rms velocity error: the Gauss-Seidel figure + 12.6 % (0.957 against
+    0.850 deg/s; the law before, the reduced gain on the filter's whole state, gave + 106 %). Of it, + 6.0 % is the
+    filter's prediction over 2 ms (the library loop gives 0.901: tests/test_predicted_tracking.py), the rest the
+    first sample: its torque comes from a measurement of sample 0 taken as current (a master without
+    initialisation exchanges hands over one without index there, which the law cannot tell from an unwired index:
+    docs/control.md). Bounded at + 15 %."""
     gs = run(kind_fmus, "table2", "none", "gauss-seidel")
     jacobi = run(kind_fmus, "table2", "none", "jacobi")
     assert np.array_equal(gs["loop_delay_assumed"], np.zeros(len(gs["tau"])))  # the paper's law, no delay
     ref = gs["metrics"]["rms_position_error"]
     assert abs(jacobi["metrics"]["rms_position_error"] - ref) <= tolerance(ref), (jacobi["metrics"], ref)
-    assert jacobi["metrics"]["rms_velocity_error"] < 3.0 * gs["metrics"]["rms_velocity_error"]
+    assert jacobi["metrics"]["rms_velocity_error"] < 1.15 * gs["metrics"]["rms_velocity_error"]
     assert np.array_equal(jacobi["loop_delay_assumed"][2:], np.full(len(jacobi["tau"]) - 2, 2.0))
     assert np.array_equal(jacobi["loop_delay"][3:], np.full(len(jacobi["tau"]) - 3, 2.0))
     for out in (gs, jacobi):

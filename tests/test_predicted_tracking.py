@@ -2,8 +2,8 @@
 
 A Jacobi master at 1 ms with separate sensors and controller FMUs puts two samples between the measurement and
 the sample its torque is held over. The paper's γ = 0.1 law fed the two-samples-old reconstruction goes unstable;
-predicting the error state over the delay with the LQG design's Kalman filter and feeding the paper's gains brings
-the rms position error back within issue 31's tolerance (5 % or 0.005 deg) of the delay-free figure.
+predicting the measurement over the delay with the LQG design's Kalman filter and running the paper's law on it
+brings the rms position error back within issue 31's tolerance (5 % or 0.005 deg) of the delay-free figure.
 """
 
 from __future__ import annotations
@@ -53,8 +53,10 @@ def test_prediction_brings_the_delayed_law_back_to_its_delay_free_position_error
     # issue 31's tolerance on the rms position error (deg): 5 % or 0.005 deg, whichever is larger
     assert abs(pred["pos_rms"] - free["pos_rms"]) <= max(0.05 * free["pos_rms"], 0.005), (pred, free)
     assert stale["pos_rms"] > 100 * free["pos_rms"]  # without it: unstable, degrees of error
-    # the velocity error is not given back (the filter's bracket modes are not the reconstruction's): about 2x
-    assert pred["vel_rms"] < 3 * free["vel_rms"]
+    # the paper's law on the predicted measurement is the Gauss-Seidel loop up to the prediction's error over 2 ms
+    # (the model linearised at 11 points of the slew): +6.0 % rms velocity error measured; the filter's whole state
+    # on the reduced gain (the law before) gave +91 %
+    assert abs(pred["vel_rms"] - free["vel_rms"]) <= 0.10 * free["vel_rms"], (pred, free)
 
 
 def test_prediction_refuses_what_it_cannot_do(law):

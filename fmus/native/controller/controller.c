@@ -312,17 +312,19 @@ static fmi2Status controller_sample(Instance *inst)
 
 #if CONTROLLER_FEEDBACK
 /* One sample of the predicting law (flexarm.lqg.PredictedTracking.step): x_k from the measurement of k - d, then
-   tau = sat(tau_ff(k) - K(t_k) x_k); `next` the state after it. */
+   the paper's law on the measurement predicted for k, tau = sat(tau_ff(k) - K(t_k) E C x_k); `next` the state
+   after it. */
 static void predicted_step(Instance *inst, const LqgState *s, long long k, const double m[N_MEAS], double tau[2],
                            LqgState *next)
 {
     ControllerData *d = inst->data;
     const int dl = d->lqg.delay;
-    double x_post[N_STATE], x_now[N_STATE], kx[2], nominal[2], command[2];
+    double x_post[N_STATE], x_now[N_STATE], dy[N_MEAS], kx[2], nominal[2], command[2];
     lqg_estimate(&d->lqg, s, k, m, x_post, x_now);
     const long kc = k < d->n_steps ? (long)k : d->n_steps;
     feedforward(d, (long)k, tau);
-    lqg_mat_vec(d->schedule->gains + (size_t)d->gain_index[kc] * 2 * N_STATE, 2, N_STATE, N_STATE, x_now, kx);
+    lqg_mat_vec(d->lqg.c, N_MEAS, N_STATE, N_STATE, x_now, dy); /* the predicted measurement's deviation */
+    lqg_mat_vec(d->gain_per_meas + (size_t)d->gain_index[kc] * 2 * N_MEAS, 2, N_MEAS, N_MEAS, dy, kx); /* K E */
     const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
     for (int r = 0; r < 2; r++) tau[r] = fmin(fmax(tau[r] - kx[r], -limit[r]), limit[r]);
     lqg_feedforward(&d->lqg, k, nominal, command); /* the filter's input: the deviation from the nominal */
