@@ -79,6 +79,11 @@ MOTOR_TORQUE_SIGMA = 0.02
 ELEMENT_FORCE_SIGMA = 0.002
 #: Weight of the two integrated joint-angle errors (rad·s)², integral action.
 INTEGRAL_WEIGHT = 1.0e6
+#: State weight of the end point's hold (issue 32 item 4), whatever the gain set: angles 1e4 (the paper's 10 ×
+#: 1000), rates 1, R the paper's. After the slew the paper's weights leave a slow, lightly damped servo pair (the
+#: tip creeps for seconds); with the filter's full state this weight makes the hold settle within about a second
+#: with hold torques far inside the limits (poles and settling times: docs/findings.md, bounds: tests/test_lqg.py).
+HOLD_STATE_WEIGHT = np.diag(np.r_[np.full(N, 1.0e4), np.full(N, 1.0)])
 #: Measurement names, in the order of C's rows and the controllers' inputs.
 MEASUREMENTS = ("q1", "q2", "qd1", "qd2", "eps1", "eps2", "eps3", "eps4", "eps5", "eps6")
 
@@ -204,7 +209,7 @@ class LqgPoint:
 
 def design_point(model: ArmModel, z_bar, tau_bar, V, tip_force_sigma: float, dt: float = 1e-3,
                  integral_weight: float = INTEGRAL_WEIGHT, motor_torque_sigma: float = MOTOR_TORQUE_SIGMA,
-                 element_force_sigma: float = ELEMENT_FORCE_SIGMA) -> LqgPoint:
+                 element_force_sigma: float = ELEMENT_FORCE_SIGMA, state_weights=None) -> LqgPoint:
     """LQG design at one operating point (module docstring).
 
     Parameters
@@ -226,6 +231,9 @@ def design_point(model: ArmModel, z_bar, tau_bar, V, tip_force_sigma: float, dt:
         Standard deviation of the motor torque error per joint, N·m.
     element_force_sigma : float
         Standard deviation of the model-error generalised force on every element, N·m.
+    state_weights : sequence of ndarray, shape (22, 22), optional
+        One Q per :data:`flexarm.gain_sets.WEIGHT_NAMES` entry; default their own weights (the end point's hold
+        passes :data:`HOLD_STATE_WEIGHT` for every name).
     """
     A, B = model.linearize(z_bar, tau_bar)
     B_d, kinds = force_input_matrix(model, z_bar)
@@ -247,8 +255,7 @@ def design_point(model: ArmModel, z_bar, tau_bar, V, tip_force_sigma: float, dt:
     Phia = np.block([[Phit, np.zeros((N_STATE, 2))], [dt * Cq @ T, np.eye(2)]])
     Gama = np.vstack([Gamt, np.zeros((2, n_u))])
     Ks, Kis = [], []
-    for name in WEIGHT_NAMES:
-        Q = state_weight(name)
+    for Q in [state_weight(name) for name in WEIGHT_NAMES] if state_weights is None else state_weights:
         Qt = T.T @ Q @ T
         Ks.append(dlqr(Phit, Gamt, 0.5 * (Qt + Qt.T), R_PAPER) @ Ti)
         Qa = scipy.linalg.block_diag(Qt, integral_weight * np.eye(2))
@@ -365,6 +372,13 @@ def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: Se
     tau_bar = np.array([traj.tau[k] if k < traj.n_samples else np.zeros(2) for k in idx])
     points = [design_point(model, z[k], tb, V, tip_sigma, dt, integral_weight, motor_torque_sigma, element_force_sigma)
               for k, tb in zip(idx, tau_bar)]
+    # The hold: one more point at t_f, the end state at rest with zero torque, regulated by HOLD_STATE_WEIGHT
+    # for every gain set (the controllers use the point in force, so every sample from t_f on holds with it).
+    n = traj.n_samples
+    times, idx = np.r_[times, n * dt], np.r_[idx, n]
+    tau_bar = np.vstack([tau_bar, np.zeros(2)])
+    points.append(design_point(model, z[n], np.zeros(2), V, tip_sigma, dt, integral_weight, motor_torque_sigma,
+                               element_force_sigma, [HOLD_STATE_WEIGHT] * len(WEIGHT_NAMES)))
     stack = lambda a: np.array([getattr(p, a) for p in points])  # noqa: E731
     meta = {
         "description": "discrete-time LQG per schedule point: Kalman gains M (current form), LQR gains K "
@@ -377,6 +391,8 @@ def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: Se
                           "tip_force_sigma_N": tip_sigma, "motor_torque_sigma_Nm": motor_torque_sigma,
                           "element_force_sigma_Nm": element_force_sigma},
         "linearization": "about (z_d(t_k), tau_ff(t_k)), 1 ms zero-order hold",
+        "hold": {"time_s": float(n * dt), "state_weight": "diag(1e4 I11, 1 I11) for every weight",
+                 "why": "the end point's regulator (flexarm.lqg_design.HOLD_STATE_WEIGHT)"},
         "sample_time_s": dt,
         "operating_times_s": times.tolist(),
         "trajectory_file": relative_path(traj_path),

@@ -317,6 +317,56 @@ def _findings_joint_damping(runs: PageRuns) -> str:
     return "\n".join(lines)
 
 
+def lqg_tip_settling(payload: float, hold: bool = True, extra: int = 5000) -> float:
+    """Seconds after t_f from which the tip stays within 1 mm of its end point (to t_f + `extra` ms):
+    controller_lqg's law (γ = 0.1, 200 ms, no delay) on the library plant with `payload` (kg, unknown to the law) and
+    the paper's sensor noise (seed 1); ``hold=False`` holds with the last slew point's gains instead."""
+    import numpy as np
+
+    from flexarm.lqg import lqg_controller, simulate_lqg
+    from flexarm.model import ArmModel, N
+    from flexarm.parameters import load_parameters
+    from flexarm.sensors import SensorBank, SensorSettings
+
+    law = lqg_controller("gamma0.1", "200ms")
+    if not hold:
+        law._K[-1] = law._K[-2]
+    model, n = ArmModel(load_parameters(payload_mass=payload)), law.n_steps
+    states, _ = simulate_lqg(model, law, n_steps=n + extra,
+                             sensors=SensorBank(SensorSettings(noise_enabled=True, noise_seed=1)))
+    end = model.tip_position(law.z[-1][:N])
+    outside = np.nonzero(np.linalg.norm([model.tip_position(z[:N]) - end for z in states[n:]], axis=1) > 1e-3)[0]
+    return (outside[-1] + 1) * 1e-3 if len(outside) else 0.0
+
+
+@block("findings-hold")
+def _findings_hold(runs: PageRuns) -> str:
+    """docs/findings.md: controller_lqg's hold after the slew (the design files' point at t_f): its slowest pole with
+    the filter's full state (the linearised loop at the end point) and the tip's settling (library runs, seconds)."""
+    import numpy as np
+
+    from flexarm.joint_damping import SETTLED_EFOLDS
+    from flexarm.lqg_design import LqgDesign
+    from flexarm.model import ArmModel
+    from flexarm.parameters import load_parameters
+
+    design = LqgDesign.load("200ms")
+    end = design.operating_points[-1]
+    lines = ["| after t_f | payload | slowest pole of the hold (full state, below 200 rad/s) | e^-4 after | "
+             "tip within 1 mm of the end, with noise, from |", "|---|---|---|---|---|"]
+    for label, hold in (("the hold (`HOLD_STATE_WEIGHT`)", True), ("the last slew point's γ = 0.1 gains", False)):
+        K = design.K[-1, 1] if hold else design.K[-2, 1]
+        for payload in (0.0, 0.275, 0.5):
+            A, B = ArmModel(load_parameters(payload_mass=payload)).linearize(end, np.zeros(2))
+            s = np.linalg.eigvals(A - B @ K)
+            p = s[np.abs(s) < 200.0][np.argmax(s[np.abs(s) < 200.0].real)]
+            t = lqg_tip_settling(payload, hold)
+            settle = "t_f (never outside)" if t == 0.0 else ("not by t_f + 5 s" if t >= 5.0 else f"t_f + {t:.2f} s")
+            lines.append(f"| {label} | {f'{payload:g} kg' if payload else 'none'} | {p.real:.2f} ± {abs(p.imag):.2f}j "
+                         f"1/s | {SETTLED_EFOLDS / -p.real:.1f} s | {settle} |")
+    return "\n".join(lines)
+
+
 @block("scheme-summary")
 def _scheme_summary(runs: PageRuns) -> str:
     """docs/model.md: per scheme, the largest deviation from the converged reference over the three closed loops

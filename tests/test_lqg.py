@@ -349,3 +349,73 @@ def test_payload_bank_refuses_bad_settings(payload_bank):
         BankController(traj, payload_bank, loop_delay_samples=11)
     with pytest.raises(LqgError, match="masses"):
         design_bank(load_parameters(), (0.1, 0.2))
+
+
+def _hold_poles(design, K) -> np.ndarray:
+    """Continuous-equivalent poles (1/s) of the sampled hold loop Φ − ΓK at the design's last point, below 200
+    rad/s (the arm's servo and first flexible modes; the kHz bracket modes are the plant's, not the hold's)."""
+    s = np.log(np.linalg.eigvals(design.Phi[-1] - design.Gamma[-1] @ K).astype(complex)) / 1e-3
+    return s[np.abs(s) < 200.0]
+
+
+@pytest.mark.parametrize("schedule", ["200ms", "20ms", "single", "bank"])
+def test_the_end_point_is_held_by_a_regulator_that_settles(schedule):
+    """Issue 32 item 4: every committed LQG design (and every filter of the payload bank) ends with a point at
+    t_f, the end state at rest with zero torque, whose gains are the hold's (HOLD_STATE_WEIGHT, the same for
+    every gain set). Its slowest servo/flexible pole decays at 3.9 1/s (e^-4 within about 1 s); the paper's
+    γ = 0.1 weights at the same point give 0.6 1/s with the filter's full state (and about 0.1 1/s as the
+    paper's law runs them, docs/findings.md). Bounds: 3 and 1 1/s, far from both figures."""
+    from flexarm.gain_schedule import default_trajectory_path
+    from flexarm.gain_sets import WEIGHT_NAMES, state_weight
+    from flexarm.lqg_bank import PayloadBank
+    from flexarm.lqg_design import HOLD_STATE_WEIGHT, R_PAPER, dlqr
+    from flexarm.parameters import load_parameters
+    from flexarm.trajectory import load_trajectory
+
+    traj = load_trajectory(default_trajectory_path())
+    designs = ([b.design for b in PayloadBank.load().filters] if schedule == "bank"
+               else [LqgDesign.load(schedule)])
+    for design in designs:
+        assert design.times[-1] == pytest.approx(traj.n_samples * 1e-3, abs=1e-12)
+        np.testing.assert_array_equal(design.tau_bar[-1], 0.0)
+        np.testing.assert_allclose(design.operating_points[-1], np.r_[traj.theta[-1], np.zeros(N)], atol=1e-9)
+        for w in range(len(WEIGHT_NAMES)):
+            np.testing.assert_array_equal(design.K[-1, w], design.K[-1, 0])
+            assert -_hold_poles(design, design.K[-1, w]).real.max() >= 3.0, (design.schedule, w)
+    # the same point designed with the paper's γ = 0.1 weights (scaled coordinates, as lqg_design does)
+    model = ArmModel(load_parameters())
+    z_end = designs[0].operating_points[-1]
+    T = scaling_transform(model, z_end)
+    Ti = np.linalg.inv(T)
+    assert np.allclose(HOLD_STATE_WEIGHT, np.diag(np.diag(HOLD_STATE_WEIGHT)))
+    Q = T.T @ state_weight("gamma0.1") @ T
+    K_paper = dlqr(Ti @ designs[0].Phi[-1] @ T, Ti @ designs[0].Gamma[-1], 0.5 * (Q + Q.T), R_PAPER) @ Ti
+    assert -_hold_poles(designs[0], K_paper).real.max() < 1.0
+
+
+def test_the_tip_settles_within_about_a_second_after_the_slew_with_the_payload_and_noise():
+    """Issue 32 item 4, measured: controller_lqg's law (γ = 0.1, 200 ms) with an unknown 0.275 kg payload and the
+    paper's sensor noise (seed 1) leaves the tip 13 mm from its end point at t_f. With the hold it is within
+    1 mm from t_f + 1.06 s to t_f + 5 s (bound 1.3 s); holding with the last slew point's gains instead (the
+    controller before the hold point existed) it is not within 1 mm by t_f + 5 s. Hold torques within the limits."""
+    from flexarm.lqg import lqg_controller, simulate_lqg
+    from flexarm.parameters import load_parameters
+    from flexarm.sensors import SensorBank
+
+    params = load_parameters()
+    model = ArmModel(params.with_payload(0.275))
+
+    def settling(controller) -> tuple[float, np.ndarray]:
+        n = controller.n_steps
+        sensors = SensorBank(SensorSettings(noise_enabled=True, noise_seed=1))
+        states, torques = simulate_lqg(model, controller, n_steps=n + 5000, sensors=sensors)
+        end = model.tip_position(controller.z[-1][:N])
+        dist = np.linalg.norm([model.tip_position(s[:N]) - end for s in states[n:]], axis=1)
+        outside = np.nonzero(dist > 1e-3)[0]
+        return (outside[-1] + 1) * 1e-3 if len(outside) else 0.0, np.abs(torques[n:]).max(axis=0)
+
+    held, peak = settling(lqg_controller("gamma0.1", "200ms"))
+    assert 0.0 < held <= 1.3 and (peak < params.peak_torque).all(), (held, peak)
+    old = lqg_controller("gamma0.1", "200ms")
+    old._K[-1] = old._K[-2]  # the last slew point's gains in the hold
+    assert settling(old)[0] > 4.9
