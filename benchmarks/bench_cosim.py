@@ -14,9 +14,9 @@ import argparse
 import time
 from pathlib import Path
 
-from scenarios import master
 from scenarios.config import load_scenario
-from scenarios.runner import DEFAULT_FMU_DIR, prepare, simulate_case
+from scenarios.master import cosim as master
+from scenarios.run.runner import DEFAULT_FMU_DIR, prepare, simulate_case
 
 
 def main() -> None:

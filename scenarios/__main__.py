@@ -19,6 +19,13 @@ import sys
 import tomllib
 from pathlib import Path
 
+from scenarios.master.cosim import CoSimulationError
+from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S, START_TIMEOUT_S
+from scenarios.master.isolation import ISOLATE
+from scenarios.run.outdir import OutputError, describe_os_error
+from scenarios.run.paper import paper_columns
+from scenarios.run.runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, check_kind, format_table, run_scenario
+
 from .config import (
     MAX_CASES,
     MAX_SAMPLES,
@@ -30,12 +37,6 @@ from .config import (
     parse_assignment,
     select_cases,
 )
-from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S, START_TIMEOUT_S
-from .isolation import ISOLATE
-from .master import CoSimulationError
-from .outdir import OutputError, describe_os_error
-from .paper import paper_columns
-from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, check_kind, format_table, run_scenario
 
 EXIT_OK, EXIT_ERROR, EXIT_REFUSED, EXIT_OUTPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader left
@@ -145,8 +146,8 @@ def main(argv=None) -> int:
                    help="the conformance matrix: each case's one archive in every FMI master "
                         "(python -m scenarios conformance --help)")
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv[:1] == ["conformance"]:  # its own command line (scenarios/conformance.py)
-        from .conformance import main as conformance_main
+    if argv[:1] == ["conformance"]:  # its own command line (scenarios/conformance/matrix.py)
+        from scenarios.conformance.matrix import main as conformance_main
 
         return conformance_main(argv[1:])
     _reserve_stdio()
@@ -235,7 +236,7 @@ def _dispatch(args) -> int:
 
         return score_main(args)
     if args.command == "export-ssp":
-        from .ssp import SSPExportError, export_ssp
+        from scenarios.conformance.ssp import SSPExportError, export_ssp
 
         try:
             paths = export_ssp(load_scenario(args.scenario), args.out, args.fmu_dir, cases=args.case, kind=args.kind,
@@ -247,7 +248,7 @@ def _dispatch(args) -> int:
             print(f"{key}: {path}")
         return EXIT_OK
     if args.command == "results-page":
-        from . import results_page
+        from scenarios.reports import results_page
 
         try:
             return _results_page(results_page, args)
@@ -259,7 +260,7 @@ def _dispatch(args) -> int:
             print(f"{s.name:16s} {len(s.cases)} cases  {s.description}")
         return EXIT_OK
     names = [s.name for s in list_scenarios()] if args.scenarios == ["all"] else args.scenarios
-    from . import ilc  # scenarios with an [ilc] table repeat a case and learn between trials (scenarios/ilc.py)
+    from . import ilc  # scenarios with an [ilc] table repeat a case and learn between trials (scenarios/ilc/trials.py)
 
     if args.scenarios != ["all"] and any(ilc.is_ilc_scenario(n) for n in names):
         if len(names) != 1:

@@ -1,7 +1,7 @@
 """Issue 35: a controller that is not ours raises, hangs or exits; the master survives it, says so and goes on.
 
 The bad controllers (tests/bad_controllers.py) are small pythonfmu FMUs built here, run through the command
-line as a user would (``--controller X.fmu``). They run in a process of their own (scenarios/fmu_proxy.py):
+line as a user would (``--controller X.fmu``). They run in a process of their own (scenarios/master/fmu_proxy.py):
 each case they break ends ``error`` with exit code 1, naming the FMU, the FMI call, the time and the status.
 Every subprocess has a generous timeout: a hang guard only, never a measure of speed.
 """
@@ -20,9 +20,9 @@ import pytest
 from bad_controllers import build_bad_controller
 from fmu_harness import built_fmus
 
-from scenarios import runner
 from scenarios.config import SCENARIO_DIR, load_scenario
-from scenarios.master import Master
+from scenarios.master.cosim import Master
+from scenarios.run import runner
 
 #: Hang guard for one command: far above a run's minute on a loaded machine, far below a hang's forever.
 GUARD_S = 600
@@ -167,7 +167,7 @@ def test_a_step_timeout_that_is_no_number_of_seconds_is_refused(tmp_path, fmu_di
 
 def test_children_stop_when_the_master_is_killed(tmp_path, bad):
     """A hung FMU's process does not outlive a master killed outright (SIGKILL): it dies with its parent."""
-    code = ("import sys; from pathlib import Path; from scenarios.master import Master\n"
+    code = ("import sys; from pathlib import Path; from scenarios.master.cosim import Master\n"
             f"m = Master({{'c': Path({str(bad['hang'])!r})}}, ['c'], [], isolate=['c'])\n"
             "print('loaded', flush=True)\n"
             "m.run({'c': {'fail_at': 0.0}}, [('c', 'tau1')], 3)\n")
@@ -232,7 +232,7 @@ def test_a_signal_ends_the_run_even_inside_an_fmu_call_in_this_process_that_neve
     be acted on between steps, so the watchdog ends the process after its grace period, with the signal's code,
     and removes the unpacked FMUs."""
     unpack = tmp_path / "unpack"
-    script = ("import signal, sys; from pathlib import Path; from scenarios.master import Master\n"
+    script = ("import signal, sys; from pathlib import Path; from scenarios.master.cosim import Master\n"
               "signal.signal(signal.SIGTERM, lambda *a: sys.exit(143))  # as python -m scenarios does\n"
               f"m = Master({{'c': Path({str(bad['hang'])!r})}}, ['c'], [])\n"
               "print('loaded', flush=True)\n"

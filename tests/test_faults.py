@@ -25,11 +25,12 @@ import pytest
 from fmu_harness import built_fmus
 
 from flexarm.provenance import sha256_bytes
-from scenarios import fmu_files, runner
 from scenarios.__main__ import main
 from scenarios.config import SCENARIO_DIR, load_scenario
+from scenarios.master import fmu_files
+from scenarios.master.values import check_value
+from scenarios.run import runner
 from scenarios.sweep import Journal, load_sweep, run_sweep
-from scenarios.values import check_value
 
 TABLE2 = (SCENARIO_DIR / "table2.toml").read_text()
 TIMEOUT = 600
@@ -375,7 +376,7 @@ def test_a_second_run_into_a_locked_folder_is_refused(tmp_path, capsys):
 
 
 def test_a_second_sweep_into_a_locked_folder_is_refused(tmp_path):
-    from scenarios.outdir import FolderBusy
+    from scenarios.run.outdir import FolderBusy
 
     sweep = tmp_path / "busy.toml"
     sweep.write_text("[sweep]\nname='busy'\nscenario='table2'\nsamples=20\n[axes]\nplant.payload_mass=[0.0]\n")
@@ -476,7 +477,7 @@ def test_a_cancellation_in_dask_shutdown_is_not_logged_but_a_real_error_is():
 def test_unpacked_fmus_of_a_killed_run_are_removed_by_the_next_one(tmp_path, table2_setup):
     env = {**os.environ, fmu_files.UNPACK_ENV: str(tmp_path),
            "FLEXARM_FMU_DIR": str(table2_setup.paths["plant"].parent)}
-    code = ("import sys, time\nfrom scenarios.runner import prepare\nfrom scenarios.config import load_scenario\n"
+    code = ("import sys, time\nfrom scenarios.run.runner import prepare\nfrom scenarios.config import load_scenario\n"
             "m = prepare(load_scenario('table2'), build=False).open_master()\nprint('loaded', flush=True)\n"
             "time.sleep(600)\n")
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env)

@@ -16,9 +16,9 @@ from fmpy.fmi2 import FMU2Slave
 from fmu_harness import built_fmus
 
 from flexarm.trajectory import load_trajectory
-from scenarios import runner
 from scenarios.config import load_scenario
 from scenarios.metrics import METRICS, table_metrics
+from scenarios.run import runner
 
 
 @pytest.fixture(scope="module")

@@ -10,9 +10,10 @@ import pytest
 from fmu_harness import built_fmus
 from native_fmus import native_fmus
 
-from scenarios import master, runner
 from scenarios.config import load_scenario
-from scenarios.loop_delay import INDEX_NAMES, loop_delay_record, loop_delay_warnings
+from scenarios.master import cosim as master
+from scenarios.run import runner
+from scenarios.run.loop_delay import INDEX_NAMES, loop_delay_record, loop_delay_warnings
 
 DELAY = [("controller", "loop_delay"), ("controller", "loop_delay_assumed"), ("controller", "tau_index")]
 

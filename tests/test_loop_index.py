@@ -19,8 +19,8 @@ from native_fmus import native_fmus
 from flexarm import loop_index
 from flexarm.parameters import DATA_DIR
 from flexarm.signals import INDEX_GROUP, catalogue
-from scenarios import runner
 from scenarios.config import load_scenario
+from scenarios.run import runner
 
 
 def test_the_index_rules():

@@ -15,10 +15,10 @@ from fmu_harness import built_fmus
 
 from flexarm.reference import MAX_LEAD_SAMPLES, REFERENCE_OUTPUTS, ReferenceSignals, lead_samples_for
 from flexarm.trajectory import load_trajectory
-from scenarios import runner
 from scenarios.__main__ import main
 from scenarios.config import ScenarioError, load_scenario, parse_assignment, select_cases
 from scenarios.results import LAYOUT_DOC, render_layout
+from scenarios.run import runner
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "own_controller"
@@ -250,7 +250,7 @@ def test_an_input_nothing_feeds_is_refused_unless_it_has_a_start_value():
 
 def _export_own_table2(examples, tmp_path, named: bool, algorithm: str | None = None) -> Path:
     """table2 with the C example as its controller (its parameters dropped), exported as SSP, case "none"."""
-    from scenarios.ssp import export_ssp
+    from scenarios.conformance.ssp import export_ssp
 
     text = (ROOT / "scenarios" / "table2.toml").read_text()
     text = text.replace('controller = "controller"', f'controller = "{examples["c"]}"'

@@ -23,8 +23,8 @@ import pytest
 from fmu_harness import built_fmus
 from native_fmus import native_fmus
 
-from scenarios import runner
 from scenarios.metrics import table_metrics
+from scenarios.run import runner
 
 HOST = Path(__file__).resolve().parent / "fmi_loop_host.py"
 TRIO = ("plant", "sensors", "controller")

@@ -8,7 +8,7 @@ from flexarm.control import TrackingController, simulate_closed_loop
 from flexarm.provenance import package_version
 from flexarm.trajectory import load_trajectory
 from scenarios.config import load_scenario
-from scenarios.runner import run_scenario
+from scenarios.run.runner import run_scenario
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +61,7 @@ def test_table2_qualitative_findings(table2_results):
 
 @pytest.fixture(scope="module")
 def table2_setup():
-    from scenarios.runner import prepare
+    from scenarios.run.runner import prepare
 
     return prepare(load_scenario("table2"))
 
@@ -97,7 +97,7 @@ def test_stepping_algorithms_differ_by_one_sample_through_feedthrough(table2_set
 
 
 def test_bad_wiring_and_records_are_named(table2_setup):
-    from scenarios import master
+    from scenarios.master import cosim as master
 
     setup = table2_setup
     bad = setup.connections + [master.Connection("plant", "q1", "sensorz", "q1")]
@@ -113,7 +113,7 @@ def test_bad_wiring_and_records_are_named(table2_setup):
 def test_records_are_values_after_all_inputs_are_set(table2_setup):
     """Sensors evaluated before the plant (plant -> sensors becomes a feedback edge): their recorded
     outputs, which depend on those late inputs, are read again, so they still equal the plant's at t_k."""
-    from scenarios import master
+    from scenarios.master import cosim as master
 
     setup = table2_setup
     order = ["sensors", "controller", "plant"]
@@ -142,7 +142,7 @@ def test_case_option_selects_cases_and_refuses_an_unknown_key(capsys):
 def test_progress_is_a_bar_on_a_terminal_and_one_line_in_a_log():
     import io
 
-    from scenarios.runner import _bar
+    from scenarios.run.runner import _bar
 
     class Tty(io.StringIO):
         def isatty(self):
@@ -165,7 +165,7 @@ def test_numba_notice_only_where_numba_compiles(monkeypatch, capsys, tmp_path):
     import importlib.util
     import zipfile
 
-    from scenarios import runner
+    from scenarios.run import runner
 
     monkeypatch.delenv("FLEXARM_NO_NUMBA", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))

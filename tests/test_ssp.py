@@ -1,6 +1,6 @@
-"""SSP export (scenarios.ssp) and the second, independent master: libcosim (scenarios.libcosim_runner).
+"""SSP export (scenarios.conformance.ssp) and the second, independent master: libcosim (scenarios.conformance.libcosim_runner).
 
-The libcosim run happens in a subprocess (``python -m scenarios.libcosim_runner``):
+The libcosim run happens in a subprocess (``python -m scenarios.conformance.libcosim_runner``):
 it keeps libcosim's copies of the FMU binaries out of the test process, which
 also loads the same FMUs through fmpy.
 """
@@ -17,9 +17,9 @@ from fmpy import read_model_description
 from fmu_harness import extract_ssp_fmus
 from lxml import etree
 
-from scenarios import runner
 from scenarios.config import load_scenario
-from scenarios.ssp import NS, export_ssp, validate_ssp
+from scenarios.conformance.ssp import NS, export_ssp, validate_ssp
+from scenarios.run import runner
 
 #: libcosim and our master in its libcosim-compatible mode ("jacobi") must agree this closely, over the whole slew.
 SERIES_TOLERANCE = 1e-6
@@ -177,7 +177,7 @@ def test_libcosim_runs_the_open_loop_case_as_our_master(ff_ssp, tmp_path):
     pytest.importorskip("libcosimpy", reason="libcosimpy (the libcosim master) is not installed: "
                                              "pip install libcosimpy")
     out = tmp_path / "libcosim.npz"
-    proc = subprocess.run([sys.executable, "-m", "scenarios.libcosim_runner", str(ff_ssp), "--out", str(out)],
+    proc = subprocess.run([sys.executable, "-m", "scenarios.conformance.libcosim_runner", str(ff_ssp), "--out", str(out)],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, f"libcosim run failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr[-3000:]}"
     lc = dict(np.load(out))
@@ -193,7 +193,7 @@ def test_libcosim_matches_our_jacobi_master_closed_loop(table2_ssp, tmp_path):
     pytest.importorskip("libcosimpy", reason="libcosimpy (the libcosim master) is not installed: "
                                              "pip install libcosimpy")
     out = tmp_path / "libcosim.npz"
-    proc = subprocess.run([sys.executable, "-m", "scenarios.libcosim_runner", str(table2_ssp["none"]),
+    proc = subprocess.run([sys.executable, "-m", "scenarios.conformance.libcosim_runner", str(table2_ssp["none"]),
                            "--out", str(out)], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, f"libcosim run failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr[-3000:]}"
     lc = dict(np.load(out))

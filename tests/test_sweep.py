@@ -237,8 +237,8 @@ def test_shipped_sweeps_load():
 def test_sweep_points_step_as_their_scenario(monkeypatch):
     """A sweep point's master steps with the scenario's algorithm (lqg_jacobi: Jacobi), not always
     Gauss-Seidel: the worker and the base-point probe open it through Setup.open_master."""
-    from scenarios import runner
     from scenarios.config import load_scenario
+    from scenarios.run import runner
 
     opened = []
     monkeypatch.setattr(runner.master, "Master", lambda *args: opened.append(args[3]) or args[3])

@@ -4,10 +4,10 @@ remoting do).
 A controller that is not ours can crash (``os._exit``, SIGSEGV), raise, or never return from ``fmi2DoStep``.
 In our process any of these ends or hangs the master; in a process of its own it ends only that process,
 and the master records the case as ``error``, naming the FMU, the call, the time and what happened
-(docs/outcomes.md). :class:`RemoteSlave` offers what :class:`scenarios.master._Unit` calls on fmpy's
+(docs/outcomes.md). :class:`RemoteSlave` offers what :class:`scenarios.master.cosim._Unit` calls on fmpy's
 ``FMU2Slave`` (the lifecycle methods, the setters, and the raw ``fmi2GetReal`` / ``fmi2SetReal`` /
 ``fmi2DoStep`` the stepping loop calls on ctypes buffers), forwarding each call over a socket pair to
-``python -m scenarios.fmu_proxy`` (:func:`serve`), which loads the FMU with fmpy and calls it. Values
+``python -m scenarios.master.fmu_proxy`` (:func:`serve`), which loads the FMU with fmpy and calls it. Values
 cross as Python floats (IEEE doubles, pickled exactly): a run gives the same numbers in either process.
 
 Every wait for a reply is bounded by the step timeout (the master's ``step_timeout``, ``--step-timeout``) and
@@ -84,7 +84,7 @@ class RemoteSlave:
             # socket's EOF when it next waits for a request
             die_with = "1" if threading.current_thread() is threading.main_thread() else "0"
             # the FMU's printing goes to our standard error, never into the table on standard output
-            self.proc = subprocess.Popen([sys.executable, "-m", "scenarios.fmu_proxy", str(theirs.fileno()),
+            self.proc = subprocess.Popen([sys.executable, "-m", "scenarios.master.fmu_proxy", str(theirs.fileno()),
                                           die_with],
                                          pass_fds=[theirs.fileno()], stdin=subprocess.DEVNULL,
                                          stdout=_stderr_fd(), close_fds=True, env=_child_environment())
@@ -115,7 +115,7 @@ class RemoteSlave:
         raise AttributeError(name)
 
     def raw_functions(self) -> tuple:
-        """(fmi2GetReal, fmi2SetReal, fmi2DoStep) with the ctypes functions' signatures (see scenarios.compat)."""
+        """(fmi2GetReal, fmi2SetReal, fmi2DoStep) with the ctypes functions' signatures (see scenarios.master.compat)."""
         return self._get_real, self._set_real, self._do_step
 
     def _get_real(self, component, vrs, n, buffer) -> int:
@@ -246,7 +246,7 @@ def _signal_name(signum: int) -> str:
 def _child_environment() -> dict[str, str]:
     """Our environment, with the folder this package was imported from first on the child's path: the child
     runs the same code as the master, whatever the current directory (another checkout, an editable install)."""
-    home = Path(__file__).resolve().parent.parent
+    home = Path(__file__).resolve().parents[2]
     if {"site-packages", "dist-packages"} & set(home.parts):  # an installed copy: the child finds it as we did
         return dict(os.environ)
     path = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
@@ -265,8 +265,8 @@ def serve(fd: int, die_with_parent: bool = True) -> None:
     """The child: load the FMU named by the first request, then answer requests until ``exit`` or EOF."""
     from fmpy.fmi2 import FMU2Slave
 
-    from .compat import fmu2_raw_functions
-    from .fmi_callbacks import logging_callbacks
+    from scenarios.master.compat import fmu2_raw_functions
+    from scenarios.master.fmi_callbacks import logging_callbacks
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C is the master's to act on; it kills us if need be
     if die_with_parent:  # die with the master, even when it is killed (SIGKILL) while we hang

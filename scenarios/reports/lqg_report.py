@@ -1,4 +1,4 @@
-"""The LQG's tables beside the paper's LQR and ours (issue 14): ``python -m scenarios.lqg_report``.
+"""The LQG's tables beside the paper's LQR and ours (issue 14): ``python -m scenarios.reports.lqg_report``.
 
 Runs, through the FMUs and our master: ``table2`` (our γ = 0.1 LQR,
 Gauss-Seidel), ``lqg`` (Gauss-Seidel) and ``lqg_jacobi`` (Jacobi stepping,
@@ -20,9 +20,8 @@ import tomllib
 from pathlib import Path
 
 from flexarm.parameters import load_parameters
-
-from .config import SCENARIO_DIR, load_scenario
-from .runner import DEFAULT_FMU_DIR, run_scenario
+from scenarios.config import SCENARIO_DIR, load_scenario
+from scenarios.run.runner import DEFAULT_FMU_DIR, run_scenario
 
 CASES = ("none", "noise", "tip", "tip_noise")
 ROWS = (("rms_position_error", "rms position error, deg"), ("rms_velocity_error", "rms velocity error, deg/s"),
@@ -95,7 +94,7 @@ def comparison_markdown(paper: dict, lqr: dict, lqg_gs: dict, lqg_jacobi: dict, 
 
 def main(argv=None) -> int:
     """Run the scenarios and print the comparison."""
-    ap = argparse.ArgumentParser(prog="python -m scenarios.lqg_report", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m scenarios.reports.lqg_report", description=__doc__.split("\n")[0])
     ap.add_argument("--out", type=Path, default=None, help="results folder (default: a temporary folder)")
     ap.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR)
     args = ap.parse_args(argv)

@@ -1,13 +1,13 @@
 """The generated blocks of docs/findings.md (issue 24 item 4): every figure there comes from a run.
 
-Registered with :func:`scenarios.page_blocks.block`, so ``python -m scenarios results-page`` writes them and
+Registered with :func:`scenarios.reports.page_blocks.block`, so ``python -m scenarios results-page`` writes them and
 ``--check`` (CI) fails when one differs. Their figures come from three places, none typed by hand:
 
 * the results page's own fresh runs (Tables 1-3, eq. 32, the schedule comparison: RODAS4, ζ = 0);
-* the linearised 1 ms sampled loop (:func:`scenarios.stability.sampled_loop_growth`, a few seconds);
+* the linearised 1 ms sampled loop (:func:`scenarios.analysis.stability.sampled_loop_growth`, a few seconds);
 * two committed result files with their provenance, too slow to rerun in CI: ``docs/findings-data.json``
-  (``python -m scenarios.reexamine``: the exponential scheme, damping, noise scaling, settling) and
-  ``docs/scheme-accuracy.json`` (``python -m scenarios.scheme_accuracy --write``: the 10 s reference runs).
+  (``python -m scenarios.reports.reexamine``: the exponential scheme, damping, noise scaling, settling) and
+  ``docs/scheme-accuracy.json`` (``python -m scenarios.reports.scheme_accuracy --write``: the 10 s reference runs).
   Each is checked against this checkout before use: the SHA-256 of the trajectory and parameter files it was
   computed from must be the current ones, and findings-data.json's RODAS4 ζ = 0 Tables 1-3 must equal the
   page's fresh runs (every metric to 1e-6 relative). A file that fails is refused (:class:`ResultsPageError`
@@ -23,9 +23,8 @@ import math
 from flexarm.parameters import DEFAULT_PARAMETER_FILE
 from flexarm.provenance import sha256_file
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
-
-from .metrics import METRICS
-from .page_blocks import REPO, PageRuns, ResultsPageError, _m, _paper, block
+from scenarios.metrics import METRICS
+from scenarios.reports.page_blocks import REPO, PageRuns, ResultsPageError, _m, _paper, block
 
 FINDINGS_DATA = REPO / "docs" / "findings-data.json"
 SCHEME_ACCURACY = REPO / "docs" / "scheme-accuracy.json"
@@ -55,13 +54,13 @@ def _scheme_accuracy() -> dict:
         if prov.get("inputs_sha256") != _inputs():
             raise ResultsPageError(f"{_name(SCHEME_ACCURACY)}: its {part} part was computed from other "
                                    "inputs (SHA-256 of the trajectory or parameter file differs); rerun python -m "
-                                   f"scenarios.scheme_accuracy --write --part {part}")
+                                   f"scenarios.reports.scheme_accuracy --write --part {part}")
     return data
 
 
 def _findings_data(runs: PageRuns) -> dict:
     data = json.loads(FINDINGS_DATA.read_text())
-    fix = "; rerun python -m scenarios.reexamine"
+    fix = "; rerun python -m scenarios.reports.reexamine"
     if (data.get("trajectory_sha256"), data.get("parameter_sha256")) != (
             sha256_file(DEFAULT_TRAJECTORY_FILE), sha256_file(DEFAULT_PARAMETER_FILE)):
         raise ResultsPageError(f"{_name(FINDINGS_DATA)} was computed from another trajectory or "
@@ -83,7 +82,7 @@ def _findings_data(runs: PageRuns) -> dict:
 @functools.cache
 def growth(gain_set: str, ratio: float) -> float:
     """Largest growth rate (1/s) of the linearised 1 ms sampled loop over the 200 ms schedule's gain sets."""
-    from .stability import sampled_loop_growth
+    from scenarios.analysis.stability import sampled_loop_growth
 
     return sampled_loop_growth(gain_set, "200ms", float(ratio), 0.0)["growth_per_s"]
 
@@ -98,7 +97,7 @@ def _horizon(key: str, t: float, what: str = "peak_velocity_error") -> float:
 
 
 def _reference_label() -> str:
-    from .scheme_accuracy import HORIZON_SUBSTEPS, reference_step_us
+    from scenarios.reports.scheme_accuracy import HORIZON_SUBSTEPS, reference_step_us
 
     return f"reference plant, RK4 {reference_step_us(HORIZON_SUBSTEPS):g} µs"
 
@@ -321,7 +320,7 @@ def _findings_joint_damping(runs: PageRuns) -> str:
 def _scheme_summary(runs: PageRuns) -> str:
     """docs/model.md: per scheme, the largest deviation from the converged reference over the three closed loops
     at 2, 5 and 10 s (docs/scheme-accuracy.json's loops part, whose table docs/model.md shows in full)."""
-    from .scheme_accuracy import LOOP_REFERENCE, LOOP_SCHEMES, LOOPS, MARKS
+    from scenarios.reports.scheme_accuracy import LOOP_REFERENCE, LOOP_SCHEMES, LOOPS, MARKS
 
     loops = _scheme_accuracy()["loops"]
     lines = ["| scheme | " + " | ".join(f"{m:g} s" for m in MARKS) + " |", "|---|" + "---|" * len(MARKS)]

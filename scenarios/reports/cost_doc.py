@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 
-from .page_blocks import _MARKED, REPO, PageRuns, block, splice_blocks
+from scenarios.reports.page_blocks import _MARKED, REPO, PageRuns, block, splice_blocks
 
 COST_JSON = REPO / "docs" / "plant-step-cost.json"
 DOC = REPO / "docs" / "model.md"

@@ -1,6 +1,6 @@
 """A run's verdict from its own samples: ``stable``, ``diverging`` or ``saturated`` (issue 35, item 1).
 
-The master's outcome (:class:`scenarios.master.Outcome`) only says whether every step completed and every
+The master's outcome (:class:`scenarios.master.cosim.Outcome`) only says whether every step completed and every
 recorded value stayed finite and below the divergence limit. A loop that is unstable but has not yet left
 that limit by the end of the run finishes "ok" there; this module looks at the run's error series itself.
 
@@ -234,7 +234,7 @@ def series_verdict(series: dict, driver: str, limits) -> dict:
 
 
 def judge(out: dict, series: dict, driver: str) -> tuple[str, str, dict | None]:
-    """A case's status, message and verdict (the runner's :class:`~scenarios.runner.CaseResult`).
+    """A case's status, message and verdict (the runner's :class:`~scenarios.run.runner.CaseResult`).
 
     The master's outcome (``out["status"]``: ok, unbounded, error), unless the run finished ("ok") and its own
     samples say ``diverging`` or ``saturated`` (:func:`series_verdict`, against the parameter file's motor

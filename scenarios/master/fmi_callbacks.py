@@ -1,7 +1,7 @@
 """The FMI 2.0 callback structure an instance is given, with its log routed to a Python function.
 
-Below both the master (:mod:`scenarios.master`) and the process an FMU may run in
-(:mod:`scenarios.fmu_proxy`), which each instantiate FMUs with it.
+Below both the master (:mod:`scenarios.master.cosim`) and the process an FMU may run in
+(:mod:`scenarios.master.fmu_proxy`), which each instantiate FMUs with it.
 """
 
 from __future__ import annotations

@@ -20,10 +20,19 @@ import tempfile
 import tomllib
 from pathlib import Path
 
-from .config import SCENARIO_DIR, ScenarioError, list_scenarios, load_scenario
-from .metrics import METRICS, UNITS
-from .page_blocks import _BEGIN_ANY, BLOCKS, PageRuns, ResultsPageError, _m, _paper, block, splice_blocks
-from .runner import DEFAULT_FMU_DIR, REPO, CaseResult, run_scenario, verify_data_chain
+from scenarios.config import SCENARIO_DIR, ScenarioError, list_scenarios, load_scenario
+from scenarios.metrics import METRICS, UNITS
+from scenarios.reports.page_blocks import (
+    _BEGIN_ANY,
+    BLOCKS,
+    PageRuns,
+    ResultsPageError,
+    _m,
+    _paper,
+    block,
+    splice_blocks,
+)
+from scenarios.run.runner import DEFAULT_FMU_DIR, REPO, CaseResult, run_scenario, verify_data_chain
 
 #: Scenarios shown on the results page, in this order (those not shipped are left out).
 PAGE_SCENARIOS = ("table1", "table2", "table3", "compare_ff_fb", "compare_schedule", "eq32", "dlqr_table1",
@@ -120,7 +129,7 @@ def run_page_scenarios(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) 
 
 def lqg_comparison_section(runs: dict[str, tuple]) -> str:
     """The LQG beside the paper's LQR and ours, per Table 2 case, from the page's own runs ('' without them)."""
-    from .lqg_report import comparison_markdown
+    from scenarios.reports.lqg_report import comparison_markdown
 
     if not {"table2", "lqg", "lqg_jacobi"} <= set(runs):
         return ""
@@ -129,7 +138,7 @@ def lqg_comparison_section(runs: dict[str, tuple]) -> str:
     return "\n".join([
         "## LQG beside the paper's LQR and ours", "",
         "Table 2's cases (γ = 0.1 weights) from the `table2`, `lqg` and `lqg_jacobi` runs above; +I: integral "
-        "action; GS: Gauss-Seidel stepping; Jacobi: loop delay 2. `python -m scenarios.lqg_report` prints the "
+        "action; GS: Gauss-Seidel stepping; Jacobi: loop delay 2. `python -m scenarios.reports.lqg_report` prints the "
         "same with issue 14's acceptance figures.", "",
         "One Kalman filter (`estimator = kalman`):", "",
         comparison_markdown(paper, lqr, gs, jac, "kalman"), "",
@@ -138,9 +147,9 @@ def lqg_comparison_section(runs: dict[str, tuple]) -> str:
 
 
 def lqg_acceptance_section(runs: dict[str, tuple], fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> str:
-    """Issue 14's acceptance figures per estimator (:func:`scenarios.lqg_report.acceptance_lines`), from the
+    """Issue 14's acceptance figures per estimator (:func:`scenarios.reports.lqg_report.acceptance_lines`), from the
     page's runs and the γ = 1 runs of the noise-robustness goal ('' without the page's runs)."""
-    from .lqg_report import LqgReportError, acceptance_lines, gamma1_runs
+    from scenarios.reports.lqg_report import LqgReportError, acceptance_lines, gamma1_runs
 
     if not {"table2", "lqg_jacobi"} <= set(runs):
         return ""
@@ -156,7 +165,7 @@ def lqg_acceptance_section(runs: dict[str, tuple], fmu_dir: Path = DEFAULT_FMU_D
         "## LQG: issue 14's acceptance figures", "",
         "Jacobi stepping with delay 2 (`lqg_jacobi` above) against our Gauss-Seidel γ = 0.1 LQR (`table2`); noise "
         "robustness with Table 1's weights (γ = 1: `lqg_jacobi` and `table2` run again with `gain_set = gamma1`); "
-        "the 0.275 kg payload against our LQR. `python -m scenarios.lqg_report` prints the same.", "",
+        "the 0.275 kg payload against our LQR. `python -m scenarios.reports.lqg_report` prints the same.", "",
         "```", *acceptance_lines(lqr, jac, g1, l1), "```", ""])
 
 
@@ -225,7 +234,7 @@ def expected_files(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> d
     unknown = sorted(names - set(BLOCKS))
     if unknown:  # before minutes of runs
         raise ResultsPageError(f"unknown generated block(s) {unknown} in README.md or docs/*.md; known: "
-                               f"{sorted(BLOCKS)} (scenarios/results_page.py)")
+                               f"{sorted(BLOCKS)} (scenarios/reports/results_page.py)")
     chain = verify_data_chain()
     runs = PageRuns(run_page_scenarios(fmu_dir, progress), fmu_dir, progress)
     page, _ = render(runs, chain, (lqg_comparison_section(runs), lqg_acceptance_section(runs, fmu_dir, progress),
@@ -240,8 +249,8 @@ def expected_files(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> d
 
 def check(fmu_dir: Path = DEFAULT_FMU_DIR, progress: bool = False) -> list[str]:
     """Unified diffs of every generated file that differs from a fresh run ([] when all match), and every typed
-    performance figure in the docs (:mod:`scenarios.perf_lint`); writes nothing."""
-    from .perf_lint import check_docs
+    performance figure in the docs (:mod:`scenarios.reports.perf_lint`); writes nothing."""
+    from scenarios.reports.perf_lint import check_docs
 
     require_checkout()  # before reading the checkout's documents
     diffs = check_docs(REPO)
@@ -394,4 +403,3 @@ def _slew_steps(runs: PageRuns) -> str:
 
 
 # docs/findings.md's and docs/model.md's cost blocks live beside the code that explains them; importing registers them.
-from . import conformance, cost_doc, findings_doc  # noqa: E402,F401

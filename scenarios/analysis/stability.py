@@ -328,7 +328,7 @@ def bracket_mode_errors(integrator: str, substeps: int, damping_ratio: float = 0
 @functools.lru_cache(maxsize=1)
 def _bracket_frequencies() -> dict:
     """The three bracket modes' frequencies (Hz) at rest at q = (0, 90°), named as
-    :func:`scenarios.scheme_accuracy.mode_frequencies` names them, from NumPy alone (its modal analysis loads
+    :func:`scenarios.reports.scheme_accuracy.mode_frequencies` names them, from NumPy alone (its modal analysis loads
     Numba and scipy.linalg: about a second of a run's start)."""
     from flexarm.model import ArmModel, N, numpy_kernels, rigid_configuration
     from flexarm.parameters import load_parameters
@@ -559,7 +559,7 @@ def metric_deviations(stab: dict, metrics: dict, duration_s: float) -> dict:
 
 def metric_note(deviations: dict, stab: dict) -> str:
     """A warning naming every table metric whose predicted deviation exceeds :data:`DEVIATION` ('' if none)."""
-    from .metrics import LABELS
+    from scenarios.metrics import LABELS
 
     off = {m: d for m, d in deviations.items() if abs(d) > DEVIATION}
     if not off:

@@ -1,9 +1,9 @@
-"""Which FMUs of a run go into a process of their own (scenarios/fmu_proxy.py), from the command line's
+"""Which FMUs of a run go into a process of their own (scenarios/master/fmu_proxy.py), from the command line's
 ``--isolate`` and ``--step-timeout`` (docs/outcomes.md, "FMUs that are not ours")."""
 
 from __future__ import annotations
 
-from .config import Scenario, ScenarioError
+from scenarios.config import Scenario, ScenarioError
 
 #: ``--isolate``: which FMUs run in a process of their own: "foreign" (given as a .fmu path), or "all".
 ISOLATE = ("foreign", "all")
@@ -21,7 +21,7 @@ def foreign_instances(scenario: Scenario, controller: str | None = None,
 
 
 def apply(setup, isolate: str, step_timeout: float):
-    """Set a :class:`scenarios.runner.Setup`'s isolated instances (`isolate` "all": every one; "foreign": those
+    """Set a :class:`scenarios.run.runner.Setup`'s isolated instances (`isolate` "all": every one; "foreign": those
     it was prepared with) and step timeout; returns the setup."""
     if isolate not in ISOLATE:
         raise ScenarioError(f"--isolate: one of {list(ISOLATE)}, got {isolate!r}")

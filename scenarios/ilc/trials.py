@@ -35,12 +35,11 @@ from pathlib import Path
 import numpy as np
 
 from flexarm.provenance import git_commit, sha256_file, write_atomic, write_json
-
-from .config import SCENARIO_DIR, Scenario, ScenarioError, load_scenario
-from .metrics import table_metrics
-from .outdir import check_writable, folder_lock, remove_stale
-from .results import portable
-from .runner import (
+from scenarios.config import SCENARIO_DIR, Scenario, ScenarioError, load_scenario
+from scenarios.metrics import table_metrics
+from scenarios.results import portable
+from scenarios.run.outdir import check_writable, folder_lock, remove_stale
+from scenarios.run.runner import (
     DEFAULT_FMU_DIR,
     DEFAULT_NATIVE_FMU_DIR,
     N_EL,
@@ -51,7 +50,7 @@ from .runner import (
     prepare,
     verify_data_chain,
 )
-from .sweep.journal import Journal
+from scenarios.sweep.journal import Journal
 
 #: The measurements the learning reads (sensors FMU outputs): encoders, then strain gauges.
 MEASURED = ("q1_m", "q2_m", "eps1_m", "eps2_m", "eps3_m", "eps4_m", "eps5_m", "eps6_m")
@@ -234,7 +233,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
     """Run (or resume) an ILC scenario; returns the summary written to ``evaluation.json``.
 
     `trials` overrides the file's number of trials (e.g. a short check). Raises :class:`ScenarioError` for
-    refused input, :class:`scenarios.outdir.OutputError` for an unusable folder; a trial that ends unbounded
+    refused input, :class:`scenarios.run.outdir.OutputError` for an unusable folder; a trial that ends unbounded
     or with an FMU error stops the learning (the journal keeps it) and is reported in the summary's ``stopped``.
     """
     from flexarm import ilc

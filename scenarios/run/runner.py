@@ -2,9 +2,9 @@
 
 Before any case runs (:func:`run_scenario`): the data chain is verified (:func:`verify_data_chain`), every
 FMU is resolved and read (an unknown name or a file that is no FMU is refused), every case's values are
-checked against the FMUs' model descriptions (:mod:`scenarios.values`), the output folder is locked and
-checked writable (:mod:`scenarios.outdir`), and every case is initialised and stepped once with the
-scenario's communication step (:meth:`scenarios.master.Master.probe`), so a step or a value an FMU refuses
+checked against the FMUs' model descriptions (:mod:`scenarios.master.values`), the output folder is locked and
+checked writable (:mod:`scenarios.run.outdir`), and every case is initialised and stepped once with the
+scenario's communication step (:meth:`scenarios.master.cosim.Master.probe`), so a step or a value an FMU refuses
 is reported with the FMU's message before anything runs. Each case then ends with one outcome (see
 docs/outcomes.md); the results folder is published only when every case has finished.
 """
@@ -24,20 +24,20 @@ from flexarm.parameters import DEFAULT_PARAMETER_FILE
 from flexarm.provenance import git_commit, package_version, sha256_file, write_json
 from flexarm.signals import names as signal_names
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
+from scenarios.analysis.stability import loop_stability
+from scenarios.config import KINDS, Scenario, ScenarioError, check_inputs_given, check_size
+from scenarios.master import cosim as master
+from scenarios.master import isolation
+from scenarios.master.fmu_files import NotAnFmuError, read_description
+from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S
+from scenarios.master.values import check_parameters
+from scenarios.metrics import METRICS, UNITS, saturation_warnings, table_metrics
+from scenarios.results import analysis_columns, portable, write_csv
+from scenarios.run.loop_delay import INDEX_NAMES, loop_delay_record, loop_delay_warnings
+from scenarios.run.outdir import check_writable, run_folder
+from scenarios.run.verdict import judge
 
-from . import isolation, master
-from .config import KINDS, Scenario, ScenarioError, check_inputs_given, check_size
-from .fmu_files import NotAnFmuError, read_description
-from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S
-from .loop_delay import INDEX_NAMES, loop_delay_record, loop_delay_warnings
-from .metrics import METRICS, UNITS, saturation_warnings, table_metrics
-from .outdir import check_writable, run_folder
-from .results import analysis_columns, portable, write_csv
-from .stability import loop_stability
-from .values import check_parameters
-from .verdict import judge
-
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 #: Where FMUs are built and found: $FLEXARM_FMU_DIR, else ./build/fmus (relative to the current directory, as
 #: fmu_build's default), made absolute once so that scenario and sweep files in other folders find the same.
 DEFAULT_FMU_DIR = Path(os.environ.get("FLEXARM_FMU_DIR", Path("build") / "fmus")).resolve()
@@ -66,12 +66,12 @@ class CaseResult:
     series: dict[str, np.ndarray]
     outcome: master.Outcome = field(default_factory=lambda: master.Outcome("ok"))
     #: What the run did not do well (e.g. torque saturation, :func:`scenarios.metrics.saturation_warnings`; an
-    #: unstable sampled loop the plant scheme cannot show, :func:`scenarios.stability.loop_stability`).
+    #: unstable sampled loop the plant scheme cannot show, :func:`scenarios.analysis.stability.loop_stability`).
     warnings: list[str] = field(default_factory=list)
-    #: The linearised sampled loop's stability (:func:`scenarios.stability.loop_stability`: the check, or why it
+    #: The linearised sampled loop's stability (:func:`scenarios.analysis.stability.loop_stability`: the check, or why it
     #: was not made and whether the plant scheme could show a bracket-mode instability anyway).
     loop_stability: dict | None = None
-    #: The run's verdict from its own samples (:func:`scenarios.verdict.verdict`); None when it did not finish.
+    #: The run's verdict from its own samples (:func:`scenarios.run.verdict.verdict`); None when it did not finish.
     verdict: dict | None = None
 
 
@@ -321,8 +321,8 @@ class Setup:
     #: The reference FMU's ``lead_samples`` for the run's stepping (:func:`reference_lead`), unless a case sets
     #: it; None without a reference FMU that has the parameter.
     reference_lead: int | None = None
-    #: Instances run each in a process of their own (:mod:`scenarios.fmu_proxy`): by default those given as a
-    #: .fmu path (not ours, :func:`scenarios.isolation.foreign_instances`); every one with ``--isolate all``.
+    #: Instances run each in a process of their own (:mod:`scenarios.master.fmu_proxy`): by default those given as a
+    #: .fmu path (not ours, :func:`scenarios.master.isolation.foreign_instances`); every one with ``--isolate all``.
     isolate: list[str] = field(default_factory=list)
     #: Seconds a call of an isolated FMU may take (``--step-timeout``).
     step_timeout: float = DEFAULT_STEP_TIMEOUT_S
@@ -338,7 +338,7 @@ class Setup:
                              algorithm or self.scenario.algorithm, self.isolate, self.step_timeout)
 
     def case_parameters(self, case_parameters: dict[str, dict], where: str = "") -> dict[str, dict]:
-        """The case's parameters checked against the FMUs and converted (:func:`scenarios.values.check_parameters`),
+        """The case's parameters checked against the FMUs and converted (:func:`scenarios.master.values.check_parameters`),
         with the plant started on the trajectory unless the case says otherwise."""
         case_parameters = {inst: {k: v for k, v in values.items() if k not in self.left_out.get(inst, ())}
                            for inst, values in case_parameters.items()}
@@ -464,7 +464,7 @@ def left_out_parameters(scenario: Scenario, descriptions: dict, instance: str = 
     Used when ``--controller`` swaps in another FMU: the scenario's settings of our controllers
     (``gain_set``, ``schedule_period``, ...) mean nothing to it and are left out (the CLI prints them).
     """
-    from .values import settable
+    from scenarios.master.values import settable
 
     if instance not in descriptions:
         return {}
@@ -477,7 +477,7 @@ def left_out_parameters(scenario: Scenario, descriptions: dict, instance: str = 
 
 
 def check_overrides(setup: Setup, overrides: dict[str, dict]) -> dict[str, dict]:
-    """``--set`` values checked against the FMUs' model descriptions (:func:`scenarios.values.check_parameters`)."""
+    """``--set`` values checked against the FMUs' model descriptions (:func:`scenarios.master.values.check_parameters`)."""
     return check_parameters("--set", setup.descriptions, overrides)
 
 
@@ -527,8 +527,8 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     Cases with the same FMUs share one loaded master (reset between cases). ``algorithm`` None: the
     scenario file's (``scenario.algorithm``, default Gauss-Seidel). ``kind`` None: the scenario file's
     (``scenario.kind``, default "python"); "native" runs the plain-C FMUs (:func:`resolve_fmus`). Every refusal
-    (:class:`ScenarioError`, :class:`scenarios.outdir.OutputError`) comes before the first case runs; on
-    Ctrl-C (:class:`scenarios.master.RunInterrupted`) or a filesystem error nothing is published and the
+    (:class:`ScenarioError`, :class:`scenarios.run.outdir.OutputError`) comes before the first case runs; on
+    Ctrl-C (:class:`scenarios.master.cosim.RunInterrupted`) or a filesystem error nothing is published and the
     previous results stay as they were.
 
     ``controller`` (a name or a .fmu path, see :func:`resolve_fmus`) replaces the scenario's controller: the
@@ -538,7 +538,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     descriptions like scenario values and applied to every case after the scenario's own.
     ``divergence_limit``: a recorded |value| above it ends a case as "unbounded" (:meth:`master.Master.run`).
     ``isolate`` and ``step_timeout``: which FMUs run in a process of their own, and how long a call of theirs
-    may take (:func:`scenarios.isolation.apply`).
+    may take (:func:`scenarios.master.isolation.apply`).
     """
     algorithm = algorithm or scenario.algorithm
     scenario = with_overrides(scenario, overrides)
@@ -591,7 +591,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                                           setup.n_steps * scenario.step_size, algorithm, metrics=metrics)
                     notes = list(out.get("warnings", [])) + ([stab["note"]] if stab and stab["note"] else [])
                     series.update(analysis_columns(series, setup.plant, reference))
-                    status, message, judged = judge(out, series, setup.driver)  # scenarios/verdict.py
+                    status, message, judged = judge(out, series, setup.driver)  # scenarios/run/verdict.py
                     by_key[case.key] = CaseResult(case.key, case.label, status, message, metrics,
                                                   wall, series, out["outcome"], notes, stab, judged)
                     write_csv(folder / f"{case.key}.csv", series)
@@ -618,7 +618,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
                 m.close()
         results = [by_key[c.key] for c in scenario.cases]
         if plots:
-            from .plots import plot_scenario
+            from scenarios.run.plots import plot_scenario
 
             traj = desired_trajectory()
             setup = setups[0][0]
@@ -779,7 +779,7 @@ CASES_PER_BLOCK = 4
 def format_table(results: list[CaseResult], paper: dict | None) -> str:
     """Our metrics beside the paper's, with their ratio (ours / paper); blocks of :data:`CASES_PER_BLOCK`
     cases, separated by a blank line."""
-    from .metrics import LABELS
+    from scenarios.metrics import LABELS
 
     blocks = []
     for start in range(0, len(results), CASES_PER_BLOCK):

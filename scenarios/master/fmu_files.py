@@ -2,7 +2,7 @@
 
 Every process unpacks into its own folder under ``<temp>/flexarm-fmus/`` and holds an ``flock`` on a
 file inside it for as long as it lives. The folder is removed when the process exits (``atexit``, and
-:meth:`scenarios.master.Master.close` removes each FMU's files as it frees it); a folder whose lock no
+:meth:`scenarios.master.cosim.Master.close` removes each FMU's files as it frees it); a folder whose lock no
 process holds any more was left by a killed run, and the next process that unpacks an FMU removes it.
 """
 

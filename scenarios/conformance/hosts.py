@@ -2,10 +2,10 @@
 
 Every function takes a case's SSP archive (``python -m scenarios export-ssp``) and returns a :class:`Trace`
 of the plant's element angles and rates and the torques at every communication point, so that each master is
-judged by the same metrics (:func:`scenarios.conformance.figures`). Nothing is set on the FMUs: the archive's
+judged by the same metrics (:func:`scenarios.conformance.matrix.figures`). Nothing is set on the FMUs: the archive's
 baked values are the case.
 
-* :func:`run_ours` - our master (:mod:`scenarios.master`), Gauss-Seidel or Jacobi;
+* :func:`run_ours` - our master (:mod:`scenarios.master.cosim`), Gauss-Seidel or Jacobi;
 * :func:`run_libcosim` - libcosim (Open Simulation Platform), Jacobi;
 * :func:`run_ecos` - Ecos (``ecospy``), Jacobi;
 * :func:`run_simulate_ssp` - fmpy's ``simulate_ssp``: Jacobi, nothing exchanged before its first step (every
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .ssp import NS
+from scenarios.conformance.ssp import NS
 
 #: The plant's recorded state: element angles (rad) then rates (rad/s).
 STATE = [f"theta{i}" for i in range(1, 12)] + [f"omega{i}" for i in range(1, 12)]
@@ -73,7 +73,7 @@ def _from_signals(time, signals: dict, plant: str = "plant", driver: str = "cont
 
 def experiment(ssp: Path) -> tuple[int, float]:
     """(communication steps, step size in s) of an archive: the DefaultExperiment's stop time over the fixed step
-    its SSD names for libcosim (``osp:FixedStepAlgorithm``, the same as OMSimulator's, see scenarios.ssp)."""
+    its SSD names for libcosim (``osp:FixedStepAlgorithm``, the same as OMSimulator's, see scenarios.conformance.ssp)."""
     from lxml import etree
 
     doc = etree.parse(io.BytesIO(zipfile.ZipFile(ssp).read("SystemStructure.ssd")))
@@ -99,7 +99,7 @@ def extract_fmus(ssp: Path, folder: Path) -> dict[str, str]:
 
 
 def _setup(scenario, ssp: Path, folder: Path, kind: str):
-    from .runner import prepare
+    from scenarios.run.runner import prepare
 
     return prepare(scenario, names=extract_fmus(ssp, folder), build=False, kind=kind)
 
@@ -124,7 +124,7 @@ def run_hostile(ssp: Path, scenario, kind: str, algorithm: str, folder: Path, se
 
 
 def run_libcosim(ssp: Path) -> Trace:
-    from .libcosim_runner import run_case_libcosim
+    from scenarios.conformance.libcosim_runner import run_case_libcosim
 
     out = run_case_libcosim(ssp)
     return _from_signals(out["time"], out["signals"])
@@ -163,7 +163,7 @@ def _slave(fmu: Path, name: str, folder: Path, messages: list[str]):
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
-    from .master import logging_callbacks
+    from scenarios.master.cosim import logging_callbacks
 
     md = read_model_description(str(fmu))
     slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu), unzipdir=str(folder / name)),
@@ -289,7 +289,7 @@ def run_simulate_fmu(ssp: Path, torques: Trace, folder: Path) -> Trace:
 
 
 class HostileHost:
-    """Runs a :class:`scenarios.runner.Setup`'s FMUs like :meth:`scenarios.master.Master.run`, hostilely.
+    """Runs a :class:`scenarios.run.runner.Setup`'s FMUs like :meth:`scenarios.master.cosim.Master.run`, hostilely.
 
     Parameters
     ----------
@@ -376,7 +376,7 @@ class HostileHost:
         self._set_inputs([(c.dst_fmu, c.dst_var, self._get(c.src_fmu, c.src_var)) for c in feedback])
 
     def run(self, parameters, record, n_steps, step_size, divergence_limit=1e4, progress=None, **_) -> dict:
-        """:meth:`scenarios.master.Master.run`'s interface (status always "ok": an FMU error raises)."""
+        """:meth:`scenarios.master.cosim.Master.run`'s interface (status always "ok": an FMU error raises)."""
         self._load()
         try:
             for name, s in self.slaves.items():

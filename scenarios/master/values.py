@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 
-from .config import ScenarioError
+from scenarios.config import ScenarioError
 
 #: Causalities a scenario or sweep may set.
 SETTABLE = ("parameter",)

@@ -1,7 +1,7 @@
 """The generated blocks' machinery: block markers, the registry of block writers, the page's runs.
 
-Below :mod:`scenarios.results_page` (which runs the page and writes the files) and the modules that register
-blocks (:mod:`scenarios.cost_doc`, :mod:`scenarios.findings_doc`, the page itself), so that each of them imports
+Below :mod:`scenarios.reports.results_page` (which runs the page and writes the files) and the modules that register
+blocks (:mod:`scenarios.reports.cost_doc`, :mod:`scenarios.reports.findings_doc`, the page itself), so that each of them imports
 this module and none imports another in a circle.
 """
 
@@ -13,8 +13,8 @@ import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
-from .config import SCENARIO_DIR, load_scenario
-from .runner import DEFAULT_FMU_DIR, REPO, CaseResult, run_scenario
+from scenarios.config import SCENARIO_DIR, load_scenario
+from scenarios.run.runner import DEFAULT_FMU_DIR, REPO, CaseResult, run_scenario
 
 __all__ = ["BLOCKS", "REPO", "PageRuns", "ResultsPageError", "block", "splice_blocks"]
 

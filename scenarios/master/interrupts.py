@@ -3,7 +3,7 @@
 An FMU written in Python runs in this interpreter, so a KeyboardInterrupt or SystemExit raised in its code
 would be caught there and returned as fmi2Error, i.e. reported as the FMU failing. While a
 :class:`DeferSignals` is active the master checks the flag between steps, and a wait for an FMU running in a
-process of its own (:mod:`scenarios.fmu_proxy`) checks it every few milliseconds and gives the call up.
+process of its own (:mod:`scenarios.master.fmu_proxy`) checks it every few milliseconds and gives the call up.
 """
 
 from __future__ import annotations
@@ -133,7 +133,7 @@ def _end_now(signum: int) -> None:
     except (OSError, ValueError):
         pass
     try:
-        from .fmu_files import _remove_own
+        from scenarios.master.fmu_files import _remove_own
 
         _remove_own(os.getpid())
     finally:

@@ -2,7 +2,7 @@
 
 ``python -m scenarios conformance`` exports every case of the shipped closed-loop scenarios (:data:`SCENARIOS`)
 once per FMU kind, with nothing stepping-specific in the archive, and runs each archive in every master of
-:mod:`scenarios.conformance_hosts` with no parameter changed between them. Each master's rms position and rms
+:mod:`scenarios.conformance.hosts` with no parameter changed between them. Each master's rms position and rms
 velocity error is compared with our master's Gauss-Seidel run of the same archive: within 5 % or 0.005 deg
 (0.05 deg/s), whichever is larger. The results go to ``docs/conformance.json`` (with the commit, the date and the
 SHA-256 of every FMU and scenario file they came from) and the table into ``docs/masters-and-ssp.md``.
@@ -26,12 +26,11 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from flexarm.provenance import git_commit, sha256_file, write_atomic
-
-from . import conformance_hosts as hosts
-from .config import SCENARIO_DIR, load_scenario
-from .metrics import table_metrics
-from .page_blocks import block, splice_blocks
-from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, REPO, desired_states, desired_trajectory
+from scenarios.config import SCENARIO_DIR, load_scenario
+from scenarios.conformance import hosts
+from scenarios.metrics import table_metrics
+from scenarios.reports.page_blocks import block, splice_blocks
+from scenarios.run.runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, REPO, desired_states, desired_trajectory
 
 #: The shipped closed-loop scenarios every master must agree on (issue 31's acceptance).
 SCENARIOS = ("table1", "table2", "table3", "lqg", "settling")
@@ -165,7 +164,7 @@ def run_matrix(scenarios=SCENARIOS, kinds=KINDS, masters=tuple(MASTERS), cases: 
 
     `cases` keeps only these case keys; `subset` (kind -> scenario -> case keys, :data:`PUBLISHED`) only these
     cases of a kind it names."""
-    from .ssp import export_ssp
+    from scenarios.conformance.ssp import export_ssp
 
     rows = []
     with tempfile.TemporaryDirectory(prefix="flexarm-conformance-ssp-") as tmp:
@@ -249,7 +248,7 @@ def matrix_block(runs) -> str:
 def write(doc: dict) -> None:
     """The JSON and the table, each atomically (the document's other generated blocks are left as they are:
     ``results-page`` writes them)."""
-    from .page_blocks import _MARKED
+    from scenarios.reports.page_blocks import _MARKED
 
     write_atomic(JSON_PATH, json.dumps(doc, indent=1) + "\n")
     text = DOC_PATH.read_text()

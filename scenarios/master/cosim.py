@@ -62,16 +62,16 @@ from fmpy.fmi2 import (
     fmi2ValueReference,
 )
 
-from .compat import fmu2_raw_functions
-from .fmi_callbacks import logging_callbacks
-from .fmu_files import read_description, unpack
-from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S, RemoteSlave
-from .interrupts import DeferSignals, RunInterrupted  # noqa: F401 - RunInterrupted: raised by Master.run, imported from here
-from .values import parse_choices
+from scenarios.master.compat import fmu2_raw_functions
+from scenarios.master.fmi_callbacks import logging_callbacks
+from scenarios.master.fmu_files import read_description, unpack
+from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S, RemoteSlave
+from scenarios.master.interrupts import DeferSignals, RunInterrupted  # noqa: F401 - RunInterrupted: raised by Master.run, imported from here
+from scenarios.master.values import parse_choices
 
 ALGORITHMS = ("gauss-seidel", "jacobi", "fmpy-ssp")
 _STATUS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
-#: What can happen to an FMU run in a process of its own (scenarios.fmu_proxy) besides an FMI status.
+#: What can happen to an FMU run in a process of its own (scenarios.master.fmu_proxy) besides an FMI status.
 PROCESS_FAILURES = ("timeout", "crashed", "interrupted")
 #: The outcomes of a run, in the order docs/outcomes.md explains them.
 OUTCOMES = ("ok", "unbounded", "error", "interrupted")
@@ -144,7 +144,7 @@ class System:
     parameters: dict[str, dict[str, float | int | bool | str]] = field(default_factory=dict)
     record: list[tuple[str, str]] = field(default_factory=list)
     step_size: float = 1e-3
-    #: Communication steps; no default: the run length comes from the trajectory (scenarios.runner.run_length).
+    #: Communication steps; no default: the run length comes from the trajectory (scenarios.run.runner.run_length).
     n_steps: int | None = None
     #: |value| above which a recorded signal counts as numerically unbounded.
     divergence_limit: float = 1e4
@@ -160,7 +160,7 @@ _ABANDONED: list = []
 class _Unit:
     """One loaded FMU: its slave, variable references by name, raw FMI functions.
 
-    `isolated`: run it in a process of its own (:class:`scenarios.fmu_proxy.RemoteSlave`), each call bounded
+    `isolated`: run it in a process of its own (:class:`scenarios.master.fmu_proxy.RemoteSlave`), each call bounded
     by `timeout` seconds. After a failure only what FMI 2.0 (2.0.5) allows is called: after fmi2Error or
     fmi2Discard, fmi2Reset or fmi2FreeInstance (never fmi2Terminate); after fmi2Fatal nothing at all (an
     in-process instance is abandoned and the FMU unpacked and loaded afresh for the next run; a process of
@@ -357,7 +357,7 @@ class Master:
     algorithm : {"gauss-seidel", "jacobi"}
         How values are exchanged at a communication point.
     isolate : collection of str
-        Instances run each in a process of their own (:mod:`scenarios.fmu_proxy`): a crash, a hang or an
+        Instances run each in a process of their own (:mod:`scenarios.master.fmu_proxy`): a crash, a hang or an
         ``os._exit`` there ends only the run, as ``error``. The others run in this process, at full speed.
     step_timeout : float
         Seconds any call of an isolated FMU may take before its process is killed (the run then ends as
@@ -532,12 +532,12 @@ class Master:
         ----------
         parameters : dict
             {instance: {variable: value}}, set before initialisation (values of the FMU variable's type:
-            see :func:`scenarios.values.check_parameters`).
+            see :func:`scenarios.master.values.check_parameters`).
         record : list of (instance, variable)
             Real variables to record at every communication point.
         n_steps : int
             Number of communication steps; `n_steps` + 1 samples are recorded. No default: the run
-            length comes from the trajectory (:func:`scenarios.runner.run_length`).
+            length comes from the trajectory (:func:`scenarios.run.runner.run_length`).
         step_size : float
             Communication step, s.
         divergence_limit : float

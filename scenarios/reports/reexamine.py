@@ -1,6 +1,6 @@
 """Re-examine the paper's findings under both integration schemes and structural damping (issue 15, items 3-4).
 
-Run ``python -m scenarios.reexamine`` (a few minutes: about 60 three-FMU runs).
+Run ``python -m scenarios.reports.reexamine`` (a few minutes: about 60 three-FMU runs).
 It writes, into ``docs/``:
 
 * ``findings-data.md``: generated tables (linear growth rates per γ and damping
@@ -33,9 +33,9 @@ from flexarm.provenance import git_commit, refuse_outside_checkout, sha256_file,
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
 from scenarios.config import SCENARIO_DIR, load_scenario
 from scenarios.metrics import METRICS, velocity_errors
-from scenarios.runner import run_scenario
+from scenarios.run.runner import run_scenario
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 DOCS = REPO / "docs"
 SCHEMES = {"rodas4": 1, "exponential": 2}
 #: Damping ratios examined: none (the paper), aluminium material damping only, light, typical bolted.
@@ -54,8 +54,8 @@ LONG_SCHEMES = ("rodas4", "reference")
 def _long_limit() -> float:
     """The master's bound on recorded signals for the runs past the slew: the undamped reference's growing bracket
     vibration drives the recorded accelerometers past the default 1e4 m/s² at about 2.6 s while the angles and
-    rates stay finite (the same bound as the 10 s runs of :mod:`scenarios.scheme_accuracy`)."""
-    from scenarios.scheme_accuracy import DIVERGENCE_LIMIT
+    rates stay finite (the same bound as the 10 s runs of :mod:`scenarios.reports.scheme_accuracy`)."""
+    from scenarios.reports.scheme_accuracy import DIVERGENCE_LIMIT
 
     return DIVERGENCE_LIMIT
 
@@ -297,7 +297,7 @@ def _fmt(x, spec=".3f") -> str:
 
 def markdown(data: dict) -> str:
     L = ["# Findings data (generated)", "",
-         "Written by `python -m scenarios.reexamine`; do not edit. Interpretation: docs/findings.md.", "",
+         "Written by `python -m scenarios.reports.reexamine`; do not edit. Interpretation: docs/findings.md.", "",
          f"commit {data['commit']}; trajectory sha256 {data['trajectory_sha256'][:16]}...; "
          f"parameters sha256 {data['parameter_sha256'][:16]}...", "",
          "## Linear growth rates (1 ms ZOH, gains as implemented, worst of the 11 scheduled sets)", "",
@@ -366,12 +366,12 @@ def markdown(data: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m scenarios.reexamine", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m scenarios.reports.reexamine", description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=REPO / "results" / "reexamine", help="run results folder")
     ap.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS),
                     help="recompute only these parts (the others are kept from docs/findings-data.json)")
     args = ap.parse_args(argv)
-    if refuse_outside_checkout("python -m scenarios.reexamine", "docs/findings-data.*", REPO):
+    if refuse_outside_checkout("python -m scenarios.reports.reexamine", "docs/findings-data.*", REPO):
         return 2
     t0 = time.perf_counter()
     old = DOCS / "findings-data.json"

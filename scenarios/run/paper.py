@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import tomllib
 
-from .config import SCENARIO_DIR, Scenario, load_scenario
+from scenarios.config import SCENARIO_DIR, Scenario, load_scenario
 
 #: The paper's tables, compared with, never copied into our outputs.
 PAPER_FILE = SCENARIO_DIR / "paper_tables.toml"

@@ -1,8 +1,8 @@
-"""Run an exported scenario (``.ssp``, see :mod:`scenarios.ssp`) in libcosim, a second, independent FMI master.
+"""Run an exported scenario (``.ssp``, see :mod:`scenarios.conformance.ssp`) in libcosim, a second, independent FMI master.
 
 libcosim is the Open Simulation Platform's co-simulation library (C++), used
 here through its Python binding libcosimpy. :func:`run_case_libcosim` loads the
-archive of one case (:func:`scenarios.ssp.export_ssp` writes one per case; its
+archive of one case (:func:`scenarios.conformance.ssp.export_ssp` writes one per case; its
 FMUs default to the case's values and its parameter bindings say the same), observes the requested variables with
 a time-series observer and steps the whole run.
 
@@ -67,9 +67,8 @@ import numpy as np
 from lxml import etree
 
 from flexarm.signals import names as signal_names
-
-from .compat import libcosim_last_error, libcosim_real_samples_reader
-from .ssp import DEFAULT_SSD, NS, SSPExportError
+from scenarios.conformance.ssp import DEFAULT_SSD, NS, SSPExportError
+from scenarios.master.compat import libcosim_last_error, libcosim_real_samples_reader
 
 NANO = 1_000_000_000
 
@@ -136,7 +135,7 @@ def run_case_libcosim(ssp_path: str | Path, n_steps: int | None = None,
     Parameters
     ----------
     ssp_path : path
-        A case's archive, written by :func:`scenarios.ssp.export_ssp`.
+        A case's archive, written by :func:`scenarios.conformance.ssp.export_ssp`.
     n_steps : int, optional
         Communication steps (default: the SSD's DefaultExperiment, i.e. the scenario's run length).
     record : list of (instance, variable) or "instance.variable", optional
@@ -223,15 +222,15 @@ def run_case_libcosim(ssp_path: str | Path, n_steps: int | None = None,
 
 
 def main(argv=None) -> int:
-    """``python -m scenarios.libcosim_runner SSP [--steps N] [--out FILE.csv|.npz]``: one case in libcosim."""
+    """``python -m scenarios.conformance.libcosim_runner SSP [--steps N] [--out FILE.csv|.npz]``: one case in libcosim."""
     import argparse
     import sys
 
-    from . import runner
-    from .metrics import LABELS, METRICS, table_metrics
-    from .results import write_csv
+    from scenarios.metrics import LABELS, METRICS, table_metrics
+    from scenarios.results import write_csv
+    from scenarios.run import runner
 
-    ap = argparse.ArgumentParser(prog="python -m scenarios.libcosim_runner",
+    ap = argparse.ArgumentParser(prog="python -m scenarios.conformance.libcosim_runner",
                                  description="Run one case of an exported scenario (.ssp) in libcosim.")
     ap.add_argument("ssp", type=Path, help="a case's archive from `python -m scenarios export-ssp`, "
                     "e.g. build/ssp/table2/none.ssp")

@@ -7,7 +7,7 @@
   ``ssd:Component`` per FMU instance of the case, ``source="resources/<instance>.fmu"``,
   with every input, output and parameter of the FMU as a typed ``ssd:Connector``
   (Reals with their unit, defined in ``ssd:Units``); ``ssd:Connections`` as the master wires them
-  (:func:`scenarios.runner.connect_by_name`, or the scenario's explicit list), in evaluation order
+  (:func:`scenarios.run.runner.connect_by_name`, or the scenario's explicit list), in evaluation order
   (by the source's place in the scenario's ``order``, the torques last: a Gauss-Seidel master that
   follows the SSD's connection order, as OMSimulator's does, adds no delay);
   ``ssd:DefaultExperiment`` from 0 to the scenario's run length (``samples`` ×
@@ -21,7 +21,7 @@
   its modelDescription.xml are rewritten, and ``resources/flexarm_start_values.json``
   inside it, read by the FMU when it is instantiated, carries the same values.
   The plant's start angles on the trajectory are among them
-  (:func:`scenarios.runner.start_parameters`). So a master that applies no
+  (:func:`scenarios.run.runner.start_parameters`). So a master that applies no
   parameter set at all (fmpy's ``simulate_ssp``, which ignores parameter
   bindings; a native SSP engine without a parameter set named on its command
   line) still runs the case;
@@ -60,10 +60,9 @@ from lxml import etree
 from flexarm.loop_index import AUTOMATIC
 from flexarm.lqg import with_loop_delay
 from flexarm.provenance import write_atomic
-
-from . import runner
-from .config import Scenario
-from .values import parse_choices
+from scenarios.config import Scenario
+from scenarios.master.values import parse_choices
+from scenarios.run import runner
 
 NS = {
     "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
@@ -116,7 +115,7 @@ def plan_cases(scenario: Scenario, fmu_dir: Path = runner.DEFAULT_FMU_DIR, build
                native_fmu_dir: Path = runner.DEFAULT_NATIVE_FMU_DIR) -> list[CasePlan]:
     """Prepare each case as the runner would (FMUs built if needed); `cases` selects by key (default all).
 
-    `kind` (default the scenario's): "python" or "native" FMUs (:func:`scenarios.runner.resolve_fmus`).
+    `kind` (default the scenario's): "python" or "native" FMUs (:func:`scenarios.run.runner.resolve_fmus`).
     """
     keys = [c.key for c in scenario.cases]
     unknown = sorted(set(cases or ()) - set(keys))
@@ -256,7 +255,7 @@ def system_structure_xml(scenario: Scenario, plan: CasePlan) -> bytes:
     setup = plan.setup
     mds = {inst: read_model_description(str(setup.paths[inst])) for inst in setup.scenario.order}
     root = etree.Element(_q("ssd", "SystemStructureDescription"), nsmap=NS, version="1.0",
-                         name=f"{scenario.name}_{plan.key}", generationTool="flexarm-fmi scenarios.ssp")
+                         name=f"{scenario.name}_{plan.key}", generationTool="flexarm-fmi scenarios.conformance.ssp")
     root.set("description", f"{scenario.description} -- case {plan.key}: {plan.label} -- for a {scenario.algorithm} "
              f"master stepping {_fmt_real(scenario.step_size)} s".strip(" -"))
     system = etree.SubElement(root, _q("ssd", "System"), name=scenario.name)
