@@ -169,7 +169,7 @@ def _choice_values(setup, params: dict) -> dict:
 def cosim_rtf(fmu_dir: Path, repeats: int) -> tuple[float, float, dict]:
     """table2's first case in our master: (best wall time per run s, simulated s, metrics)."""
     from scenarios.config import load_scenario
-    from scenarios.run.runner import prepare
+    from scenarios.run.setup import prepare
 
     sc = load_scenario("table2")
     case = sc.cases[0]

@@ -22,9 +22,10 @@ from pathlib import Path
 from scenarios.master.cosim import CoSimulationError
 from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S, START_TIMEOUT_S
 from scenarios.master.isolation import ISOLATE
+from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, check_kind
 from scenarios.run.outdir import OutputError, describe_os_error
 from scenarios.run.paper import paper_columns
-from scenarios.run.runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, check_kind, format_table, run_scenario
+from scenarios.run.runner import format_table, run_scenario
 
 from .config import (
     MAX_CASES,
@@ -260,7 +261,7 @@ def _dispatch(args) -> int:
             print(f"{s.name:16s} {len(s.cases)} cases  {s.description}")
         return EXIT_OK
     names = [s.name for s in list_scenarios()] if args.scenarios == ["all"] else args.scenarios
-    from . import ilc  # scenarios with an [ilc] table repeat a case and learn between trials (scenarios/ilc/trials.py)
+    from scenarios.ilc import trials as ilc  # scenarios with an [ilc] table repeat a case and learn between trials (scenarios/ilc/trials.py)
 
     if args.scenarios != ["all"] and any(ilc.is_ilc_scenario(n) for n in names):
         if len(names) != 1:

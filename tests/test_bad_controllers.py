@@ -22,7 +22,7 @@ from fmu_harness import built_fmus
 
 from scenarios.config import SCENARIO_DIR, load_scenario
 from scenarios.master.cosim import Master
-from scenarios.run import runner
+from scenarios.run.setup import prepare
 
 #: Hang guard for one command: far above a run's minute on a loaded machine, far below a hang's forever.
 GUARD_S = 600
@@ -147,7 +147,7 @@ def test_after_fmi2fatal_nothing_more_is_called_and_the_next_run_starts_afresh(b
 
 def test_isolated_fmus_give_the_same_numbers_as_in_process(fmu_dir):
     """Values cross the process boundary as IEEE doubles: Table 2's closed loop, bit for bit the same run."""
-    setup = runner.prepare(load_scenario("table2"), fmu_dir, build=False)
+    setup = prepare(load_scenario("table2"), fmu_dir, build=False)
     params = setup.case_parameters({"sensors": {"noise_enabled": True}})
     runs = []
     for isolate in ([], list(setup.paths)):
@@ -255,7 +255,7 @@ def test_a_signal_ends_the_run_even_inside_an_fmu_call_in_this_process_that_neve
 def test_an_isolated_fmus_error_status_reads_as_in_process_and_it_is_reset_for_the_next_run(fmu_dir):
     """fmi2Error from an FMU in its own process: the same outcome, FMU message included; then fmi2Reset (FMI
     2.0.5 allows it after fmi2Error, fmi2Terminate it does not) and the next run is ok."""
-    setup = runner.prepare(load_scenario("table2"), fmu_dir, build=False)
+    setup = prepare(load_scenario("table2"), fmu_dir, build=False)
     setup.isolate = ["sensors", "controller"]  # the sensors refuse the step; the controller's sets are pipelined
     with setup.open_master() as m:
         bad = m.run(setup.case_parameters({"sensors": {"sample_period": 0.0015}}), setup.record, 50)

@@ -30,6 +30,8 @@ from scenarios.config import SCENARIO_DIR, load_scenario
 from scenarios.master import fmu_files
 from scenarios.master.values import check_value
 from scenarios.run import runner
+from scenarios.run import setup as run_setup
+from scenarios.run.setup import prepare, verify_data_chain
 from scenarios.sweep import Journal, load_sweep, run_sweep
 
 TABLE2 = (SCENARIO_DIR / "table2.toml").read_text()
@@ -66,7 +68,7 @@ def stderr_line(capsys) -> str:
 def table2_setup():
     # the FMUs this test process built; a fresh clone has no build/fmus yet
     folder = next(iter(built_fmus().values())).parent
-    return runner.prepare(load_scenario("table2"), folder, build=False)
+    return prepare(load_scenario("table2"), folder, build=False)
 
 
 # ---------------------------------------------------------------------------------------- 1. typed outcomes
@@ -296,7 +298,7 @@ def test_a_broken_trajectory_is_refused_through_the_loader(tmp_path, capsys, mon
     np.savez(bad, **arrays)
     meta = json.loads(DEFAULT_TRAJECTORY_FILE.with_suffix(".json").read_text())  # its side file records it
     write_sealed_json(bad.with_suffix(".json"), {**meta, "npz_sha256": sha256_file(bad)})
-    monkeypatch.setattr(runner, "desired_trajectory", lambda: load_trajectory(bad))
+    monkeypatch.setattr(run_setup, "desired_trajectory", lambda: load_trajectory(bad))
     assert main(["run", "table2", "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
     err = stderr_line(capsys)
     assert err.startswith("error: data chain:") and str(bad) in err and "arrays of different lengths" in err
@@ -326,7 +328,7 @@ def test_a_trajectory_made_from_other_parameters_is_refused(tmp_path, capsys, mo
     shutil.copyfile(DEFAULT_TRAJECTORY_FILE, traj)
     shutil.copyfile(DEFAULT_TRAJECTORY_FILE.with_suffix(".json"), traj.with_suffix(".json"))
     params.write_text(params.read_text().replace("\n", "\n# edited\n", 1))
-    monkeypatch.setattr(runner, "desired_trajectory", lambda: load_trajectory(traj))
+    monkeypatch.setattr(run_setup, "desired_trajectory", lambda: load_trajectory(traj))
     monkeypatch.setattr(flexarm.trajectory.io, "DEFAULT_TRAJECTORY_FILE", traj)
     assert main(["run", "table2", "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
     err = stderr_line(capsys)
@@ -353,7 +355,7 @@ def test_gains_made_from_another_trajectory_are_refused(tmp_path, capsys, monkey
 
 
 def test_the_data_chain_is_recorded(tmp_path):
-    chain = runner.verify_data_chain()
+    chain = verify_data_chain()
     assert {"flexarm/data/sandia_arm.toml", "flexarm/data/trajectory.npz"} <= set(chain)
     assert sum(k.startswith("flexarm/data/gains/") for k in chain) >= 12 and all(len(v) == 64 for v in chain.values())
 

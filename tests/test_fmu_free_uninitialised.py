@@ -28,7 +28,7 @@ import pytest
 
 import flexarm
 from scenarios.config import load_scenario
-from scenarios.run.runner import DEFAULT_FMU_DIR, resolve_fmus
+from scenarios.run.fmus import DEFAULT_FMU_DIR, resolve_fmus
 
 #: Imports the flexarm copy given as argv[1], then instantiates and frees each FMU of argv[2:] three times,
 #: calling nothing in between (the third time fmi2Reset, which makes a new Python slave, before freeing);

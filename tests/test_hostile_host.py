@@ -23,7 +23,8 @@ from fmpy.fmi2 import FMU2Slave
 
 from scenarios.config import load_scenario
 from scenarios.conformance.hosts import HostileHost
-from scenarios.run.runner import prepare, simulate_case
+from scenarios.run.runner import simulate_case
+from scenarios.run.setup import prepare
 
 #: Cases of lqg_jacobi the host runs (issue 21's table), and all of table2's.
 LQG_CASES = ("none", "none_bank", "noise_bank", "tip_bank_integral")

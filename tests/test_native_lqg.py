@@ -286,7 +286,8 @@ TABLE2_CASES = ("none", "noise", "tip", "tip_noise")
 def _run_scenario(scenario: str, fmus: dict, folder, keys, controller: dict | None = None) -> dict:
     """The recorded signals of the cases `keys` of `scenario`, the controller's parameters updated by `controller`."""
     from scenarios.config import load_scenario
-    from scenarios.run.runner import prepare, simulate_case
+    from scenarios.run.runner import simulate_case
+    from scenarios.run.setup import prepare
 
     folder.mkdir(parents=True)
     for name in ("plant", "sensors", "controller_lqg"):

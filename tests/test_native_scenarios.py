@@ -15,7 +15,8 @@ from native_fmus import native_fmus
 from flexarm.provenance import sha256_file
 from scenarios.config import SCENARIO_DIR, ScenarioError, load_scenario
 from scenarios.metrics import METRICS
-from scenarios.run.runner import CaseResult, format_table, prepare, simulate_case
+from scenarios.run.runner import CaseResult, format_table, simulate_case
+from scenarios.run.setup import prepare
 
 
 def _run_table2(fmus: dict, tmp_path, label: str):

@@ -19,6 +19,7 @@ from scenarios.__main__ import main
 from scenarios.config import ScenarioError, load_scenario, parse_assignment, select_cases
 from scenarios.results import LAYOUT_DOC, render_layout
 from scenarios.run import runner
+from scenarios.run.setup import unfed_inputs
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "own_controller"
@@ -243,9 +244,9 @@ def test_an_input_nothing_feeds_is_refused_unless_it_has_a_start_value():
            "controller": _md("c", ("q1", "input", "0"), ("gain", "input", "1.5"), ("mystery", "input", None))}
     conns = [runner.master.Connection("plant", "q1", "controller", "q1")]
     with pytest.raises(ScenarioError, match=r"input controller\.mystery: nothing feeds it"):
-        runner.unfed_inputs(mds, conns)
+        unfed_inputs(mds, conns)
     del mds["controller"].modelVariables[2]
-    assert runner.unfed_inputs(mds, conns) == {"controller": ["gain"]}
+    assert unfed_inputs(mds, conns) == {"controller": ["gain"]}
 
 
 def _export_own_table2(examples, tmp_path, named: bool, algorithm: str | None = None) -> Path:

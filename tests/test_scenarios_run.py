@@ -61,7 +61,7 @@ def test_table2_qualitative_findings(table2_results):
 
 @pytest.fixture(scope="module")
 def table2_setup():
-    from scenarios.run.runner import prepare
+    from scenarios.run.setup import prepare
 
     return prepare(load_scenario("table2"))
 
@@ -165,27 +165,27 @@ def test_numba_notice_only_where_numba_compiles(monkeypatch, capsys, tmp_path):
     import importlib.util
     import zipfile
 
-    from scenarios.run import runner
+    from scenarios.run.fmus import _say_numba_compile, numba_compiles
 
     monkeypatch.delenv("FLEXARM_NO_NUMBA", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
     has_numba = importlib.util.find_spec("numba") is not None
-    runner._say_numba_compile()
+    _say_numba_compile()
     err = capsys.readouterr().err
     assert ("compiles its Numba kernels" in err) == has_numba
     fmu = tmp_path / "plant.fmu"  # the layout of a Python FMU's private packages
     with zipfile.ZipFile(fmu, "w") as z:
         z.writestr("resources/_flexarm_plant_0123456789ab/__init__.py", "")
-    assert runner.numba_compiles(fmu) == has_numba
+    assert numba_compiles(fmu) == has_numba
     cached = tmp_path / "cache" / "flexarm-fmi" / "numba" / "_flexarm_plant_0123456789ab"
     cached.mkdir(parents=True)
     (cached / "_kernels.advance-455.py311.nbi").write_bytes(b"")
-    assert runner.numba_compiles(fmu) is False  # that build's kernels are cached
-    runner._say_numba_compile(fmu)
+    assert numba_compiles(fmu) is False  # that build's kernels are cached
+    _say_numba_compile(fmu)
     assert capsys.readouterr().err == ""
     monkeypatch.setenv("FLEXARM_NO_NUMBA", "1")
-    runner._say_numba_compile()
-    assert capsys.readouterr().err == "" and runner.numba_compiles() is False
+    _say_numba_compile()
+    assert capsys.readouterr().err == "" and numba_compiles() is False
 
 

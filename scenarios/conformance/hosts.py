@@ -99,7 +99,7 @@ def extract_fmus(ssp: Path, folder: Path) -> dict[str, str]:
 
 
 def _setup(scenario, ssp: Path, folder: Path, kind: str):
-    from scenarios.run.runner import prepare
+    from scenarios.run.setup import prepare
 
     return prepare(scenario, names=extract_fmus(ssp, folder), build=False, kind=kind)
 
@@ -289,7 +289,7 @@ def run_simulate_fmu(ssp: Path, torques: Trace, folder: Path) -> Trace:
 
 
 class HostileHost:
-    """Runs a :class:`scenarios.run.runner.Setup`'s FMUs like :meth:`scenarios.master.cosim.Master.run`, hostilely.
+    """Runs a :class:`scenarios.run.setup.Setup`'s FMUs like :meth:`scenarios.master.cosim.Master.run`, hostilely.
 
     Parameters
     ----------

@@ -228,7 +228,7 @@ def main(argv=None) -> int:
 
     from scenarios.metrics import LABELS, METRICS, table_metrics
     from scenarios.results import write_csv
-    from scenarios.run import runner
+    from scenarios.run.setup import desired_states, desired_trajectory
 
     ap = argparse.ArgumentParser(prog="python -m scenarios.conformance.libcosim_runner",
                                  description="Run one case of an exported scenario (.ssp) in libcosim.")
@@ -266,7 +266,7 @@ def main(argv=None) -> int:
     plant = next((k.split(".")[0] for k in sig if k.endswith(".theta1")), None)
     driver = next((k.split(".")[0] for k in sig if k.endswith(".tau1")), None)
     if plant and driver and all(f"{plant}.omega{i}" in sig for i in range(1, 12)):
-        desired = runner.desired_states(runner.desired_trajectory(), len(out["time"]), out["step_size"])
+        desired = desired_states(desired_trajectory(), len(out["time"]), out["step_size"])
         theta = np.column_stack([sig[f"{plant}.theta{i}"] for i in range(1, 12)])
         omega = np.column_stack([sig[f"{plant}.omega{i}"] for i in range(1, 12)])
         tau = np.column_stack([sig[f"{driver}.tau1"], sig[f"{driver}.tau2"]])

@@ -30,7 +30,8 @@ from scenarios.config import SCENARIO_DIR, load_scenario
 from scenarios.conformance import hosts
 from scenarios.metrics import table_metrics
 from scenarios.reports.page_blocks import block, splice_blocks
-from scenarios.run.runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, REPO, desired_states, desired_trajectory
+from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR
+from scenarios.run.setup import REPO, desired_states, desired_trajectory
 
 #: The shipped closed-loop scenarios every master must agree on (issue 31's acceptance).
 SCENARIOS = ("table1", "table2", "table3", "lqg", "settling")

@@ -7,7 +7,7 @@
   ``ssd:Component`` per FMU instance of the case, ``source="resources/<instance>.fmu"``,
   with every input, output and parameter of the FMU as a typed ``ssd:Connector``
   (Reals with their unit, defined in ``ssd:Units``); ``ssd:Connections`` as the master wires them
-  (:func:`scenarios.run.runner.connect_by_name`, or the scenario's explicit list), in evaluation order
+  (:func:`scenarios.run.setup.connect_by_name`, or the scenario's explicit list), in evaluation order
   (by the source's place in the scenario's ``order``, the torques last: a Gauss-Seidel master that
   follows the SSD's connection order, as OMSimulator's does, adds no delay);
   ``ssd:DefaultExperiment`` from 0 to the scenario's run length (``samples`` ×
@@ -21,7 +21,7 @@
   its modelDescription.xml are rewritten, and ``resources/flexarm_start_values.json``
   inside it, read by the FMU when it is instantiated, carries the same values.
   The plant's start angles on the trajectory are among them
-  (:func:`scenarios.run.runner.start_parameters`). So a master that applies no
+  (:func:`scenarios.run.setup.start_parameters`). So a master that applies no
   parameter set at all (fmpy's ``simulate_ssp``, which ignores parameter
   bindings; a native SSP engine without a parameter set named on its command
   line) still runs the case;
@@ -62,7 +62,8 @@ from flexarm.lqg import with_loop_delay
 from flexarm.provenance import write_atomic
 from scenarios.config import Scenario
 from scenarios.master.values import parse_choices
-from scenarios.run import runner
+from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, NATIVE_GENERATION_TOOL, check_kind
+from scenarios.run.setup import REPO, Setup, prepare
 
 NS = {
     "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
@@ -79,7 +80,7 @@ START_VALUES = "flexarm_start_values.json"
 #: The same for a native FMU (read by fmi2Instantiate, fmus/native/common/fmi2_glue_resources.c): lines
 #: ``name bits``, the value's IEEE-754 double as 16 hex digits (exact on every platform).
 NATIVE_START_VALUES = "flexarm_start_values.txt"
-DEFAULT_SSP_DIR = runner.REPO / "build" / "ssp"
+DEFAULT_SSP_DIR = REPO / "build" / "ssp"
 #: FMI causality -> SSP 1.0 connector kind (other causalities are not exported).
 _KINDS = {"input": "input", "output": "output", "parameter": "parameter", "calculatedParameter": "calculatedParameter"}
 _BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
@@ -96,7 +97,7 @@ class CasePlan:
 
     key: str
     label: str
-    setup: runner.Setup
+    setup: Setup
     #: instance -> {variable: value} (plant start angles included; Enumerations by item name)
     parameters: dict[str, dict]
 
@@ -110,19 +111,19 @@ def _fmt_real(x: float) -> str:
     return repr(float(x))
 
 
-def plan_cases(scenario: Scenario, fmu_dir: Path = runner.DEFAULT_FMU_DIR, build: bool = True,
+def plan_cases(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True,
                cases: list[str] | None = None, kind: str | None = None,
-               native_fmu_dir: Path = runner.DEFAULT_NATIVE_FMU_DIR) -> list[CasePlan]:
+               native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR) -> list[CasePlan]:
     """Prepare each case as the runner would (FMUs built if needed); `cases` selects by key (default all).
 
-    `kind` (default the scenario's): "python" or "native" FMUs (:func:`scenarios.run.runner.resolve_fmus`).
+    `kind` (default the scenario's): "python" or "native" FMUs (:func:`scenarios.run.fmus.resolve_fmus`).
     """
     keys = [c.key for c in scenario.cases]
     unknown = sorted(set(cases or ()) - set(keys))
     if unknown:
         raise SSPExportError(f"cases: {unknown} not in scenario {scenario.name} (has: {', '.join(keys)})")
-    runner.check_kind(scenario, kind)  # a case whose FMU has no native build: refused before any is written
-    setups: dict[tuple, runner.Setup] = {}
+    check_kind(scenario, kind)  # a case whose FMU has no native build: refused before any is written
+    setups: dict[tuple, Setup] = {}
     plans = []
     for case in scenario.cases:
         if cases is not None and case.key not in cases:
@@ -130,7 +131,7 @@ def plan_cases(scenario: Scenario, fmu_dir: Path = runner.DEFAULT_FMU_DIR, build
         names = case.fmus or scenario.fmus
         key = tuple(sorted(names.items()))
         if key not in setups:
-            setups[key] = runner.prepare(scenario, fmu_dir, names=dict(names), build=build, kind=kind,
+            setups[key] = prepare(scenario, fmu_dir, names=dict(names), build=build, kind=kind,
                                          native_fmu_dir=native_fmu_dir)
         setup = setups[key]
         plans.append(CasePlan(case.key, case.label, setup, setup.case_parameters(case.parameters)))
@@ -197,7 +198,7 @@ def case_fmu(fmu: Path, values: dict) -> bytes:
         missing = sorted(set(values) - seen)
         if missing:
             raise SSPExportError(f"{fmu.name}: no variables {missing} in its modelDescription.xml")
-        native = (md.get("generationTool") or "").startswith(runner.NATIVE_GENERATION_TOOL)
+        native = (md.get("generationTool") or "").startswith(NATIVE_GENERATION_TOOL)
         ours = f"resources/{NATIVE_START_VALUES if native else START_VALUES}"
         for info in src.infolist():
             if info.filename in ("modelDescription.xml", ours):
@@ -318,9 +319,9 @@ def system_structure_xml(scenario: Scenario, plan: CasePlan) -> bytes:
 
 
 def export_ssp(scenario: Scenario, out_dir: str | Path = DEFAULT_SSP_DIR,
-               fmu_dir: str | Path = runner.DEFAULT_FMU_DIR, build: bool = True,
+               fmu_dir: str | Path = DEFAULT_FMU_DIR, build: bool = True,
                cases: list[str] | None = None, kind: str | None = None,
-               native_fmu_dir: str | Path = runner.DEFAULT_NATIVE_FMU_DIR) -> dict[str, Path]:
+               native_fmu_dir: str | Path = DEFAULT_NATIVE_FMU_DIR) -> dict[str, Path]:
     """Write one archive per case, ``<out_dir>/<scenario>/<case>.ssp``; return {case key: path}.
 
     FMUs are built into `fmu_dir` (and `native_fmu_dir`) if needed (as ``python -m scenarios run`` does).

@@ -38,18 +38,10 @@ from flexarm.provenance import git_commit, sha256_file, write_atomic, write_json
 from scenarios.config import SCENARIO_DIR, Scenario, ScenarioError, load_scenario
 from scenarios.metrics import table_metrics
 from scenarios.results import portable
+from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, fmu_kind
 from scenarios.run.outdir import check_writable, folder_lock, remove_stale
-from scenarios.run.runner import (
-    DEFAULT_FMU_DIR,
-    DEFAULT_NATIVE_FMU_DIR,
-    N_EL,
-    _relative,
-    desired_states,
-    desired_trajectory,
-    fmu_kind,
-    prepare,
-    verify_data_chain,
-)
+from scenarios.run.runner import N_EL
+from scenarios.run.setup import _relative, desired_states, desired_trajectory, prepare, verify_data_chain
 from scenarios.sweep.journal import Journal
 
 #: The measurements the learning reads (sensors FMU outputs): encoders, then strain gauges.

@@ -144,7 +144,7 @@ class System:
     parameters: dict[str, dict[str, float | int | bool | str]] = field(default_factory=dict)
     record: list[tuple[str, str]] = field(default_factory=list)
     step_size: float = 1e-3
-    #: Communication steps; no default: the run length comes from the trajectory (scenarios.run.runner.run_length).
+    #: Communication steps; no default: the run length comes from the trajectory (scenarios.run.setup.run_length).
     n_steps: int | None = None
     #: |value| above which a recorded signal counts as numerically unbounded.
     divergence_limit: float = 1e4
@@ -537,7 +537,7 @@ class Master:
             Real variables to record at every communication point.
         n_steps : int
             Number of communication steps; `n_steps` + 1 samples are recorded. No default: the run
-            length comes from the trajectory (:func:`scenarios.run.runner.run_length`).
+            length comes from the trajectory (:func:`scenarios.run.setup.run_length`).
         step_size : float
             Communication step, s.
         divergence_limit : float

@@ -21,7 +21,7 @@ def foreign_instances(scenario: Scenario, controller: str | None = None,
 
 
 def apply(setup, isolate: str, step_timeout: float):
-    """Set a :class:`scenarios.run.runner.Setup`'s isolated instances (`isolate` "all": every one; "foreign": those
+    """Set a :class:`scenarios.run.setup.Setup`'s isolated instances (`isolate` "all": every one; "foreign": those
     it was prepared with) and step timeout; returns the setup."""
     if isolate not in ISOLATE:
         raise ScenarioError(f"--isolate: one of {list(ISOLATE)}, got {isolate!r}")

@@ -21,7 +21,8 @@ from pathlib import Path
 
 from flexarm.parameters import load_parameters
 from scenarios.config import SCENARIO_DIR, load_scenario
-from scenarios.run.runner import DEFAULT_FMU_DIR, run_scenario
+from scenarios.run.fmus import DEFAULT_FMU_DIR
+from scenarios.run.runner import run_scenario
 
 CASES = ("none", "noise", "tip", "tip_noise")
 ROWS = (("rms_position_error", "rms position error, deg"), ("rms_velocity_error", "rms velocity error, deg/s"),

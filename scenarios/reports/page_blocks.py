@@ -14,7 +14,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from scenarios.config import SCENARIO_DIR, load_scenario
-from scenarios.run.runner import DEFAULT_FMU_DIR, REPO, CaseResult, run_scenario
+from scenarios.run.fmus import DEFAULT_FMU_DIR
+from scenarios.run.runner import CaseResult, run_scenario
+from scenarios.run.setup import REPO
 
 __all__ = ["BLOCKS", "REPO", "PageRuns", "ResultsPageError", "block", "splice_blocks"]
 

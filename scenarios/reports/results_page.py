@@ -32,7 +32,9 @@ from scenarios.reports.page_blocks import (
     block,
     splice_blocks,
 )
-from scenarios.run.runner import DEFAULT_FMU_DIR, REPO, CaseResult, run_scenario, verify_data_chain
+from scenarios.run.fmus import DEFAULT_FMU_DIR
+from scenarios.run.runner import CaseResult, run_scenario
+from scenarios.run.setup import REPO, verify_data_chain
 
 #: Scenarios shown on the results page, in this order (those not shipped are left out).
 PAGE_SCENARIOS = ("table1", "table2", "table3", "compare_ff_fb", "compare_schedule", "eq32", "dlqr_table1",

@@ -133,7 +133,7 @@ _LOADED: dict = {}
 def _loaded(controller: Controller, kind: str, algorithm: str, fmu_dir: str, native_fmu_dir: str):
     from pathlib import Path
 
-    from scenarios.run.runner import prepare
+    from scenarios.run.setup import prepare
 
     from ..config import load_scenario
 

@@ -14,8 +14,9 @@ from pathlib import Path
 from flexarm.provenance import git_commit, package_version, write_json
 from scenarios.master.cosim import RunInterrupted
 from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S
+from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR
 from scenarios.run.outdir import check_writable, folder_lock, remove_stale
-from scenarios.run.runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, verify_data_chain
+from scenarios.run.setup import verify_data_chain
 
 from ..results import portable
 from .journal import DONE, STATUSES, Journal, table_columns, table_rows, write_table

@@ -26,7 +26,8 @@ from scenarios.analysis.stability import loop_stability
 from scenarios.master.cosim import CoSimulationError
 from scenarios.master.isolation import apply as apply_isolation
 from scenarios.master.isolation import foreign_instances
-from scenarios.run.runner import prepare, simulate_case
+from scenarios.run.runner import simulate_case
+from scenarios.run.setup import prepare
 
 from .plan import Plan, Point
 
