@@ -10,7 +10,7 @@ from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave
 
-from scenarios.master.cosim import logging_callbacks
+from scenarios.master.fmi_callbacks import logging_callbacks
 
 DT = 1e-3
 #: fmi2Status values.

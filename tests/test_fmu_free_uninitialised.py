@@ -43,7 +43,7 @@ sys.modules["flexarm"] = module
 spec.loader.exec_module(module)
 from fmpy.fmi2 import FMU2Slave
 from scenarios.master.fmu_files import read_description, unpack
-from scenarios.master.cosim import logging_callbacks
+from scenarios.master.fmi_callbacks import logging_callbacks
 phase, log = ["instantiate"], []
 def logger(component, instance, status, category, message):
     log.append([phase[0], status, message.decode(errors="replace")])

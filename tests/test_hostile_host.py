@@ -98,7 +98,7 @@ def _stepped(path, params: dict, steps: list[float]) -> tuple[np.ndarray, list[s
     """Outputs after each step of a lone FMU (inputs at their start values), and the errors it logged."""
     from fmpy.fmi1 import FMICallException
 
-    from scenarios.master.cosim import logging_callbacks
+    from scenarios.master.fmi_callbacks import logging_callbacks
 
     md = read_model_description(str(path))
     outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]

@@ -474,13 +474,13 @@ def test_an_fmu_error_in_the_middle_of_a_trial_stops_the_campaign(tmp_path, monk
     campaign stops there (no trial 2, no learned file, no evaluation), the journal keeps the failed trial, and
     ``python -m scenarios run`` says which trial, step and FMU, and exits non-zero; run again, it stays stopped."""
     from scenarios.__main__ import main
-    from scenarios.master import cosim as master
+    from scenarios.master import units
 
     text = SCENARIO.read_text().replace("samples = 3058", "samples = 300").replace("trials = 50", "trials = 3")
     text = text.replace('evaluate_cases = ["learn", "payload_0p2", "payload_0p35"]', 'evaluate_cases = ["learn"]')
     scen = tmp_path / "ilc_fail.toml"
     scen.write_text(text)
-    raw, runs = master.fmu2_raw_functions, []
+    raw, runs = units.fmu2_raw_functions, []
 
     def failing(slave):
         get_real, set_real, do_step = raw(slave)
@@ -493,7 +493,7 @@ def test_an_fmu_error_in_the_middle_of_a_trial_stops_the_campaign(tmp_path, monk
             return 3 if len(runs) == 2 and t >= 0.2 else do_step(component, t, h, new_step)  # 3: fmi2Error
         return get_real, set_real, step
 
-    monkeypatch.setattr(master, "fmu2_raw_functions", failing)
+    monkeypatch.setattr(units, "fmu2_raw_functions", failing)
     out = tmp_path / "out"
     args = ["run", str(scen), "--out", str(out), "--no-plots", "--quiet"]
     assert main(args) == 1

@@ -239,7 +239,7 @@ def test_native_lqg_interface_and_resources():
 
 def test_native_lqg_refuses_a_changed_resource(tmp_path):
     """fmi2Instantiate checks every resource against its SHA-256 and names the file."""
-    from scenarios.master.cosim import logging_callbacks
+    from scenarios.master.fmi_callbacks import logging_callbacks
 
     native = native_fmus()["controller_lqg"]
     unz = unpack_alone(native, tmp_path / "changed")

@@ -23,7 +23,7 @@ from native_fmus import native_fmus
 
 from scenarios.config import ScenarioError, load_scenario
 from scenarios.conformance.ssp import NATIVE_START_VALUES, export_ssp, validate_ssp
-from scenarios.master.cosim import logging_callbacks
+from scenarios.master.fmi_callbacks import logging_callbacks
 from scenarios.run.setup import prepare
 
 #: simulate_ssp or libcosim against our master in the mode that steps as they do, over the whole run.

@@ -163,7 +163,7 @@ def _slave(fmu: Path, name: str, folder: Path, messages: list[str]):
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
-    from scenarios.master.cosim import logging_callbacks
+    from scenarios.master.fmi_callbacks import logging_callbacks
 
     md = read_model_description(str(fmu))
     slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu), unzipdir=str(folder / name)),

@@ -50,54 +50,19 @@ from __future__ import annotations
 
 import functools
 import itertools
-import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from fmpy.fmi2 import (
-    FMU2Slave,
-    fmi2Real,
-    fmi2ValueReference,
-)
 
-from scenarios.master.compat import fmu2_raw_functions
-from scenarios.master.fmi_callbacks import logging_callbacks
-from scenarios.master.fmu_files import read_description, unpack
-from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S, RemoteSlave
+from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S
 from scenarios.master.interrupts import DeferSignals, RunInterrupted  # noqa: F401 - RunInterrupted: raised by Master.run, imported from here
-from scenarios.master.values import parse_choices
+from scenarios.master.units import CoSimulationError, FMUError, Link, Port, Unit, as_index
 
 ALGORITHMS = ("gauss-seidel", "jacobi", "fmpy-ssp")
-_STATUS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
-#: What can happen to an FMU run in a process of its own (scenarios.master.fmu_proxy) besides an FMI status.
-PROCESS_FAILURES = ("timeout", "crashed", "interrupted")
 #: The outcomes of a run, in the order docs/outcomes.md explains them.
 OUTCOMES = ("ok", "unbounded", "error", "interrupted")
-
-
-class CoSimulationError(RuntimeError):
-    """The master cannot run this system (wiring, names, a closed master); raised before anything runs."""
-
-
-class FMUError(CoSimulationError):
-    """An FMU function returned fmi2Discard or worse.
-
-    Attributes: ``instance``, ``function`` (e.g. ``fmi2DoStep``), ``status`` (its name: discard, error,
-    fatal) and ``fmu_message`` (the last message that FMU logged with a status of discard or worse, as the
-    FMI logger callback received it; "" when it logged none).
-    """
-
-    def __init__(self, instance: str, function: str, status: int | str, fmu_message: str, what: str = ""):
-        self.instance, self.function = instance, function
-        self.status = _STATUS.get(status, str(status))
-        self.fmu_message = fmu_message
-        if what:  # a process failure (PROCESS_FAILURES): what happened, and the FMU's last word if any
-            super().__init__(f"{instance}: {what}" + (f" (its last message: {fmu_message})" if fmu_message else ""))
-            return
-        super().__init__(f"{instance}: {function} returned {self.status}"
-                         + (f": {fmu_message}" if fmu_message else " (the FMU logged no message)"))
 
 
 @dataclass
@@ -152,197 +117,6 @@ class System:
     algorithm: str = "gauss-seidel"
 
 
-#: In-process FMUs that returned fmi2Fatal, with their callbacks: FMI 2.0 allows no further call (not even
-#: fmi2FreeInstance) and the library may still call back, so they are kept, never freed or unloaded.
-_ABANDONED: list = []
-
-
-class _Unit:
-    """One loaded FMU: its slave, variable references by name, raw FMI functions.
-
-    `isolated`: run it in a process of its own (:class:`scenarios.master.fmu_proxy.RemoteSlave`), each call bounded
-    by `timeout` seconds. After a failure only what FMI 2.0 (2.0.5) allows is called: after fmi2Error or
-    fmi2Discard, fmi2Reset or fmi2FreeInstance (never fmi2Terminate); after fmi2Fatal nothing at all (an
-    in-process instance is abandoned and the FMU unpacked and loaded afresh for the next run; a process of
-    its own is killed); a process that timed out, crashed or was interrupted is replaced by a new one.
-    """
-
-    def __init__(self, name: str, path: Path, messages: list[str], isolated: bool = False,
-                 timeout: float = DEFAULT_STEP_TIMEOUT_S):
-        self.name, self.path, self.isolated, self.timeout = name, Path(path), isolated, timeout
-        self.md = read_description(path)
-        self.vars = {v.name: v for v in self.md.modelVariables}
-        self.slave = None
-        #: The last message this FMU logged with status discard or worse (reset by :meth:`Master.run`).
-        self.last_error = ""
-        #: The worst failure since the FMU was last (re)started: None, an fmi2Status name or a PROCESS_FAILURES.
-        self.failed: str | None = None
-        self.unzipdir = unpack(path)
-
-        def log(status: int, text: str) -> None:
-            label = _STATUS.get(status, str(status))
-            messages.append(f"[{name}] {text}" if status == 0 else f"[{name}] {label}: {text}")
-            if status >= 2:  # fmi2Discard, fmi2Error, fmi2Fatal: kept by status, never by searching the text
-                self.last_error = text
-
-        def logger(component, instance_name, status, category, message):
-            log(status, message.decode(errors="replace") if isinstance(message, bytes) else str(message))
-
-        self._log = log
-        self._callbacks = logging_callbacks(logger)
-        try:
-            self.instantiate()
-        except BaseException:
-            shutil.rmtree(self.unzipdir, ignore_errors=True)
-            raise
-
-    def error(self, function: str, status: int | str, what: str = "") -> FMUError:
-        """The :class:`FMUError` for `function` returning `status`, with this FMU's logged message (and what
-        happened, for a process failure); records the failure for what may be called next."""
-        exc = FMUError(self.name, function, status, self.last_error, what)
-        rank = [*_STATUS.values(), *PROCESS_FAILURES]
-        if self.failed is None or rank.index(exc.status) > rank.index(self.failed):
-            self.failed = exc.status
-        return exc
-
-    def call(self, function: str, fn, *args, **kwargs):
-        """Call one of fmpy's FMU2Slave methods; an fmi2 status of discard or worse becomes :class:`FMUError`."""
-        try:
-            return fn(*args, **kwargs)
-        except FMUError:  # a process failure of an isolated FMU, already told as such
-            raise
-        except Exception as exc:  # fmpy raises FMICallException(function, status)
-            status = getattr(exc, "status", None)
-            if status is None:
-                raise
-            raise self.error(getattr(exc, "function", function), status) from exc
-
-    def instantiate(self) -> None:
-        self.failed = None
-        args = dict(guid=self.md.guid, unzipDirectory=self.unzipdir,
-                    modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=self.name)
-        if self.isolated:
-            self.slave = RemoteSlave(self.unzipdir, self.md.guid, args["modelIdentifier"], self.name,
-                                     timeout=self.timeout, on_log=self._log,
-                                     failure=lambda fn, status, what: self.error(fn, status, what),
-                                     should_stop=DeferSignals.pending)
-            self.slave.instantiate(loggingOn=True)
-            self.get_real, self.set_real, self.do_step = self.slave.raw_functions()
-            return
-        self.slave = FMU2Slave(**args)
-        self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
-        # fmpy's getReal/setReal allocate arrays and log each call; the stepping loop calls the library
-        # functions directly with preallocated buffers.
-        self.get_real, self.set_real, self.do_step = fmu2_raw_functions(self.slave)
-
-    def restart(self) -> None:
-        """Ready the FMU for a new run: fmi2Reset, or after a failure only what FMI allows (class docstring)."""
-        if self.failed in (None, "warning", "discard", "error"):
-            try:
-                self.slave.reset()
-                self.failed = None
-                return
-            except Exception:  # noqa: BLE001 - it refuses fmi2Reset: free it (allowed) and start it afresh
-                self.failed = self.failed or "error"
-        fresh_library = self.failed == "fatal" and not self.isolated
-        self._free_instance()
-        if fresh_library:  # the abandoned library stays loaded: a new copy of the files is a new library image
-            self.unzipdir = unpack(self.path)
-        self.instantiate()
-
-    def vr(self, var: str) -> int:
-        if var not in self.vars:
-            raise CoSimulationError(f"{self.name}: no variable '{var}' (has: {', '.join(sorted(self.vars))})")
-        return self.vars[var].valueReference
-
-    def set(self, var: str, value) -> None:
-        self.vr(var)  # names the variable if it does not exist
-        v = self.vars[var]
-        if v.type == "Real":
-            self.slave.setReal([v.valueReference], [float(value)])
-        elif v.type in ("Integer", "Enumeration"):
-            self.slave.setInteger([v.valueReference], [self.choice(var, value)])
-        elif v.type == "Boolean":
-            self.slave.setBoolean([v.valueReference], [bool(value)])
-        else:
-            self.slave.setString([v.valueReference], [str(value)])
-
-    def choice(self, var: str, value) -> int:
-        """The integer of a choice parameter's option, given by its name (as scenario files write it)."""
-        items = parse_choices(self.vars[var].description or "")
-        if isinstance(value, str):
-            if value not in items:
-                raise CoSimulationError(f"{self.name}: {var} = {value!r} is not one of its choices "
-                                        f"{', '.join(items) or '(none: an Integer without named choices)'}")
-            return items[value]
-        if isinstance(value, bool) or int(value) != value or (items and int(value) not in items.values()):
-            raise CoSimulationError(f"{self.name}: {var} = {value!r} is not one of its choices "
-                                    + ", ".join(f"{n} ({v})" for n, v in items.items()))
-        return int(value)
-
-    def _free_instance(self) -> None:
-        if self.slave is None:
-            return
-        slave, self.slave = self.slave, None
-        if self.isolated and self.failed in ("fatal", *PROCESS_FAILURES):
-            slave.kill(f"not called after {self.failed}")  # nothing may be called; its process goes with it
-            return
-        if self.failed == "fatal":
-            _ABANDONED.append((slave, self._callbacks))
-            return
-        try:
-            if self.failed in (None, "warning"):  # fmi2Terminate only from a working instance
-                try:
-                    slave.terminate()
-                except Exception:  # noqa: BLE001 - it refuses: free it all the same
-                    pass
-            slave.freeInstance()
-        finally:
-            if self.isolated:
-                slave.close()
-
-    def free(self) -> None:
-        try:
-            self._free_instance()
-        finally:
-            shutil.rmtree(self.unzipdir, ignore_errors=True)
-
-
-class _Port:
-    """Some Real outputs of one FMU, read with one ``fmi2GetReal`` into a preallocated buffer."""
-
-    def __init__(self, unit: _Unit, vrs: list[int]):
-        n = len(vrs)
-        self.unit, self.n = unit, n
-        self.vrs = (fmi2ValueReference * n)(*vrs)
-        self.buffer = (fmi2Real * n)()
-        self.values = np.frombuffer(self.buffer, dtype=np.float64)
-        self.position = {vr: i for i, vr in enumerate(vrs)}
-
-    def read(self) -> None:
-        status = self.unit.get_real(self.unit.slave.component, self.vrs, self.n, self.buffer)
-        if status > 1:
-            raise self.unit.error("fmi2GetReal", status)
-
-
-class _Link:
-    """The connections from one FMU to another: values gathered from the source's port, one ``fmi2SetReal``."""
-
-    def __init__(self, port: _Port, src_vrs: list[int], dst: _Unit, dst_vrs: list[int]):
-        n = len(dst_vrs)
-        self.port, self.dst, self.n = port, dst, n
-        self.index = _as_index([port.position[vr] for vr in src_vrs])
-        self.dst_vrs = (fmi2ValueReference * n)(*dst_vrs)
-        self.buffer = (fmi2Real * n)()
-        self.values = np.frombuffer(self.buffer, dtype=np.float64)
-
-    def write(self, zero: bool = False) -> None:
-        self.values[:] = 0.0 if zero else self.port.values[self.index]
-        status = self.dst.set_real(self.dst.slave.component, self.dst_vrs, self.n, self.buffer)
-        if status > 1:
-            raise self.dst.error("fmi2SetReal", status)
-
-
 class Master:
     """FMUs loaded once, wired, and run as often as asked.
 
@@ -382,12 +156,12 @@ class Master:
             raise CoSimulationError(f"order: must list every FMU instance exactly once (mismatch: {missing})")
         self.order, self.algorithm = list(order), algorithm
         self.messages: list[str] = []
-        self.units: dict[str, _Unit] = {}
+        self.units: dict[str, Unit] = {}
         self._used = False
         with DeferSignals() as interrupted:  # FMU code runs while loading: Ctrl-C is acted on afterwards
             try:
                 for name in self.order:
-                    self.units[name] = _Unit(name, fmus[name], self.messages, name in isolate, step_timeout)
+                    self.units[name] = Unit(name, fmus[name], self.messages, name in isolate, step_timeout)
                     if interrupted.is_set():
                         break
                 self._wire(connections)
@@ -439,13 +213,13 @@ class Master:
                 needed[inst].append(vr)
         for (s, _d), pairs in self.groups.items():
             needed[s] += [vr for vr, _ in pairs if vr not in needed[s]]
-        ports = {name: _Port(self.units[name], vrs) for name, vrs in needed.items() if vrs}
+        ports = {name: Port(self.units[name], vrs) for name, vrs in needed.items() if vrs}
         forward = {name: [] for name in self.order}
         feedback = []
         for (s, d), pairs in self.groups.items():
-            link = _Link(ports[s], [p[0] for p in pairs], self.units[d], [p[1] for p in pairs])
+            link = Link(ports[s], [p[0] for p in pairs], self.units[d], [p[1] for p in pairs])
             (forward[d] if rank[s] < rank[d] else feedback).append(link)
-        again: dict[str, _Port] = {}
+        again: dict[str, Port] = {}
         if self.algorithm in ("jacobi", "fmpy-ssp"):  # every value as it was before any input changed, then all set
             ops = [port.read for port in ports.values()]
             ops += [link.write for name in self.order for link in forward[name]] + [link.write for link in feedback]
@@ -464,7 +238,7 @@ class Master:
                 stale = late[inst] and self._depends_on(self.units[inst], var, late[inst])
                 if stale and vr not in reread.get(inst, []):
                     reread.setdefault(inst, []).append(vr)
-            again = {inst: _Port(self.units[inst], vrs) for inst, vrs in reread.items()}
+            again = {inst: Port(self.units[inst], vrs) for inst, vrs in reread.items()}
             ops += [port.read for port in again.values()]
         sources = []
         for (inst, _), vr in zip(record, rec_vrs):
@@ -473,7 +247,7 @@ class Master:
         return ops, sources
 
     @staticmethod
-    def _depends_on(unit: _Unit, var: str, inputs: set[int]) -> bool:
+    def _depends_on(unit: Unit, var: str, inputs: set[int]) -> bool:
         """Whether output `var` may depend on any of the input value references `inputs`."""
         for out in unit.md.outputs:
             if out.variable.name == var:
@@ -577,8 +351,8 @@ class Master:
         ops, sources = self._plan(record)  # names unknown records before anything runs
         first_ops = ops
         if self.algorithm == "fmpy-ssp":  # the first step with every connected input at 0
-            links = [op.__self__ for op in ops if getattr(op, "__func__", None) is _Link.write]
-            first_ops = [op for op in ops if getattr(op, "__func__", None) is not _Link.write]
+            links = [op.__self__ for op in ops if getattr(op, "__func__", None) is Link.write]
+            first_ops = [op for op in ops if getattr(op, "__func__", None) is not Link.write]
             first_ops += [functools.partial(link.write, True) for link in links]
         # data[k] is gathered from the ports' buffers: one fancy-index per port.
         gathers = {}
@@ -586,7 +360,7 @@ class Master:
             gathers.setdefault(id(port), (port, [], []))
             gathers[id(port)][1].append(col)
             gathers[id(port)][2].append(pos)
-        gathers = [(port, _as_index(cols), _as_index(pos)) for port, cols, pos in gathers.values()]
+        gathers = [(port, as_index(cols), as_index(pos)) for port, cols, pos in gathers.values()]
         every_pct = max(1, n // 100)
         outcome, k, gathered = Outcome("ok"), 0, -1
         with DeferSignals() as interrupted:
@@ -638,13 +412,6 @@ class Master:
         refuses a step returns fmi2Error from fmi2DoStep, with its reason in the log).
         """
         return self.run(parameters, [], 1, step_size)["outcome"]
-
-
-def _as_index(positions: list[int]) -> slice | np.ndarray:
-    """A slice where the positions are consecutive (a cheap copy), else an index array."""
-    if positions == list(range(positions[0], positions[0] + len(positions))):
-        return slice(positions[0], positions[0] + len(positions))
-    return np.array(positions)
 
 
 def run(system: System, progress: Callable[[int, int], None] | None = None) -> dict:

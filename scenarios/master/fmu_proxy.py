@@ -4,7 +4,7 @@ remoting do).
 A controller that is not ours can crash (``os._exit``, SIGSEGV), raise, or never return from ``fmi2DoStep``.
 In our process any of these ends or hangs the master; in a process of its own it ends only that process,
 and the master records the case as ``error``, naming the FMU, the call, the time and what happened
-(docs/outcomes.md). :class:`RemoteSlave` offers what :class:`scenarios.master.cosim._Unit` calls on fmpy's
+(docs/outcomes.md). :class:`RemoteSlave` offers what :class:`scenarios.master.units.Unit` calls on fmpy's
 ``FMU2Slave`` (the lifecycle methods, the setters, and the raw ``fmi2GetReal`` / ``fmi2SetReal`` /
 ``fmi2DoStep`` the stepping loop calls on ctypes buffers), forwarding each call over a socket pair to
 ``python -m scenarios.master.fmu_proxy`` (:func:`serve`), which loads the FMU with fmpy and calls it. Values
@@ -100,7 +100,7 @@ class RemoteSlave:
             self.kill("not loaded")
             raise
 
-    # ---------------------------------------------------------------- what _Unit calls on an FMU2Slave
+    # ---------------------------------------------------------------- what Unit calls on an FMU2Slave
 
     def instantiate(self, callbacks=None, loggingOn: bool = True) -> None:  # noqa: N803 - fmpy's names
         self._lazy("fmi2Instantiate", ("method", "instantiate", (), {"loggingOn": loggingOn}))
