@@ -261,7 +261,9 @@ def _dispatch(args) -> int:
             print(f"{s.name:16s} {len(s.cases)} cases  {s.description}")
         return EXIT_OK
     names = [s.name for s in list_scenarios()] if args.scenarios == ["all"] else args.scenarios
-    from scenarios.ilc import trials as ilc  # scenarios with an [ilc] table repeat a case and learn between trials (scenarios/ilc/trials.py)
+    from scenarios.ilc import (
+        trials as ilc,  # scenarios with an [ilc] table repeat a case and learn between trials (scenarios/ilc/trials.py)
+    )
 
     if args.scenarios != ["all"] and any(ilc.is_ilc_scenario(n) for n in names):
         if len(names) != 1:

@@ -13,7 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from scenarios.analysis.stability import DEVIATION, E_FOLDS, loop_stability, sampled_loop_growth
+from scenarios.analysis.metric_deviation import DEVIATION
+from scenarios.analysis.sampled_loop import sampled_loop_growth
+from scenarios.analysis.stability import E_FOLDS, loop_stability
 from scenarios.config import load_scenario
 from scenarios.reports.scheme_accuracy import JSON_PATH, LOOP_REFERENCE, LOOP_SCHEMES, LOOPS
 from scenarios.run.runner import run_scenario
@@ -132,7 +134,7 @@ def test_jacobi_stepping_is_checked_with_its_delay(tmp_path):
     unpredicted loop still says), and the run's velocity error does not grow either (envelope fit from 0.2 s, well
     under 1 1/s)."""
     from flexarm.trajectory import load_trajectory
-    from scenarios.analysis.stability import sampled_loop_growth
+    from scenarios.analysis.sampled_loop import sampled_loop_growth
     from scenarios.reports.reexamine import envelope_growth, velocity_errors
 
     (r,) = run_scenario(_one_case("table2", "none", 600), tmp_path, progress=False, algorithm="jacobi")
@@ -159,7 +161,7 @@ def test_the_unresolved_bracket_modes_follow_the_table():
     modes; it refuses runs past 3 s). Structural damping is little below the largest bracket-mode growth of the
     committed gain schedules' exact loops (3.40 1/s, eq. 32 at 20 ms): ζ = 5e-5 (1.8 1/s on the 5.7 kHz mode)
     still warns, ζ = 0.005 (179 1/s) does not."""
-    from scenarios.analysis.stability import RESOLVING_SCHEMES, unresolved_bracket_modes
+    from scenarios.analysis.bracket_modes import RESOLVING_SCHEMES, unresolved_bracket_modes
 
     agreeing = {row[1] for row in measured_rows()}
     for _, s_label, *_, value, ref, status in measured_rows():
@@ -180,7 +182,7 @@ def test_the_unresolved_bracket_modes_follow_the_table():
     for integrator, sub in (("gauss", 128), ("gauss", 256), ("reference", 2), ("reference", 4), ("exponential", 2)):
         assert unresolved_bracket_modes(integrator, sub, 0.0) == {}, (integrator, sub)
     assert unresolved_bracket_modes("reference", 1, 0.0)
-    from scenarios.analysis.stability import injected_growth
+    from scenarios.analysis.bracket_modes import injected_growth
 
     inj = injected_growth()
     assert 3.3 < inj["growth_per_s"] < 3.5 and inj["gain_set"] == "eq32" and 5000 < inj["mode_frequency_hz"] < 6000
@@ -204,7 +206,7 @@ def test_feedforward_only_cannot_be_misrepresented_by_the_scheme():
     from flexarm.model import ArmModel, numpy_kernels
     from flexarm.parameters import load_parameters
     from flexarm.trajectory import load_trajectory
-    from scenarios.analysis.stability import plant_zoh
+    from scenarios.analysis.sampled_loop import plant_zoh
 
     traj, kern = load_trajectory(), numpy_kernels()
     largest = {}
@@ -240,7 +242,7 @@ def test_the_lqg_loop_matrix_is_the_controller(delay, integral):
     from flexarm.model import ArmModel, numpy_kernels
     from flexarm.parameters import load_parameters
     from flexarm.trajectory import load_trajectory
-    from scenarios.analysis.stability import lqg_closed_loop, plant_zoh
+    from scenarios.analysis.sampled_loop import lqg_closed_loop, plant_zoh
 
     ctl = lqg_controller("gamma0.1", "200ms", delay, integral, saturation=(1e6, 1e6))
     k0, nx, des = 420, 22, ctl.design

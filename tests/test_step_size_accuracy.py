@@ -18,7 +18,8 @@ import pytest
 
 from flexarm import ArmModel
 from flexarm.integrator import simulate
-from scenarios.analysis.stability import E_FOLDS, sampled_loop_growth
+from scenarios.analysis.sampled_loop import sampled_loop_growth
+from scenarios.analysis.stability import E_FOLDS
 from scenarios.config import load_scenario
 from scenarios.reports.scheme_accuracy import plant_states, step_size_comparison
 from scenarios.run.runner import run_scenario

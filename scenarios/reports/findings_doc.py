@@ -4,7 +4,7 @@ Registered with :func:`scenarios.reports.page_blocks.block`, so ``python -m scen
 ``--check`` (CI) fails when one differs. Their figures come from three places, none typed by hand:
 
 * the results page's own fresh runs (Tables 1-3, eq. 32, the schedule comparison: RODAS4, ζ = 0);
-* the linearised 1 ms sampled loop (:func:`scenarios.analysis.stability.sampled_loop_growth`, a few seconds);
+* the linearised 1 ms sampled loop (:func:`scenarios.analysis.sampled_loop.sampled_loop_growth`, a few seconds);
 * two committed result files with their provenance, too slow to rerun in CI: ``docs/findings-data.json``
   (``python -m scenarios.reports.reexamine``: the exponential scheme, damping, noise scaling, settling) and
   ``docs/scheme-accuracy.json`` (``python -m scenarios.reports.scheme_accuracy --write``: the 10 s reference runs).
@@ -82,7 +82,7 @@ def _findings_data(runs: PageRuns) -> dict:
 @functools.cache
 def growth(gain_set: str, ratio: float) -> float:
     """Largest growth rate (1/s) of the linearised 1 ms sampled loop over the 200 ms schedule's gain sets."""
-    from scenarios.analysis.stability import sampled_loop_growth
+    from scenarios.analysis.sampled_loop import sampled_loop_growth
 
     return sampled_loop_growth(gain_set, "200ms", float(ratio), 0.0)["growth_per_s"]
 
