@@ -1,7 +1,7 @@
 """Energy error of each plant scheme on the free arm over 60 s (issue 24's acceptance figure).
 
 Free arm (zero torque, ζ = 0), all nine flexible modes excited and both joints turning
-(:func:`scenarios.reports.scheme_accuracy.free_arm_state`); prints, per scheme, the largest relative energy
+(:func:`scenarios.reports.scheme_accuracy_parts.free_arm_state`); prints, per scheme, the largest relative energy
 error |E/E₀ − 1| and its linear trend (1/s) over the horizon, and the CPU time. The generated table of
 docs/model.md comes from the same function (``python -m scenarios.reports.scheme_accuracy --write --part energy``).
 
@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def main() -> int:
-    from scenarios.reports.scheme_accuracy import energy_error
+    from scenarios.reports.scheme_accuracy_parts import energy_error
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=60.0)

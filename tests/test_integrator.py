@@ -307,7 +307,7 @@ def test_absurd_torque_is_an_integration_error(model, integrator):
 
 # -- Gauss-Legendre, the RK4 reference, substeps per millisecond, the exponential scheme's horizon (issue 24) --
 def free_arm(model):
-    from scenarios.reports.scheme_accuracy import free_arm_state
+    from scenarios.reports.scheme_accuracy_parts import free_arm_state
 
     return free_arm_state(model)
 

@@ -17,7 +17,8 @@ from scenarios.analysis.metric_deviation import DEVIATION
 from scenarios.analysis.sampled_loop import sampled_loop_growth
 from scenarios.analysis.stability import E_FOLDS, loop_stability
 from scenarios.config import load_scenario
-from scenarios.reports.scheme_accuracy import JSON_PATH, LOOP_REFERENCE, LOOP_SCHEMES, LOOPS
+from scenarios.reports.scheme_accuracy import JSON_PATH
+from scenarios.reports.scheme_accuracy_parts import LOOP_REFERENCE, LOOP_SCHEMES, LOOPS
 from scenarios.run.runner import run_scenario
 
 PATHS = {"controller": "build/fmus/controller.fmu"}

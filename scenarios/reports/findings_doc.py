@@ -97,7 +97,8 @@ def _horizon(key: str, t: float, what: str = "peak_velocity_error") -> float:
 
 
 def _reference_label() -> str:
-    from scenarios.reports.scheme_accuracy import HORIZON_SUBSTEPS, reference_step_us
+    from scenarios.reports.scheme_accuracy import reference_step_us
+    from scenarios.reports.scheme_accuracy_parts import HORIZON_SUBSTEPS
 
     return f"reference plant, RK4 {reference_step_us(HORIZON_SUBSTEPS):g} µs"
 
@@ -320,7 +321,7 @@ def _findings_joint_damping(runs: PageRuns) -> str:
 def _scheme_summary(runs: PageRuns) -> str:
     """docs/model.md: per scheme, the largest deviation from the converged reference over the three closed loops
     at 2, 5 and 10 s (docs/scheme-accuracy.json's loops part, whose table docs/model.md shows in full)."""
-    from scenarios.reports.scheme_accuracy import LOOP_REFERENCE, LOOP_SCHEMES, LOOPS, MARKS
+    from scenarios.reports.scheme_accuracy_parts import LOOP_REFERENCE, LOOP_SCHEMES, LOOPS, MARKS
 
     loops = _scheme_accuracy()["loops"]
     lines = ["| scheme | " + " | ".join(f"{m:g} s" for m in MARKS) + " |", "|---|" + "---|" * len(MARKS)]

@@ -55,7 +55,7 @@ def _long_limit() -> float:
     """The master's bound on recorded signals for the runs past the slew: the undamped reference's growing bracket
     vibration drives the recorded accelerometers past the default 1e4 m/s² at about 2.6 s while the angles and
     rates stay finite (the same bound as the 10 s runs of :mod:`scenarios.reports.scheme_accuracy`)."""
-    from scenarios.reports.scheme_accuracy import DIVERGENCE_LIMIT
+    from scenarios.reports.scheme_accuracy_parts import DIVERGENCE_LIMIT
 
     return DIVERGENCE_LIMIT
 
