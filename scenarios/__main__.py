@@ -261,18 +261,18 @@ def _dispatch(args) -> int:
             print(f"{s.name:16s} {len(s.cases)} cases  {s.description}")
         return EXIT_OK
     names = [s.name for s in list_scenarios()] if args.scenarios == ["all"] else args.scenarios
-    from scenarios.ilc import (
-        trials as ilc,  # scenarios with an [ilc] table repeat a case and learn between trials (scenarios/ilc/trials.py)
-    )
+    # scenarios with an [ilc] table repeat a case and learn between trials (scenarios/ilc/)
+    from scenarios.ilc.scenario import is_ilc_scenario, load_ilc
+    from scenarios.ilc.trials import cli as ilc_cli
 
-    if args.scenarios != ["all"] and any(ilc.is_ilc_scenario(n) for n in names):
+    if args.scenarios != ["all"] and any(is_ilc_scenario(n) for n in names):
         if len(names) != 1:
             raise ScenarioError(f"run: an ILC scenario runs alone, got {names}")
         for n in names:
-            ilc.load_ilc(n)
+            load_ilc(n)
         args.scenario_name = names[0]
-        return ilc.cli(args)
-    skipped = [n for n in names if ilc.is_ilc_scenario(n)]
+        return ilc_cli(args)
+    skipped = [n for n in names if is_ilc_scenario(n)]
     if skipped:  # `all`: the single-run scenarios; an ILC scenario runs alone
         _err(f"run all: not running the ILC scenario{'s' * (len(skipped) > 1)} {', '.join(skipped)} (each runs alone: "
              f"python -m scenarios run {skipped[0]})")

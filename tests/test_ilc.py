@@ -165,7 +165,7 @@ def test_settling_q_filter_filters_each_phase_on_its_own():
 
 def test_scenario_refuses_bad_settling_weights(tmp_path):
     from scenarios.config import ScenarioError
-    from scenarios.ilc.trials import load_ilc
+    from scenarios.ilc.scenario import load_ilc
 
     for key, value in (("settling_weight", "-1.0"), ("settling_weight", "2e6"), ("settling_tip_weight", "-5.0"),
                        ("settling_tip_weight", "true"), ("settling_model_payload_mass", "-0.1"),

@@ -24,18 +24,17 @@ and the tip's distance to the end point), exactly as the other scenarios score t
 from __future__ import annotations
 
 import dataclasses
-import math
 import shutil
 import sys
 import time
-import tomllib
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from flexarm.provenance import git_commit, sha256_file, write_atomic, write_json
-from scenarios.config import SCENARIO_DIR, Scenario, ScenarioError, load_scenario
+from scenarios.config import ScenarioError
+from scenarios.ilc.scenario import IlcSettings, load_ilc
+from scenarios.ilc.trial_table import plot_convergence, trial_header, trial_line, write_trials_csv
 from scenarios.metrics import table_metrics
 from scenarios.results import portable
 from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, fmu_kind
@@ -46,129 +45,10 @@ from scenarios.sweep.journal import Journal
 
 #: The measurements the learning reads (sensors FMU outputs): encoders, then strain gauges.
 MEASURED = ("q1_m", "q2_m", "eps1_m", "eps2_m", "eps3_m", "eps4_m", "eps5_m", "eps6_m")
-#: Keys of the [ilc] table and what each allows.
-ILC_KEYS = {
-    "trials": "an integer in [1, 1000]",
-    "learn_case": "the key of a case in [[cases]]",
-    "seed_base": "an integer >= 0 (trial j uses noise seed seed_base + j)",
-    "model_payload_mass": "a payload in [0, 10] kg for the learning's model",
-    "settling_model_payload_mass": "a payload in [0, 10] kg for the learning's model at and after t_f "
-                                   "(default: model_payload_mass)",
-    "error_weight": "a weight > 0, rad^-2",
-    "input_weight": "a weight > 0, (N m)^-2",
-    "leak_weight": "a weight >= 0, (N m)^-2",
-    "learning_gain": "a step factor in (0, 2)",
-    "settling_weight": "a factor in [0, 1e6] on error_weight for the samples at and after t_f (1: none)",
-    "settling_tip_weight": "a weight in [0, 1e12] m^-2 on the tip deviation the measured angles imply, at and "
-                           "after t_f (0: none)",
-    "q_filter_cutoff_hz": "a cut-off in [0, 500) Hz (0: no Q-filter)",
-    "q_filter_order": "an integer in [1, 8]",
-    "settling_q_filter_cutoff_hz": "a cut-off in [0, 500) Hz for the Q-filter at and after t_f (0: none; default "
-                                   "q_filter_cutoff_hz)",
-    "evaluate_cases": "a list of case keys",
-    "evaluate_samples": "an integer in [scenario.samples, 100000]: the length of the evaluate_cases runs, 1 ms "
-                        "samples (the correction is zero past its own samples; default scenario.samples)",
-}
 #: Tip distance to the end point that counts as arrived, m.
 TIP_TOLERANCE_M = 1e-3
 #: In an ILC result folder: the controller FMU with the final correction inside it.
 LEARNED_CONTROLLER = "learned_controller.fmu"
-
-
-@dataclass
-class IlcSettings:
-    trials: int
-    learn_case: str
-    seed_base: int
-    model_payload_mass: float
-    settling_model_payload_mass: float
-    error_weight: float
-    input_weight: float
-    leak_weight: float
-    learning_gain: float
-    settling_weight: float
-    settling_tip_weight: float
-    q_filter_cutoff_hz: float
-    q_filter_order: int
-    settling_q_filter_cutoff_hz: float
-    evaluate_cases: list[str]
-    evaluate_samples: int
-
-    def as_dict(self) -> dict:
-        return dict(self.__dict__)
-
-
-def _ilc_table(path: Path) -> dict | None:
-    try:
-        doc = tomllib.loads(path.read_bytes().decode("utf-8"))
-    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError):
-        return None  # not an ILC scenario; load_scenario then refuses the file naming what is wrong
-    return doc.get("ilc")
-
-
-def _path(name) -> Path:
-    p = Path(name)
-    return SCENARIO_DIR / f"{p.name}.toml" if not p.suffix else p
-
-
-def is_ilc_scenario(name) -> bool:
-    """Whether the scenario name or file has an ``[ilc]`` table (run by :func:`run_ilc`)."""
-    p = _path(name)
-    return p.is_file() and _ilc_table(p) is not None
-
-
-def load_ilc(name) -> tuple[Scenario, IlcSettings]:
-    """The scenario (validated by :func:`scenarios.config.load_scenario`) and its ``[ilc]`` settings, each
-    refused naming the field and what it allows."""
-    scenario = load_scenario(name)
-    raw = _ilc_table(scenario.path) or {}
-    where = f"{scenario.path.name}: ilc"
-    unknown = set(raw) - set(ILC_KEYS)
-    if unknown:
-        raise ScenarioError(f"{where}: keys allowed: {sorted(ILC_KEYS)}, got {sorted(unknown)}")
-    keys = [c.key for c in scenario.cases]
-
-    def get(key, default, ok):
-        v = raw.get(key, default)
-        if not ok(v):
-            raise ScenarioError(f"{where}.{key}: {ILC_KEYS[key]}, got {v!r}")
-        return v
-
-    def integer(lo, hi):
-        return lambda v: isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi
-
-    def number(lo, hi, lo_open=False):
-        return lambda v: (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-                          and (v > lo if lo_open else v >= lo) and v <= hi)
-
-    s = IlcSettings(
-        trials=get("trials", 10, integer(1, 1000)),
-        learn_case=get("learn_case", keys[0], lambda v: v in keys),
-        seed_base=get("seed_base", 1, integer(0, 2**62)),
-        model_payload_mass=float(get("model_payload_mass", 0.0, number(0.0, 10.0))),
-        settling_model_payload_mass=float(get("settling_model_payload_mass", raw.get("model_payload_mass", 0.0),
-                                              number(0.0, 10.0))),
-        error_weight=float(get("error_weight", 1.0, number(0.0, 1e12, True))),
-        input_weight=float(get("input_weight", 1e-4, number(0.0, 1e12, True))),
-        leak_weight=float(get("leak_weight", 0.0, number(0.0, 1e12))),
-        learning_gain=float(get("learning_gain", 1.0, lambda v: number(0.0, 1.999999, True)(v))),
-        settling_weight=float(get("settling_weight", 1.0, number(0.0, 1e6))),
-        settling_tip_weight=float(get("settling_tip_weight", 0.0, number(0.0, 1e12))),
-        q_filter_cutoff_hz=float(get("q_filter_cutoff_hz", 10.0, lambda v: number(0.0, 499.999)(v))),
-        q_filter_order=get("q_filter_order", 2, integer(1, 8)),
-        settling_q_filter_cutoff_hz=float(get("settling_q_filter_cutoff_hz", raw.get("q_filter_cutoff_hz", 10.0),
-                                              lambda v: number(0.0, 499.999)(v))),
-        evaluate_cases=list(get("evaluate_cases", [], lambda v: isinstance(v, list) and all(x in keys for x in v))),
-        evaluate_samples=0,
-    )
-    if scenario.samples == "trajectory":
-        raise ScenarioError(f"{scenario.path.name}: scenario.samples: an integer number of samples for an ILC "
-                            "scenario (the slew and the settling after it), got \"trajectory\"")
-    s.evaluate_samples = get("evaluate_samples", scenario.samples, integer(scenario.samples, 100_000))
-    if abs(scenario.step_size - 1e-3) > 1e-12:
-        raise ScenarioError(f"{scenario.path.name}: scenario.step_size_s: 0.001 for an ILC scenario (the learning "
-                            f"works on the 1 ms samples), got {scenario.step_size!r}")
-    return scenario, s
 
 
 # -- scoring ----------------------------------------------------------------------------
@@ -310,9 +190,9 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
             learn = cases[settings.learn_case]
             if done:
                 progress(f"resuming {scenario.name} after trial {done - 1} ({folder / 'journal.jsonl'})")
-            progress(_header())
+            progress(trial_header())
             for row in rows:
-                progress(_line(row))
+                progress(trial_line(row))
             for j in range(done, settings.trials if stopped is None else done):
                 stem = corrections / f"trial_{j:03d}"
                 file = f"{stem}.npz" if j else ""
@@ -341,7 +221,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                     stopped = f"trial {j}: {res['status']} ({res['message']})"
                 journal.append(row)
                 rows.append(row)
-                progress(_line(row))
+                progress(trial_line(row))
                 if stopped:
                     break
             evaluation = {}
@@ -381,7 +261,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
             summary["learned_controller"] = {"file": LEARNED_CONTROLLER,
                                              "sha256": sha256_file(folder / LEARNED_CONTROLLER)}
         write_json(folder / "evaluation.json", portable(summary, folder))
-        _write_csv(folder / "trials.csv", rows)
+        write_trials_csv(folder / "trials.csv", rows)
         if plots and rows:
             plot_convergence(rows, folder / "convergence.png", scenario.name)
     return summary
@@ -421,78 +301,6 @@ def _learned_metadata(scenario, settings, chain, commit) -> dict:
             "scenario": scenario.name, "scenario_sha256": sha256_file(scenario.path),
             "learn_case_parameters": {c.key: c.parameters for c in scenario.cases}.get(settings.learn_case),
             "data_sha256": chain, "commit": commit}
-
-
-COLUMNS = (("trial", "trial", "{:d}"), ("seed", "seed", "{:d}"),
-           ("rms pos°", "slew_rms_position_error", "{:.4f}"), ("peak pos°", "slew_peak_position_error", "{:.3f}"),
-           ("rms q1°", "rms_q1_error_deg", "{:.4f}"), ("rms q2°", "rms_q2_error_deg", "{:.4f}"),
-           ("rms tip mm", "rms_tip_error_mm", "{:.2f}"), ("tip<1mm s", "tip_within_1mm_after_tf_s", "{:.3f}"),
-           ("τ1 N·m", "slew_peak_tau1", "{:.3f}"), ("τ2 N·m", "slew_peak_tau2", "{:.3f}"),
-           ("sat", "saturated_samples", "{:d}"), ("‖e‖ rad", "measured_error_2norm_rad", "{:.4f}"),
-           ("wall s", "wall_time_s", "{:.1f}"))
-
-
-def _header() -> str:
-    return " ".join(f"{h:>10s}" for h, _, _ in COLUMNS)
-
-
-def _line(row: dict) -> str:
-    m = dict(row.get("metrics") or {}, trial=row["trial"], seed=row["seed"], wall_time_s=row["wall_time_s"])
-    if row["status"] != "ok":
-        return f"{row['trial']:>10d} {row['seed']:>10d} {row['status']}: {row['message']}"
-    cells = []
-    for _, key, fmt in COLUMNS:
-        v = m.get(key)
-        cells.append(f"{'---' if v is None else fmt.format(v):>10s}")
-    return " ".join(cells)
-
-
-def _write_csv(path: Path, rows: list[dict]) -> None:
-    keys = sorted({k for r in rows for k in (r.get("metrics") or {})})
-    lines = [",".join(["trial", "seed", "status", "wall_time_s", *keys])]
-    for r in rows:
-        m = r.get("metrics") or {}
-        lines.append(",".join([str(r["trial"]), str(r["seed"]), r["status"], repr(r["wall_time_s"])]
-                              + ["" if m.get(k) is None else repr(m[k]) for k in keys]))
-    write_atomic(path, "\n".join(lines) + "\n")
-
-
-def plot_convergence(rows: list[dict], path: Path, name: str) -> Path:
-    """rms / peak position error, tip error and peak torques against the trial number (PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import io
-
-    import matplotlib.pyplot as plt
-
-    ok = [r for r in rows if r.get("metrics")]
-    j = [r["trial"] for r in ok]
-    g = lambda k: [r["metrics"][k] for r in ok]  # noqa: E731
-    fig, ax = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
-    ax[0].semilogy(j, g("slew_rms_position_error"), "o-", label="rms, all 11 elements")
-    ax[0].semilogy(j, g("slew_peak_position_error"), "s-", label="peak, all 11 elements")
-    ax[0].semilogy(j, g("rms_q1_error_deg"), "^-", label="rms joint 1")
-    ax[0].semilogy(j, g("rms_q2_error_deg"), "v-", label="rms joint 2")
-    ax[0].axhline(0.1, color="k", ls=":", lw=1, label="0.1°")
-    ax[0].set(ylabel="position error over the slew, °", title=f"{name}: convergence")
-    ax[0].legend(fontsize=8)
-    ax[1].semilogy(j, g("rms_tip_error_mm"), "o-", label="rms tip error over the slew")
-    ax[1].semilogy(j, g("peak_tip_error_mm"), "s-", label="peak tip error over the run")
-    ax[1].semilogy(j, [1e3 * v for v in g("measured_error_2norm_rad")], "d-", label="‖measured error‖₂, mrad")
-    ax[1].set(ylabel="mm / mrad")
-    ax[1].legend(fontsize=8)
-    ax[2].plot(j, g("slew_peak_tau1"), "o-", label="peak τ1")
-    ax[2].plot(j, g("slew_peak_tau2"), "s-", label="peak τ2")
-    ax[2].axhline(7.0, color="C0", ls=":", lw=1)
-    ax[2].axhline(2.25, color="C1", ls=":", lw=1)
-    ax[2].set(xlabel="trial", ylabel="N·m")
-    ax[2].legend(fontsize=8)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
-    write_atomic(path, buf.getvalue())
-    return path
 
 
 def refuse_run_options(args) -> None:

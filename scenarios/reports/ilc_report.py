@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from flexarm.provenance import refuse_outside_checkout, sha256_file, write_atomic
-from scenarios.ilc.trials import load_ilc, run_ilc
+from scenarios.ilc.scenario import load_ilc
+from scenarios.ilc.trials import run_ilc
 
 REPO = Path(__file__).resolve().parents[2]
 DOC = REPO / "docs" / "ilc.md"
