@@ -129,7 +129,8 @@ def test_records_are_values_after_all_inputs_are_set(table2_setup):
 def test_case_option_selects_cases_and_refuses_an_unknown_key(capsys):
     """`run NAME --case KEY` keeps those cases in the file's order; an unknown key is refused (exit 2), naming
     the scenario's keys, before anything runs."""
-    from scenarios.__main__ import main, select_cases
+    from scenarios.__main__ import main
+    from scenarios.config import select_cases
 
     sc = load_scenario("table2")
     assert [c.key for c in select_cases(sc, ["tip", "none"]).cases] == ["none", "tip"]
