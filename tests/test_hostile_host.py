@@ -1,8 +1,8 @@
 """A deliberately hostile FMI host (issue 21): the result may not depend on how a master reads, sets and initialises.
 
 :class:`~scenarios.conformance.hosts.HostileHost` runs a scenario's FMUs on fmpy's ``FMU2Slave`` with the exchange of
-the scenario's stepping (Gauss-Seidel or Jacobi, as ``scenarios/master/cosim.py`` defines them), but the way a stranger's
-tool may do it: every output of an FMU is read twice before and twice after every single ``fmi2SetReal``, the
+the scenario's stepping (Gauss-Seidel or Jacobi, as ``scenarios/master/cosim.py`` defines them), but the way a
+stranger's tool may do it: every output of an FMU is read twice before and twice after every single ``fmi2SetReal``, the
 inputs are set one by one in a random (seeded) order, and the FMUs go through zero or three exchange rounds in
 initialisation mode. Its rms position error must equal our master's within 1 % or 1e-4 deg (the larger), for
 ``table2`` (Gauss-Seidel) and ``lqg_jacobi`` (Jacobi), both FMU kinds.

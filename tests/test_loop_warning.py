@@ -1,7 +1,8 @@
 """No plant scheme is more than 5 % off the converged reference without the run saying so (issue 24, acceptance).
 
-The decision (:func:`scenarios.analysis.stability.loop_stability`) is checked against every measured row of docs/model.md's
-closed-loop table (docs/scheme-accuracy.json, ``loops``: each scheme's peak velocity error at 2, 5 and 10 s against
+The decision (:func:`scenarios.analysis.stability.loop_stability`) is checked against every measured row of
+docs/model.md's closed-loop table (docs/scheme-accuracy.json, ``loops``: each scheme's peak velocity error at 2, 5 and
+10 s against
 RK4 at 1.25 µs), and on short real runs whose case JSON must carry the warning.
 """
 
@@ -352,8 +353,10 @@ def test_a_default_plant_off_on_the_rms_velocity_error_says_so(tmp_path, scenari
     3; rms velocity error 0.799 against the converged plant's 0.986 deg/s, −19 %) and Table 3 noise to 10 s (−11.6 %).
     Each run now warns, naming the rms velocity error, and its JSON carries the predicted deviation of every error
     metric. The prediction is a model of the converged plant, which these runs do not run (the mode's amplitude,
-    measured per gain set from these two cases' converged runs, scenarios/analysis/stability.py): it must be past 5 % with
-    the measured sign, and its size within a factor of 2 of the measurement (the margin is the model's: one
+    measured per gain set from these two cases' converged runs, scenarios/analysis/metric_deviation.py): it must
+    be
+    past 5 % with the measured sign, and its size within a factor of 2 of the measurement (the margin is the model's:
+    one
     amplitude and the worst growth rate of the schedule, applied from t = 0)."""
     (r,) = run_scenario(_one_case(scenario, "noise", samples), tmp_path, progress=False)
     stab = r.loop_stability

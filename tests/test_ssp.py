@@ -1,4 +1,5 @@
-"""SSP export (scenarios.conformance.ssp) and the second, independent master: libcosim (scenarios.conformance.libcosim_runner).
+"""SSP export (scenarios.conformance.ssp) and the second, independent master: libcosim
+(scenarios.conformance.libcosim_runner).
 
 The libcosim run happens in a subprocess (``python -m scenarios.conformance.libcosim_runner``):
 it keeps libcosim's copies of the FMU binaries out of the test process, which
@@ -179,7 +180,8 @@ def test_libcosim_runs_the_open_loop_case_as_our_master(ff_ssp, tmp_path):
     pytest.importorskip("libcosimpy", reason="libcosimpy (the libcosim master) is not installed: "
                                              "pip install libcosimpy")
     out = tmp_path / "libcosim.npz"
-    proc = subprocess.run([sys.executable, "-m", "scenarios.conformance.libcosim_runner", str(ff_ssp), "--out", str(out)],
+    proc = subprocess.run([sys.executable, "-m", "scenarios.conformance.libcosim_runner", str(ff_ssp),
+                           "--out", str(out)],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, f"libcosim run failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr[-3000:]}"
     lc = dict(np.load(out))

@@ -51,8 +51,8 @@ def bracket_mode_errors(integrator: str, substeps: int, damping_ratio: float = 0
 @functools.lru_cache(maxsize=1)
 def _bracket_frequencies() -> dict:
     """The three bracket modes' frequencies (Hz) at rest at q = (0, 90°), named as
-    :func:`scenarios.reports.scheme_accuracy_parts.mode_frequencies` names them, from NumPy alone (its modal analysis loads
-    Numba and scipy.linalg: about a second of a run's start)."""
+    :func:`scenarios.reports.scheme_accuracy_parts.mode_frequencies` names them, from NumPy alone (its modal
+    analysis loads Numba and scipy.linalg: about a second of a run's start)."""
     from flexarm.model import ArmModel, N, numpy_kernels, rigid_configuration
     from flexarm.parameters import load_parameters
 

@@ -73,7 +73,8 @@ def _from_signals(time, signals: dict, plant: str = "plant", driver: str = "cont
 
 def experiment(ssp: Path) -> tuple[int, float]:
     """(communication steps, step size in s) of an archive: the DefaultExperiment's stop time over the fixed step
-    its SSD names for libcosim (``osp:FixedStepAlgorithm``, the same as OMSimulator's, see scenarios.conformance.ssp)."""
+    its SSD names for libcosim (``osp:FixedStepAlgorithm``, the same as OMSimulator's, see
+    scenarios.conformance.ssp)."""
     from lxml import etree
 
     doc = etree.parse(io.BytesIO(zipfile.ZipFile(ssp).read("SystemStructure.ssd")))

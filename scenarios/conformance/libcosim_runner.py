@@ -1,4 +1,5 @@
-"""Run an exported scenario (``.ssp``, see :mod:`scenarios.conformance.ssp`) in libcosim, a second, independent FMI master.
+"""Run an exported scenario (``.ssp``, see :mod:`scenarios.conformance.ssp`) in libcosim, a second, independent FMI
+master.
 
 libcosim is the Open Simulation Platform's co-simulation library (C++), used
 here through its Python binding libcosimpy. :func:`run_case_libcosim` loads the
@@ -222,7 +223,8 @@ def run_case_libcosim(ssp_path: str | Path, n_steps: int | None = None,
 
 
 def main(argv=None) -> int:
-    """``python -m scenarios.conformance.libcosim_runner SSP [--steps N] [--out FILE.csv|.npz]``: one case in libcosim."""
+    """``python -m scenarios.conformance.libcosim_runner SSP [--steps N] [--out FILE.csv|.npz]``: one case in
+    libcosim."""
     import argparse
     import sys
 

@@ -3,8 +3,8 @@
 Computes :func:`flexarm.ilc_floor.minimum_tracking_error` (the smallest rms element-angle error along the slew that
 torques within the motors' peak torques reach on the arm with the 0.275 kg payload, noise-free, open loop) and
 writes it between the markers below in ``docs/ilc.md`` (in the hand-written part, so that
-``python -m scenarios.reports.ilc_report`` keeps it) and to ``docs/ilc_floor.json`` (every figure, with the commit and the
-SHA-256 of the trajectory and parameter files). ``--check`` recomputes nothing: it renders the block from the
+``python -m scenarios.reports.ilc_report`` keeps it) and to ``docs/ilc_floor.json`` (every figure, with the commit
+and the SHA-256 of the trajectory and parameter files). ``--check`` recomputes nothing: it renders the block from the
 committed JSON and fails if docs/ilc.md differs or the JSON was computed from other data files (seconds).
 """
 

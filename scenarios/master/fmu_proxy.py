@@ -115,7 +115,8 @@ class RemoteSlave:
         raise AttributeError(name)
 
     def raw_functions(self) -> tuple:
-        """(fmi2GetReal, fmi2SetReal, fmi2DoStep) with the ctypes functions' signatures (see scenarios.master.compat)."""
+        """(fmi2GetReal, fmi2SetReal, fmi2DoStep) with the ctypes functions' signatures (see
+        scenarios.master.compat)."""
         return self._get_real, self._set_real, self._do_step
 
     def _get_real(self, component, vrs, n, buffer) -> int:

@@ -1,8 +1,8 @@
 """The generated blocks' machinery: block markers, the registry of block writers, the page's runs.
 
 Below :mod:`scenarios.reports.results_page` (which runs the page and writes the files) and the modules that register
-blocks (:mod:`scenarios.reports.cost_doc`, :mod:`scenarios.reports.findings_doc`, the page itself), so that each of them imports
-this module and none imports another in a circle.
+blocks (:mod:`scenarios.reports.cost_doc`, :mod:`scenarios.reports.findings_doc`, the page itself), so that each
+of them imports this module and none imports another in a circle.
 """
 
 from __future__ import annotations

@@ -62,8 +62,8 @@ class CaseResult:
     #: What the run did not do well (e.g. torque saturation, :func:`scenarios.metrics.saturation_warnings`; an
     #: unstable sampled loop the plant scheme cannot show, :func:`scenarios.analysis.stability.loop_stability`).
     warnings: list[str] = field(default_factory=list)
-    #: The linearised sampled loop's stability (:func:`scenarios.analysis.stability.loop_stability`: the check, or why it
-    #: was not made and whether the plant scheme could show a bracket-mode instability anyway).
+    #: The linearised sampled loop's stability (:func:`scenarios.analysis.stability.loop_stability`: the check, or
+    #: why it was not made and whether the plant scheme could show a bracket-mode instability anyway).
     loop_stability: dict | None = None
     #: The run's verdict from its own samples (:func:`scenarios.run.verdict.verdict`); None when it did not finish.
     verdict: dict | None = None

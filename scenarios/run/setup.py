@@ -153,8 +153,9 @@ class Setup:
                              algorithm or self.scenario.algorithm, self.isolate, self.step_timeout)
 
     def case_parameters(self, case_parameters: dict[str, dict], where: str = "") -> dict[str, dict]:
-        """The case's parameters checked against the FMUs and converted (:func:`scenarios.master.values.check_parameters`),
-        with the plant started on the trajectory unless the case says otherwise."""
+        """The case's parameters checked against the FMUs and converted
+        (:func:`scenarios.master.values.check_parameters`), with the plant started on the trajectory unless the case
+        says otherwise."""
         case_parameters = {inst: {k: v for k, v in values.items() if k not in self.left_out.get(inst, ())}
                            for inst, values in case_parameters.items()}
         params = check_parameters(where or f"{self.scenario.path.name}: parameters", self.descriptions,
@@ -292,7 +293,8 @@ def left_out_parameters(scenario: Scenario, descriptions: dict, instance: str = 
 
 
 def check_overrides(setup: Setup, overrides: dict[str, dict]) -> dict[str, dict]:
-    """``--set`` values checked against the FMUs' model descriptions (:func:`scenarios.master.values.check_parameters`)."""
+    """``--set`` values checked against the FMUs' model descriptions
+    (:func:`scenarios.master.values.check_parameters`)."""
     return check_parameters("--set", setup.descriptions, overrides)
 
 
