@@ -18,7 +18,7 @@ from scenarios.master.compat import fmu2_raw_functions
 from scenarios.master.fmi_callbacks import logging_callbacks
 from scenarios.master.fmu_files import read_description, unpack
 from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S, RemoteSlave
-from scenarios.master.interrupts import DeferSignals, RunInterrupted  # noqa: F401 - RunInterrupted: raised by Master.run, imported from here
+from scenarios.master.interrupts import DeferSignals
 from scenarios.master.values import parse_choices
 
 STATUS_NAMES = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
