@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 SCENARIO_DIR = Path(__file__).resolve().parent
-_TOP_KEYS = {"scenario", "fmus", "connections", "parameters", "cases", "record", "ilc"}  # ilc: scenarios/ilc/trials.py
+_TOP_KEYS = {"scenario", "fmus", "connections", "parameters", "cases", "record", "ilc"}  # ilc: scenarios/ilc/
 _SCENARIO_KEYS = {"name", "description", "paper_table", "step_size_s", "samples", "order", "trajectory", "algorithm",
                   "kind"}
 #: Master stepping algorithms a scenario may ask for (scenarios/master/cosim.py).
