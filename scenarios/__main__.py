@@ -127,8 +127,8 @@ def main(argv=None) -> int:
                    help="the conformance matrix: each case's one archive in every FMI master "
                         "(python -m scenarios conformance --help)")
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv[:1] == ["conformance"]:  # its own command line (scenarios/conformance/matrix.py)
-        from scenarios.conformance.matrix import main as conformance_main
+    if argv[:1] == ["conformance"]:  # its own command line (scenarios/reports/conformance_doc.py)
+        from scenarios.reports.conformance_doc import main as conformance_main
 
         return conformance_main(argv[1:])
     _reserve_stdio()
