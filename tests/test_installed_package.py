@@ -41,6 +41,7 @@ def _snapshot(folder: Path) -> dict[str, int]:
     ["scenarios.ilc.floor"],
     ["scenarios.reports.scheme_accuracy", "--check"],
     ["scenarios.reports.scheme_accuracy", "--write", "--part", "horizons"],
+    ["scenarios.reports.module_map", "--write"],
     ["fmu_build", "--write-doc"],  # flexarm-build-fmus --write-doc
 ])
 def test_commands_that_rewrite_committed_files_refuse_outside_a_checkout(site, tmp_path, command):

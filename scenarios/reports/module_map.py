@@ -57,13 +57,16 @@ def module_map_block(runs) -> str:
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
-    from flexarm.provenance import write_atomic
+    from flexarm.provenance import refuse_outside_checkout, write_atomic
 
     ap = argparse.ArgumentParser(prog="python -m scenarios.reports.module_map", description=__doc__.split("\n\n")[0])
     mode = ap.add_mutually_exclusive_group(required=True)
     mode.add_argument("--write", action="store_true", help="rewrite the map in docs/architecture.md")
     mode.add_argument("--check", action="store_true", help="exit 1 if docs/architecture.md's map is not the code's")
     args = ap.parse_args(argv)
+    if refuse_outside_checkout("python -m scenarios.reports.module_map", "docs/architecture.md's module map "
+                               "(--check compares with it)", REPO):
+        return 2
     if args.check:
         same = committed() == render()
         print(f"{DOC_PATH.relative_to(REPO)}: the module map " + ("matches the code" if same else
