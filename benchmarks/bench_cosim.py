@@ -14,9 +14,11 @@ import argparse
 import time
 from pathlib import Path
 
-from scenarios import master
 from scenarios.config import load_scenario
-from scenarios.runner import DEFAULT_FMU_DIR, prepare, simulate_case
+from scenarios.master import cosim as master
+from scenarios.run.fmus import DEFAULT_FMU_DIR
+from scenarios.run.runner import simulate_case
+from scenarios.run.setup import prepare
 
 
 def main() -> None:

@@ -1,9 +1,9 @@
 """Energy error of each plant scheme on the free arm over 60 s (issue 24's acceptance figure).
 
 Free arm (zero torque, ζ = 0), all nine flexible modes excited and both joints turning
-(:func:`scenarios.scheme_accuracy.free_arm_state`); prints, per scheme, the largest relative energy
+(:func:`scenarios.reports.scheme_accuracy_parts.free_arm_state`); prints, per scheme, the largest relative energy
 error |E/E₀ − 1| and its linear trend (1/s) over the horizon, and the CPU time. The generated table of
-docs/model.md comes from the same function (``python -m scenarios.scheme_accuracy --write --part energy``).
+docs/model.md comes from the same function (``python -m scenarios.reports.scheme_accuracy --write --part energy``).
 
 Usage: ``python benchmarks/bench_energy.py [--seconds 60] [--scheme gauss:4 ...]`` (Gauss at 4 substeps per
 ms over 60 s: a few minutes; the reference, RK4 at 2.5 µs: about ten times longer).
@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def main() -> int:
-    from scenarios.scheme_accuracy import energy_error
+    from scenarios.reports.scheme_accuracy_parts import energy_error
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=60.0)

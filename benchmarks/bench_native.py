@@ -10,7 +10,7 @@ Prints, in one run:
    native and Python;
 3. the real-time factor of table2's first case (plant + sensors + controller, 1 ms) with the Python FMUs
    and with the native ones, in our fmpy master and in libcosim (the case exported as SSP, run by
-   scenarios.libcosim_runner on the calling thread, then with libcosim's default worker pool; stepping
+   scenarios.conformance.libcosim_runner on the calling thread, then with libcosim's default worker pool; stepping
    only, loading excluded).
 
     python -m benchmarks.bench_native [--steps N] [--repeats N]
@@ -169,7 +169,7 @@ def _choice_values(setup, params: dict) -> dict:
 def cosim_rtf(fmu_dir: Path, repeats: int) -> tuple[float, float, dict]:
     """table2's first case in our master: (best wall time per run s, simulated s, metrics)."""
     from scenarios.config import load_scenario
-    from scenarios.runner import prepare
+    from scenarios.run.setup import prepare
 
     sc = load_scenario("table2")
     case = sc.cases[0]
@@ -190,7 +190,7 @@ def cosim_rtf(fmu_dir: Path, repeats: int) -> tuple[float, float, dict]:
 
 _LIBCOSIM = """
 import sys
-from scenarios.libcosim_runner import run_case_libcosim
+from scenarios.conformance.libcosim_runner import run_case_libcosim
 threads = None if sys.argv[3] == "default" else int(sys.argv[3])
 walls = [run_case_libcosim(sys.argv[1], worker_threads=threads)["step_wall_s"] for _ in range(int(sys.argv[2]))]
 print(min(walls))
@@ -202,7 +202,7 @@ def libcosim_rtf(fmu_dir: Path, native_dir: Path, kind: str, out: Path, repeats:
     """table2's first case exported as SSP with the `kind` FMUs and stepped in libcosim (a new process):
     best wall time of the stepping (s). `worker_threads`: "0" (the calling thread) or "default" (libcosim's)."""
     from scenarios.config import load_scenario
-    from scenarios.ssp import export_ssp
+    from scenarios.conformance.ssp import export_ssp
 
     sc = load_scenario("table2")
     ssp = export_ssp(sc, out / kind, fmu_dir, build=False, cases=[sc.cases[0].key], kind=kind,

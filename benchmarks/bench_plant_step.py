@@ -23,7 +23,7 @@ over fewer steps; the exponential scheme over at most 2.5 s of simulated time
 
 ``--write`` measures only docs/model.md's cost table (library, Python and native plant FMUs, per scheme) into
 ``docs/plant-step-cost.json`` with the date, commit, machine and load average, and renders the table from it
-(:mod:`scenarios.cost_doc`; ``python -m scenarios results-page --check`` checks the render, without re-timing).
+(:mod:`scenarios.reports.cost_doc`; ``python -m scenarios results-page --check`` checks the render, without re-timing).
 
 Usage: ``python benchmarks/bench_plant_step.py [--write]`` (a few seconds, plus a
 one-off Numba compile of about 20 s if the cache is cold; builds
@@ -204,7 +204,7 @@ def table2_substeps(steps_ms=(1, 4)) -> list[str]:
     from flexarm import _kernels as kern
     from flexarm.integrator import DEFAULT_SUBSTEPS, substep_count
     from scenarios.config import load_scenario
-    from scenarios.runner import run_scenario
+    from scenarios.run.runner import run_scenario
 
     model = ArmModel()
     lines = []
@@ -247,7 +247,7 @@ def main() -> int:
         return 0
     if "--write" in sys.argv:  # docs/model.md's cost table: measure, write the JSON, render the block
         from flexarm.provenance import write_atomic
-        from scenarios.cost_doc import write_block
+        from scenarios.reports.cost_doc import write_block
 
         data = cost_table()
         write_atomic(COST_JSON, json.dumps(data, indent=1) + "\n")

@@ -28,7 +28,7 @@ DEFAULT = ["run", "table2", "--case", "none", "--native", "--no-plots"]
 #: ``python -m scenarios ARGS``, printing this process's CPU time when the master takes its first step.
 _CHILD = r"""
 import sys, time
-import scenarios.master as master
+from scenarios.master import cosim as master
 
 _run = master.Master.run
 

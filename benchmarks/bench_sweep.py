@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from scenarios.runner import DEFAULT_FMU_DIR
+from scenarios.run.fmus import DEFAULT_FMU_DIR
 from scenarios.sweep import close_loaded, iter_dask, iter_serial, load_sweep, local_cluster, plan_sweep
 
 SWEEP = """

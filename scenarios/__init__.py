@@ -1,4 +1,5 @@
-"""The scenario runner and master (``python -m scenarios``)."""
+"""The scenarios, their runs and what reports them (``python -m scenarios``): one sub-package per concern, layered
+(docs/architecture.md, "`scenarios/` by concern")."""
 
 import sys
 from pathlib import Path

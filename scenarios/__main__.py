@@ -16,44 +16,34 @@ import math
 import os
 import signal
 import sys
-import tomllib
 from pathlib import Path
 
-from .config import (
-    MAX_CASES,
-    MAX_SAMPLES,
-    SCENARIO_DIR,
-    ScenarioError,
-    check_size,
-    list_scenarios,
-    load_scenario,
-    parse_assignment,
-    select_cases,
+from scenarios.commands import (  # noqa: F401 - the exit codes: the command line's, imported from here
+    EXIT_BROKEN_PIPE,
+    EXIT_ERROR,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_OUTPUT,
+    EXIT_REFUSED,
+    EXIT_STDOUT,
+    EXIT_TERMINATED,
+    StdoutUnwritable,
+    dispatch,
+    say_error,
 )
-from .fmu_proxy import DEFAULT_STEP_TIMEOUT_S, START_TIMEOUT_S
-from .isolation import ISOLATE
-from .master import CoSimulationError
-from .outdir import OutputError, describe_os_error
-from .paper import paper_columns
-from .runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, check_kind, format_table, run_scenario
+from scenarios.config import MAX_CASES, MAX_SAMPLES, ScenarioError
+from scenarios.master.cosim import CoSimulationError
+from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S, START_TIMEOUT_S
+from scenarios.master.isolation import ISOLATE
+from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR
+from scenarios.run.outdir import OutputError, describe_os_error
 
-EXIT_OK, EXIT_ERROR, EXIT_REFUSED, EXIT_OUTPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
-EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader left
-EXIT_STDOUT = 4  # the results were written, but standard output could not take the table (e.g. /dev/full)
 #: Default results folder: relative to the current directory, so it works with any install.
 DEFAULT_OUT = Path("results")
 
 
 def _terminate(signum, frame):
     raise SystemExit(EXIT_TERMINATED)  # unwinds like Ctrl-C: temp files and unpacked FMUs are removed
-
-
-class StdoutUnwritable(Exception):
-    """Standard output refused what we printed (not a broken pipe): the results already written stay."""
-
-    def __init__(self, exc: OSError, written: list[Path]):
-        super().__init__(describe_os_error(exc))
-        self.written = written
 
 
 def _reserve_stdio() -> None:
@@ -70,14 +60,6 @@ def _reserve_stdio() -> None:
     for name, mode in (("stdin", "r"), ("stdout", "w"), ("stderr", "w")):
         if getattr(sys, name) is None:
             setattr(sys, name, open(os.devnull, mode))  # noqa: SIM115 - lives as long as the process
-
-
-def _err(text: str) -> None:
-    """A message on standard error; nothing if standard error cannot take it (``2>/dev/full``)."""
-    try:
-        print(text, file=sys.stderr, flush=True)
-    except (OSError, ValueError):
-        pass
 
 
 def main(argv=None) -> int:
@@ -138,15 +120,15 @@ def main(argv=None) -> int:
     page.add_argument("--check", action="store_true",
                       help="do not write: exit 1 with a diff if the committed files differ from a fresh run")
     page.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where built FMUs live")
-    from .score.cli import add_parser as add_score
+    from scenarios.score.cli import add_parser as add_score
 
     add_score(sub, DEFAULT_OUT, DEFAULT_FMU_DIR, _kind_options)
     sub.add_parser("conformance", add_help=False,
                    help="the conformance matrix: each case's one archive in every FMI master "
                         "(python -m scenarios conformance --help)")
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv[:1] == ["conformance"]:  # its own command line (scenarios/conformance.py)
-        from .conformance import main as conformance_main
+    if argv[:1] == ["conformance"]:  # its own command line (scenarios/reports/conformance_doc.py)
+        from scenarios.reports.conformance_doc import main as conformance_main
 
         return conformance_main(argv[1:])
     _reserve_stdio()
@@ -157,27 +139,27 @@ def main(argv=None) -> int:
     # exited 0. A Ctrl-C (SIGINT) means the same here however the process was started.
     previous_int = signal.signal(signal.SIGINT, signal.default_int_handler) if _main_thread() else None
     try:
-        return _dispatch(args)
+        return dispatch(args)
     except KeyboardInterrupt:
-        _err("interrupted: nothing of the interrupted run was recorded as a result")
+        say_error("interrupted: nothing of the interrupted run was recorded as a result")
         return EXIT_INTERRUPTED
     except (ScenarioError, CoSimulationError) as exc:
-        _err(f"error: {exc}")
+        say_error(f"error: {exc}")
         return EXIT_REFUSED
     except OutputError as exc:
-        _err(f"error: {exc}")
+        say_error(f"error: {exc}")
         return EXIT_OUTPUT
     except BrokenPipeError:  # the reader of our standard output went away (`... | head`): not a results error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit's flush
-        _err("stopped: standard output was closed (broken pipe)")
+        say_error("stopped: standard output was closed (broken pipe)")
         return EXIT_BROKEN_PIPE
     except StdoutUnwritable as exc:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit's flush
         where = ", ".join(str(w) for w in exc.written) or "(none)"
-        _err(f"error: standard output: cannot print the table ({exc}); the results were written: {where}")
+        say_error(f"error: standard output: cannot print the table ({exc}); the results were written: {where}")
         return EXIT_STDOUT
     except OSError as exc:
-        _err(f"error: cannot write results: {describe_os_error(exc)}")
+        say_error(f"error: cannot write results: {describe_os_error(exc)}")
         return EXIT_OUTPUT
     finally:
         if previous is not None:
@@ -223,125 +205,6 @@ def _main_thread() -> bool:
     import threading
 
     return threading.current_thread() is threading.main_thread()
-
-
-def _dispatch(args) -> int:
-    if args.command == "sweep":
-        from .sweep import cli as sweep_cli
-
-        return sweep_cli(args)
-    if args.command == "score":
-        from .score.cli import main as score_main
-
-        return score_main(args)
-    if args.command == "export-ssp":
-        from .ssp import SSPExportError, export_ssp
-
-        try:
-            paths = export_ssp(load_scenario(args.scenario), args.out, args.fmu_dir, cases=args.case, kind=args.kind,
-                               native_fmu_dir=args.native_fmu_dir)
-        except SSPExportError as exc:
-            _err(f"error: {exc}")
-            return EXIT_REFUSED
-        for key, path in paths.items():
-            print(f"{key}: {path}")
-        return EXIT_OK
-    if args.command == "results-page":
-        from . import results_page
-
-        try:
-            return _results_page(results_page, args)
-        except results_page.ResultsPageError as exc:
-            _err(f"error: {exc}")
-            return EXIT_ERROR
-    if args.command == "list":
-        for s in list_scenarios():
-            print(f"{s.name:16s} {len(s.cases)} cases  {s.description}")
-        return EXIT_OK
-    names = [s.name for s in list_scenarios()] if args.scenarios == ["all"] else args.scenarios
-    from . import ilc  # scenarios with an [ilc] table repeat a case and learn between trials (scenarios/ilc.py)
-
-    if args.scenarios != ["all"] and any(ilc.is_ilc_scenario(n) for n in names):
-        if len(names) != 1:
-            raise ScenarioError(f"run: an ILC scenario runs alone, got {names}")
-        for n in names:
-            ilc.load_ilc(n)
-        args.scenario_name = names[0]
-        return ilc.cli(args)
-    skipped = [n for n in names if ilc.is_ilc_scenario(n)]
-    if skipped:  # `all`: the single-run scenarios; an ILC scenario runs alone
-        _err(f"run all: not running the ILC scenario{'s' * (len(skipped) > 1)} {', '.join(skipped)} (each runs alone: "
-             f"python -m scenarios run {skipped[0]})")
-    names = [n for n in names if n not in skipped]
-    controller, overrides = _controller_arg(args.controller), _overrides(args.sets)
-    scenarios = [select_cases(load_scenario(name), args.cases) for name in names]  # all refused before any runs
-    for sc in scenarios:
-        sc.allow_large = args.allow_large
-        check_size(sc)  # the number of cases now; the steps per case once the trajectory is read (run_length)
-    kinds = [check_kind(sc, args.kind, controller) for sc in scenarios]  # and every FMU without that kind
-    paper = tomllib.loads((SCENARIO_DIR / "paper_tables.toml").read_text())
-    code = EXIT_OK
-    written: list[Path] = []
-    progress = not args.quiet
-    for sc, kind in zip(scenarios, kinds):
-        results = run_scenario(sc, args.out, args.fmu_dir, controller, progress=progress,
-                               plots=not args.no_plots, kind=kind, native_fmu_dir=args.native_fmu_dir,
-                               overrides=overrides, isolate=args.isolate, step_timeout=args.step_timeout)
-        written.append(args.out / sc.name)
-        columns = paper_columns(sc, overrides, paper)  # by the parameters run, not by the case's key
-        lines = [f"\n== {sc.name}: {sc.description} [{kind} FMUs]",
-                 format_table(results, {k: col for k, (_, col) in columns.items()} if sc.paper_table else None)]
-        for r in results:
-            if sc.paper_table and r.key not in columns:
-                lines.append(f"   {r.key}: no paper column: no case of the paper's {sc.paper_table} has the "
-                             "parameters this run used")
-            elif sc.paper_table and columns[r.key][0] != r.key:
-                lines.append(f"   {r.key}: the paper column is the paper's case {columns[r.key][0]}, whose "
-                             "parameters this run used")
-            if r.status != "ok":
-                lines.append(f"   {r.key}: {r.status} ({r.message})")
-            lines += [f"   {r.key}: warning: {w}" for w in r.warnings]
-            if r.status == "error":
-                code = EXIT_ERROR
-        lines.append("   wall time per case: " + ", ".join(f"{r.key} {r.wall_time_s:.2f} s" for r in results))
-        lines.append(f"   results: {args.out / sc.name}")
-        try:
-            print("\n".join(lines), flush=True)
-        except BrokenPipeError:
-            raise
-        except OSError as exc:
-            raise StdoutUnwritable(exc, written) from exc
-    return code
-
-
-def _controller_arg(value: str | None) -> str | None:
-    """``--controller``: a project FMU name as it is; a .fmu path made absolute against the current directory
-    (a path in a scenario file's [fmus] resolves against the scenario file instead)."""
-    if value is None or not value.endswith(".fmu"):
-        return value
-    return str(Path(value).expanduser().resolve())
-
-
-def _overrides(sets: list[str]) -> dict[str, dict]:
-    """``--set`` arguments as {instance: {variable: value}} (:func:`scenarios.config.parse_assignment`)."""
-    out: dict[str, dict] = {}
-    for text in sets:
-        inst, var, value = parse_assignment(text)
-        out.setdefault(inst, {})[var] = value
-    return out
-
-
-def _results_page(results_page, args) -> int:
-    if args.check:
-        diffs = results_page.check(args.fmu_dir, progress=True)
-        for d in diffs:
-            print(d)
-        print("results page: " + ("differs from a fresh run (rerun python -m scenarios results-page)"
-                                  if diffs else "matches a fresh run"))
-        return EXIT_ERROR if diffs else EXIT_OK
-    for path in results_page.write(args.fmu_dir):
-        print(f"wrote {path}")
-    return EXIT_OK
 
 
 if __name__ == "__main__":

@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 SCENARIO_DIR = Path(__file__).resolve().parent
-_TOP_KEYS = {"scenario", "fmus", "connections", "parameters", "cases", "record", "ilc"}  # ilc: scenarios/ilc.py
+_TOP_KEYS = {"scenario", "fmus", "connections", "parameters", "cases", "record", "ilc"}  # ilc: scenarios/ilc/
 _SCENARIO_KEYS = {"name", "description", "paper_table", "step_size_s", "samples", "order", "trajectory", "algorithm",
                   "kind"}
-#: Master stepping algorithms a scenario may ask for (scenarios/master.py).
+#: Master stepping algorithms a scenario may ask for (scenarios/master/cosim.py).
 ALGORITHMS = ("gauss-seidel", "jacobi")
 #: Kinds of FMU a scenario may run (FMU names resolve in build/fmus or build/fmus-native; docs/native-fmus.md).
 KINDS = ("python", "native")
@@ -109,7 +109,7 @@ class Scenario:
     samples: int | str = "trajectory"
     paper_table: str | None = None
     record: list[str] = field(default_factory=list)
-    #: Master stepping: "gauss-seidel" (default) or "jacobi" (see scenarios/master.py).
+    #: Master stepping: "gauss-seidel" (default) or "jacobi" (see scenarios/master/cosim.py).
     algorithm: str = "gauss-seidel"
     #: Which kind of FMU the names in [fmus] mean: "python" (default) or "native" (plain C).
     kind: str = "python"
@@ -247,7 +247,7 @@ def parse_assignment(text: str) -> tuple[str, str, object]:
 
     The value is read as a TOML value (``40``, ``0.5``, ``true``, ``"gamma1"``); anything TOML does not read
     is taken as a string (``gamma1``). It is typed later by the FMU's model description
-    (:mod:`scenarios.values`), like a scenario file's values.
+    (:mod:`scenarios.master.values`), like a scenario file's values.
     """
     target, sep, raw = text.partition("=")
     inst, dot, var = target.strip().partition(".")

@@ -10,7 +10,7 @@ from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave
 
-from scenarios.master import logging_callbacks
+from scenarios.master.fmi_callbacks import logging_callbacks
 
 DT = 1e-3
 #: fmi2Status values.
@@ -134,7 +134,7 @@ def rss_mb() -> float:
 
 def choice(var, name: str) -> int:
     """The integer of choice parameter `var`'s option `name` (listed in its description)."""
-    from scenarios.values import parse_choices
+    from scenarios.master.values import parse_choices
 
     items = parse_choices(var.description or "")
     if name not in items:
@@ -214,7 +214,7 @@ def extract_ssp_fmus(ssp, folder) -> dict[str, str]:
 
     from lxml import etree
 
-    from scenarios.ssp import NS
+    from scenarios.conformance.ssp import NS
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,7 @@
 """Issue 35: a controller that is not ours raises, hangs or exits; the master survives it, says so and goes on.
 
 The bad controllers (tests/bad_controllers.py) are small pythonfmu FMUs built here, run through the command
-line as a user would (``--controller X.fmu``). They run in a process of their own (scenarios/fmu_proxy.py):
+line as a user would (``--controller X.fmu``). They run in a process of their own (scenarios/master/fmu_proxy.py):
 each case they break ends ``error`` with exit code 1, naming the FMU, the FMI call, the time and the status.
 Every subprocess has a generous timeout: a hang guard only, never a measure of speed.
 """
@@ -20,9 +20,9 @@ import pytest
 from bad_controllers import build_bad_controller
 from fmu_harness import built_fmus
 
-from scenarios import runner
 from scenarios.config import SCENARIO_DIR, load_scenario
-from scenarios.master import Master
+from scenarios.master.cosim import Master
+from scenarios.run.setup import prepare
 
 #: Hang guard for one command: far above a run's minute on a loaded machine, far below a hang's forever.
 GUARD_S = 600
@@ -147,7 +147,7 @@ def test_after_fmi2fatal_nothing_more_is_called_and_the_next_run_starts_afresh(b
 
 def test_isolated_fmus_give_the_same_numbers_as_in_process(fmu_dir):
     """Values cross the process boundary as IEEE doubles: Table 2's closed loop, bit for bit the same run."""
-    setup = runner.prepare(load_scenario("table2"), fmu_dir, build=False)
+    setup = prepare(load_scenario("table2"), fmu_dir, build=False)
     params = setup.case_parameters({"sensors": {"noise_enabled": True}})
     runs = []
     for isolate in ([], list(setup.paths)):
@@ -167,7 +167,7 @@ def test_a_step_timeout_that_is_no_number_of_seconds_is_refused(tmp_path, fmu_di
 
 def test_children_stop_when_the_master_is_killed(tmp_path, bad):
     """A hung FMU's process does not outlive a master killed outright (SIGKILL): it dies with its parent."""
-    code = ("import sys; from pathlib import Path; from scenarios.master import Master\n"
+    code = ("import sys; from pathlib import Path; from scenarios.master.cosim import Master\n"
             f"m = Master({{'c': Path({str(bad['hang'])!r})}}, ['c'], [], isolate=['c'])\n"
             "print('loaded', flush=True)\n"
             "m.run({'c': {'fail_at': 0.0}}, [('c', 'tau1')], 3)\n")
@@ -232,7 +232,7 @@ def test_a_signal_ends_the_run_even_inside_an_fmu_call_in_this_process_that_neve
     be acted on between steps, so the watchdog ends the process after its grace period, with the signal's code,
     and removes the unpacked FMUs."""
     unpack = tmp_path / "unpack"
-    script = ("import signal, sys; from pathlib import Path; from scenarios.master import Master\n"
+    script = ("import signal, sys; from pathlib import Path; from scenarios.master.cosim import Master\n"
               "signal.signal(signal.SIGTERM, lambda *a: sys.exit(143))  # as python -m scenarios does\n"
               f"m = Master({{'c': Path({str(bad['hang'])!r})}}, ['c'], [])\n"
               "print('loaded', flush=True)\n"
@@ -255,7 +255,7 @@ def test_a_signal_ends_the_run_even_inside_an_fmu_call_in_this_process_that_neve
 def test_an_isolated_fmus_error_status_reads_as_in_process_and_it_is_reset_for_the_next_run(fmu_dir):
     """fmi2Error from an FMU in its own process: the same outcome, FMU message included; then fmi2Reset (FMI
     2.0.5 allows it after fmi2Error, fmi2Terminate it does not) and the next run is ok."""
-    setup = runner.prepare(load_scenario("table2"), fmu_dir, build=False)
+    setup = prepare(load_scenario("table2"), fmu_dir, build=False)
     setup.isolate = ["sensors", "controller"]  # the sensors refuse the step; the controller's sets are pipelined
     with setup.open_master() as m:
         bad = m.run(setup.case_parameters({"sensors": {"sample_period": 0.0015}}), setup.record, 50)

@@ -1,6 +1,6 @@
 """One exported archive per case, one answer in every FMI master (issues 21 and 31): the conformance suite.
 
-The masters live in :mod:`scenarios.conformance_hosts` and the matrix in :mod:`scenarios.conformance`
+The masters live in :mod:`scenarios.conformance.hosts` and the matrix in :mod:`scenarios.conformance.matrix`
 (``python -m scenarios conformance`` runs all of it, about an hour, and writes the table of
 docs/masters-and-ssp.md). Here CI runs a part of it for real: each case is exported once, with nothing
 stepping-specific in the archive, and run in every master with no parameter changed between them:
@@ -29,10 +29,10 @@ from fmu_harness import built_fmus
 from lxml import etree
 from native_fmus import native_fmus
 
-from scenarios import conformance
 from scenarios.config import load_scenario
-from scenarios.conformance_hosts import omsimulator
-from scenarios.ssp import NS, export_ssp, validate_ssp
+from scenarios.conformance import matrix as conformance
+from scenarios.conformance.hosts import omsimulator
+from scenarios.conformance.ssp import NS, export_ssp, validate_ssp
 
 #: The cases CI runs (kind -> scenario -> cases): the paper's law and the LQG (one Kalman filter, and the payload
 #: bank under noise) in the native kind (the Python kind's laws are held to their twins elsewhere, and its runs
@@ -91,7 +91,7 @@ ARCHIVES = [(kind, name, case) for kind, scenarios in CASES.items() for name, ca
 def test_every_master_gives_our_gauss_seidel_figures(kind, name, case, archives):
     """Issue 31 acceptance: the same archive in every master, within 5 % or 0.005 deg / 0.05 deg/s.
 
-    Every master outside :func:`scenarios.conformance.known_to_differ` must agree; those inside it are an
+    Every master outside :func:`scenarios.conformance.matrix.known_to_differ` must agree; those inside it are an
     expected failure while issue 31 is open (the paper's law's velocity error in a Jacobi master, fmpy's first
     millisecond)."""
     pytest.importorskip("ecospy", reason="ecospy is not installed: pip install ecospy (needs libtbb12)")

@@ -15,7 +15,7 @@ from flexarm.control import TrackingController, tracking_errors
 from flexarm.lqr import DEFAULT_GAIN_DIR, GainSchedule, as_trajectory, default_trajectory_path, desired_states
 from flexarm.model import N, joint_angles, joint_velocities, strain_gauge_angles
 from flexarm.sensors import MEASURED_SIGNAL_NAMES
-from scenarios.values import parse_choices
+from scenarios.master.values import parse_choices
 
 ROOT = Path(__file__).resolve().parents[1]
 

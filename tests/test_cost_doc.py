@@ -6,8 +6,8 @@ import json
 import sys
 from pathlib import Path
 
-from scenarios.cost_doc import COST_JSON, DOC, render
-from scenarios.page_blocks import _MARKED
+from scenarios.reports.cost_doc import COST_JSON, DOC, render
+from scenarios.reports.page_blocks import _MARKED
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 

@@ -25,11 +25,14 @@ import pytest
 from fmu_harness import built_fmus
 
 from flexarm.provenance import sha256_bytes
-from scenarios import fmu_files, runner
 from scenarios.__main__ import main
 from scenarios.config import SCENARIO_DIR, load_scenario
+from scenarios.master import fmu_files
+from scenarios.master.values import check_value
+from scenarios.run import runner
+from scenarios.run import setup as run_setup
+from scenarios.run.setup import prepare, verify_data_chain
 from scenarios.sweep import Journal, load_sweep, run_sweep
-from scenarios.values import check_value
 
 TABLE2 = (SCENARIO_DIR / "table2.toml").read_text()
 TIMEOUT = 600
@@ -65,7 +68,7 @@ def stderr_line(capsys) -> str:
 def table2_setup():
     # the FMUs this test process built; a fresh clone has no build/fmus yet
     folder = next(iter(built_fmus().values())).parent
-    return runner.prepare(load_scenario("table2"), folder, build=False)
+    return prepare(load_scenario("table2"), folder, build=False)
 
 
 # ---------------------------------------------------------------------------------------- 1. typed outcomes
@@ -295,7 +298,7 @@ def test_a_broken_trajectory_is_refused_through_the_loader(tmp_path, capsys, mon
     np.savez(bad, **arrays)
     meta = json.loads(DEFAULT_TRAJECTORY_FILE.with_suffix(".json").read_text())  # its side file records it
     write_sealed_json(bad.with_suffix(".json"), {**meta, "npz_sha256": sha256_file(bad)})
-    monkeypatch.setattr(runner, "desired_trajectory", lambda: load_trajectory(bad))
+    monkeypatch.setattr(run_setup, "desired_trajectory", lambda: load_trajectory(bad))
     assert main(["run", "table2", "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
     err = stderr_line(capsys)
     assert err.startswith("error: data chain:") and str(bad) in err and "arrays of different lengths" in err
@@ -325,7 +328,7 @@ def test_a_trajectory_made_from_other_parameters_is_refused(tmp_path, capsys, mo
     shutil.copyfile(DEFAULT_TRAJECTORY_FILE, traj)
     shutil.copyfile(DEFAULT_TRAJECTORY_FILE.with_suffix(".json"), traj.with_suffix(".json"))
     params.write_text(params.read_text().replace("\n", "\n# edited\n", 1))
-    monkeypatch.setattr(runner, "desired_trajectory", lambda: load_trajectory(traj))
+    monkeypatch.setattr(run_setup, "desired_trajectory", lambda: load_trajectory(traj))
     monkeypatch.setattr(flexarm.trajectory.io, "DEFAULT_TRAJECTORY_FILE", traj)
     assert main(["run", "table2", "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
     err = stderr_line(capsys)
@@ -352,7 +355,7 @@ def test_gains_made_from_another_trajectory_are_refused(tmp_path, capsys, monkey
 
 
 def test_the_data_chain_is_recorded(tmp_path):
-    chain = runner.verify_data_chain()
+    chain = verify_data_chain()
     assert {"flexarm/data/sandia_arm.toml", "flexarm/data/trajectory.npz"} <= set(chain)
     assert sum(k.startswith("flexarm/data/gains/") for k in chain) >= 12 and all(len(v) == 64 for v in chain.values())
 
@@ -375,7 +378,7 @@ def test_a_second_run_into_a_locked_folder_is_refused(tmp_path, capsys):
 
 
 def test_a_second_sweep_into_a_locked_folder_is_refused(tmp_path):
-    from scenarios.outdir import FolderBusy
+    from scenarios.run.outdir import FolderBusy
 
     sweep = tmp_path / "busy.toml"
     sweep.write_text("[sweep]\nname='busy'\nscenario='table2'\nsamples=20\n[axes]\nplant.payload_mass=[0.0]\n")
@@ -476,7 +479,7 @@ def test_a_cancellation_in_dask_shutdown_is_not_logged_but_a_real_error_is():
 def test_unpacked_fmus_of_a_killed_run_are_removed_by_the_next_one(tmp_path, table2_setup):
     env = {**os.environ, fmu_files.UNPACK_ENV: str(tmp_path),
            "FLEXARM_FMU_DIR": str(table2_setup.paths["plant"].parent)}
-    code = ("import sys, time\nfrom scenarios.runner import prepare\nfrom scenarios.config import load_scenario\n"
+    code = ("import sys, time\nfrom scenarios.run.runner import prepare\nfrom scenarios.config import load_scenario\n"
             "m = prepare(load_scenario('table2'), build=False).open_master()\nprint('loaded', flush=True)\n"
             "time.sleep(600)\n")
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env)

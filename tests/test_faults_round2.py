@@ -112,7 +112,7 @@ def one_byte(path):
         b[len(b) // 2] ^= 0xFF
     return bytes(b)
 
-from scenarios.runner import verify_data_chain
+from scenarios.run.runner import verify_data_chain
 results = {"clean": len(verify_data_chain())}  # the unedited copy passes
 for f in data_files(data):
     if f.suffix in (".npz", ".json"):

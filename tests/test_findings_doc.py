@@ -1,4 +1,4 @@
-"""docs/findings.md's generated blocks refuse stale inputs (issue 24 item 4; scenarios/findings_doc.py).
+"""docs/findings.md's generated blocks refuse stale inputs (issue 24 item 4; scenarios/reports/findings_doc.py).
 
 The blocks read two committed result files; a file computed from other inputs, or whose RODAS4 tables a fresh
 run no longer reproduces, must stop the results page instead of keeping an old figure alive. The fresh runs are
@@ -9,8 +9,8 @@ import json
 
 import pytest
 
-from scenarios import findings_doc as fd
-from scenarios.results_page import ResultsPageError
+from scenarios.reports import findings_doc as fd
+from scenarios.reports.results_page import ResultsPageError
 
 
 class _Runs(dict):
@@ -33,7 +33,7 @@ def _runs_from(data, scale=1.0):
 def test_findings_data_is_checked_against_the_fresh_runs():
     data = json.loads(fd.FINDINGS_DATA.read_text())
     assert fd._findings_data(_runs_from(data)) == data
-    with pytest.raises(ResultsPageError, match="table2/noise rms_position_error.*scenarios.reexamine"):
+    with pytest.raises(ResultsPageError, match="table2/noise rms_position_error.*scenarios.reports.reexamine"):
         fd._findings_data(_runs_from(data, scale=1.001))
 
 

@@ -28,7 +28,7 @@ import pytest
 
 import flexarm
 from scenarios.config import load_scenario
-from scenarios.runner import DEFAULT_FMU_DIR, resolve_fmus
+from scenarios.run.fmus import DEFAULT_FMU_DIR, resolve_fmus
 
 #: Imports the flexarm copy given as argv[1], then instantiates and frees each FMU of argv[2:] three times,
 #: calling nothing in between (the third time fmi2Reset, which makes a new Python slave, before freeing);
@@ -42,8 +42,8 @@ module = importlib.util.module_from_spec(spec)
 sys.modules["flexarm"] = module
 spec.loader.exec_module(module)
 from fmpy.fmi2 import FMU2Slave
-from scenarios.fmu_files import read_description, unpack
-from scenarios.master import logging_callbacks
+from scenarios.master.fmu_files import read_description, unpack
+from scenarios.master.fmi_callbacks import logging_callbacks
 phase, log = ["instantiate"], []
 def logger(component, instance, status, category, message):
     log.append([phase[0], status, message.decode(errors="replace")])

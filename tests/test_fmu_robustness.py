@@ -23,7 +23,7 @@ from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions
 from fmu_harness import DT, ERROR, OK, SCENARIOS, Slave, built_fmus, drive, rss_mb, third_party_pythonpath
 
 from fmu_build import FMUS
-from scenarios.master import logging_callbacks
+from scenarios.master.fmi_callbacks import logging_callbacks
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -16,9 +16,10 @@ from fmpy.fmi2 import FMU2Slave
 from fmu_harness import built_fmus
 
 from flexarm.trajectory import load_trajectory
-from scenarios import runner
 from scenarios.config import load_scenario
 from scenarios.metrics import METRICS, table_metrics
+from scenarios.run import runner
+from scenarios.run.setup import desired_trajectory, prepare
 
 
 @pytest.fixture(scope="module")
@@ -76,13 +77,13 @@ def test_three_fmus_wired_by_name_with_nothing_set_give_table2(fmus):
     case = next(c for c in sc.cases if c.key == "none")
     assert case.parameters["plant"]["payload_mass"] == 0.0 and not case.parameters["sensors"]["noise_enabled"]
     paths = {k: str(fmus[k]) for k in ("plant", "sensors", "controller")}
-    setup = runner.prepare(sc, names={k: v for k, v in paths.items()})
+    setup = prepare(sc, names={k: v for k, v in paths.items()})
     with setup.open_master() as m:
         _, ours = runner.simulate_case(setup, m, case.parameters)
 
     # The default experiment: the slew, read from the data
     experiments = {k: read_model_description(p).defaultExperiment for k, p in paths.items()}
-    traj = runner.desired_trajectory()
+    traj = desired_trajectory()
     duration = float(traj.t[-1] - traj.t[0])
     for k, e in experiments.items():
         assert (float(e.startTime), float(e.stopTime), float(e.stepSize)) == (0.0, duration, 1e-3), k

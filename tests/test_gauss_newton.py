@@ -11,7 +11,7 @@ import pytest
 
 import flexarm._kernels as kern
 from flexarm import ArmModel
-from scenarios.scheme_accuracy import free_arm_state
+from scenarios.reports.scheme_accuracy_parts import free_arm_state
 
 
 def _fully_iterated_step(model, z, tau, h, iterations=200):

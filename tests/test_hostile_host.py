@@ -1,8 +1,8 @@
 """A deliberately hostile FMI host (issue 21): the result may not depend on how a master reads, sets and initialises.
 
-:class:`~scenarios.conformance_hosts.HostileHost` runs a scenario's FMUs on fmpy's ``FMU2Slave`` with the exchange of
-the scenario's stepping (Gauss-Seidel or Jacobi, as ``scenarios/master.py`` defines them), but the way a stranger's
-tool may do it: every output of an FMU is read twice before and twice after every single ``fmi2SetReal``, the
+:class:`~scenarios.conformance.hosts.HostileHost` runs a scenario's FMUs on fmpy's ``FMU2Slave`` with the exchange of
+the scenario's stepping (Gauss-Seidel or Jacobi, as ``scenarios/master/cosim.py`` defines them), but the way a
+stranger's tool may do it: every output of an FMU is read twice before and twice after every single ``fmi2SetReal``, the
 inputs are set one by one in a random (seeded) order, and the FMUs go through zero or three exchange rounds in
 initialisation mode. Its rms position error must equal our master's within 1 % or 1e-4 deg (the larger), for
 ``table2`` (Gauss-Seidel) and ``lqg_jacobi`` (Jacobi), both FMU kinds.
@@ -22,8 +22,9 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 from scenarios.config import load_scenario
-from scenarios.conformance_hosts import HostileHost
-from scenarios.runner import prepare, simulate_case
+from scenarios.conformance.hosts import HostileHost
+from scenarios.run.runner import simulate_case
+from scenarios.run.setup import prepare
 
 #: Cases of lqg_jacobi the host runs (issue 21's table), and all of table2's.
 LQG_CASES = ("none", "none_bank", "noise_bank", "tip_bank_integral")
@@ -97,7 +98,7 @@ def _stepped(path, params: dict, steps: list[float]) -> tuple[np.ndarray, list[s
     """Outputs after each step of a lone FMU (inputs at their start values), and the errors it logged."""
     from fmpy.fmi1 import FMICallException
 
-    from scenarios.master import logging_callbacks
+    from scenarios.master.fmi_callbacks import logging_callbacks
 
     md = read_model_description(str(path))
     outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]

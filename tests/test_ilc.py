@@ -1,4 +1,4 @@
-"""Iterative learning control (flexarm.ilc, scenarios/ilc.py): the mathematics, the files, the FMU parameter,
+"""Iterative learning control (flexarm.ilc, scenarios/ilc/trials.py): the mathematics, the files, the FMU parameter,
 and a short learning run through the FMUs (resumed from its journal)."""
 
 from __future__ import annotations
@@ -165,7 +165,7 @@ def test_settling_q_filter_filters_each_phase_on_its_own():
 
 def test_scenario_refuses_bad_settling_weights(tmp_path):
     from scenarios.config import ScenarioError
-    from scenarios.ilc import load_ilc
+    from scenarios.ilc.scenario import load_ilc
 
     for key, value in (("settling_weight", "-1.0"), ("settling_weight", "2e6"), ("settling_tip_weight", "-5.0"),
                        ("settling_tip_weight", "true"), ("settling_model_payload_mass", "-0.1"),
@@ -369,7 +369,7 @@ def test_ilc_scenario_learns_through_the_fmus_and_resumes(tmp_path):
     """Two trials of a short ILC scenario through the Python FMUs, then a third after a 'restart': the journal
     keeps the first two, the third runs with the correction they produced, and the error falls."""
     from scenarios.config import ScenarioError
-    from scenarios.ilc import run_ilc
+    from scenarios.ilc.trials import run_ilc
 
     text = SCENARIO.read_text().replace("samples = 3058", "samples = 400").replace("trials = 50", "trials = 2")
     text = text.replace('evaluate_cases = ["learn", "payload_0p2", "payload_0p35"]', 'evaluate_cases = ["learn"]')
@@ -388,7 +388,7 @@ def test_ilc_scenario_learns_through_the_fmus_and_resumes(tmp_path):
     assert rms[2] < rms[1] < rms[0]
     ev = second["evaluation"]["learn"]
     assert ev["learned"]["metrics"]["slew_rms_position_error"] < ev["unlearned"]["metrics"]["slew_rms_position_error"]
-    from scenarios.ilc_report import MARKER, render  # the page renders such a summary (its figures in it)
+    from scenarios.reports.ilc_report import MARKER, render  # the page renders such a summary (its figures in it)
 
     page = render(second, [("study", second)], None, second)
     assert page.startswith(MARKER) and f"| 2 | {rms[2]:.4f} |" in page and "Jacobi stepping" in page
@@ -473,14 +473,14 @@ def test_an_fmu_error_in_the_middle_of_a_trial_stops_the_campaign(tmp_path, monk
     """The controller returns fmi2Error from fmi2DoStep at t = 0.2 s of trial 1 (as a failing FMU does): the
     campaign stops there (no trial 2, no learned file, no evaluation), the journal keeps the failed trial, and
     ``python -m scenarios run`` says which trial, step and FMU, and exits non-zero; run again, it stays stopped."""
-    import scenarios.master as master
     from scenarios.__main__ import main
+    from scenarios.master import units
 
     text = SCENARIO.read_text().replace("samples = 3058", "samples = 300").replace("trials = 50", "trials = 3")
     text = text.replace('evaluate_cases = ["learn", "payload_0p2", "payload_0p35"]', 'evaluate_cases = ["learn"]')
     scen = tmp_path / "ilc_fail.toml"
     scen.write_text(text)
-    raw, runs = master.fmu2_raw_functions, []
+    raw, runs = units.fmu2_raw_functions, []
 
     def failing(slave):
         get_real, set_real, do_step = raw(slave)
@@ -493,7 +493,7 @@ def test_an_fmu_error_in_the_middle_of_a_trial_stops_the_campaign(tmp_path, monk
             return 3 if len(runs) == 2 and t >= 0.2 else do_step(component, t, h, new_step)  # 3: fmi2Error
         return get_real, set_real, step
 
-    monkeypatch.setattr(master, "fmu2_raw_functions", failing)
+    monkeypatch.setattr(units, "fmu2_raw_functions", failing)
     out = tmp_path / "out"
     args = ["run", str(scen), "--out", str(out), "--no-plots", "--quiet"]
     assert main(args) == 1
@@ -526,7 +526,8 @@ def test_lifted_blocks_equal_the_models_response(small_model):
 def test_the_ilc_page_is_its_committed_results(capsys):
     """docs/ilc.md's generated parts are what docs/ilc_results.json and docs/ilc_floor.json render to, from the
     scenario and data files as they are (no runs: the runs take 15-20 minutes; their commands regenerate all)."""
-    from scenarios import ilc_floor, ilc_report
+    from scenarios.ilc import floor as ilc_floor
+    from scenarios.reports import ilc_report
 
     assert ilc_floor.main(["--check"]) == 0, capsys.readouterr().err
     assert ilc_report.main(["--check"]) == 0, capsys.readouterr().err
@@ -562,7 +563,7 @@ def test_an_ilc_scenario_refuses_a_controller_that_reads_no_learned_feedforward(
     """controller_fb has no feedforward to correct: the ILC run is refused before any trial, naming the FMU and
     the controllers that learn, rather than learning a correction nobody applies."""
     from scenarios.config import ScenarioError
-    from scenarios.ilc import run_ilc
+    from scenarios.ilc.trials import run_ilc
 
     text = SCENARIO.read_text().replace('controller = "controller"', 'controller = "controller_fb"', 1)
     scen = tmp_path / "ilc_fb.toml"

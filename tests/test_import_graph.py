@@ -4,6 +4,9 @@ itself back through others.
 Folders, lowest first: ``flexarm`` (the physics library) < ``fmus`` (FMU sources) < ``fmu_build`` (build code) <
 ``scenarios`` (the master and the runs) < ``benchmarks``. Every import counts, those inside functions too: a lazy
 import still makes the importing module depend on the imported one.
+
+Inside ``scenarios`` the sub-packages are layered the same way (:data:`SCENARIO_LAYERS`): a module imports only
+from its own sub-package or from a lower layer.
 """
 
 from __future__ import annotations
@@ -13,6 +16,19 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 FOLDERS = ("flexarm", "fmus", "fmu_build", "scenarios", "benchmarks")
+#: The parts of ``scenarios``, lowest first; a part is a sub-package or a top-level module (``scenarios`` itself is
+#: its ``__init__``). Each tuple is one layer: its parts do not import one another.
+SCENARIO_LAYERS = (
+    ("scenarios", "config", "metrics", "results"),  # scenario files, the paper's metrics, result files
+    ("analysis",),  # models a run is checked against
+    ("master",),  # the co-simulation master and what drives FMUs
+    ("run",),  # a scenario's run: FMUs chosen, set up, run, judged, written
+    ("sweep", "conformance", "score"),  # many runs: sweeps, other masters, a controller's score
+    ("ilc",),  # learning between trials (keeps its journal as a sweep does)
+    ("reports",),  # generators of documents
+    ("commands",),  # what each command does
+    ("__main__",),  # the command line
+)
 
 
 def _modules() -> dict[str, Path]:
@@ -93,6 +109,36 @@ def upward_imports(graph: dict[str, set[str]]) -> list[str]:
                   if rank[t.split(".")[0]] > rank[m.split(".")[0]])
 
 
+def scenario_part(module: str) -> str:
+    """The part of ``scenarios`` a module belongs to (its sub-package, or itself at the top level)."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+def upward_scenario_imports(graph: dict[str, set[str]], layers=SCENARIO_LAYERS) -> list[str]:
+    """Every import inside ``scenarios`` of a part from a layer above or beside its own (``importer -> imported``)."""
+    rank = {part: i for i, layer in enumerate(layers) for part in layer}
+    out = []
+    for m, targets in graph.items():
+        if m.split(".")[0] != "scenarios":
+            continue
+        for t in targets:
+            if t.split(".")[0] != "scenarios" or scenario_part(t) == scenario_part(m):
+                continue
+            if rank[scenario_part(t)] >= rank[scenario_part(m)]:
+                out.append(f"{m} -> {t}")
+    return sorted(out)
+
+
+def test_every_part_of_scenarios_is_in_a_layer():
+    parts = {scenario_part(m) for m in import_graph() if m.split(".")[0] == "scenarios"}
+    assert parts == {p for layer in SCENARIO_LAYERS for p in layer}
+
+
+def test_scenario_parts_import_only_downwards():
+    assert upward_scenario_imports(import_graph()) == []
+
+
 def test_folders_import_only_downwards():
     assert upward_imports(import_graph()) == []
 
@@ -107,3 +153,8 @@ def test_the_checks_can_fail():
     assert cycles(graph) == [["flexarm.a", "flexarm.b"]]
     assert upward_imports(graph) == ["flexarm.b -> scenarios.x"]
     assert "fmu_build.native_build" in import_graph()["fmu_build.native"]  # imported inside a function there
+    layers = (("scenarios",), ("run",), ("reports", "sweep"))
+    graph = {"scenarios.run.a": {"scenarios.reports.b", "scenarios.run.c"},
+             "scenarios.sweep.d": {"scenarios.reports.b"}, "scenarios.reports.b": {"scenarios.run.a"}}
+    assert upward_scenario_imports(graph, layers) == ["scenarios.run.a -> scenarios.reports.b",
+                                                      "scenarios.sweep.d -> scenarios.reports.b"]

@@ -35,12 +35,13 @@ def _snapshot(folder: Path) -> dict[str, int]:
 @pytest.mark.parametrize("command", [
     ["flexarm.lqr", "--write"],
     ["flexarm.regenerate"],
-    ["scenarios.reexamine"],
-    ["scenarios.ilc_report"],
-    ["scenarios.ilc_report", "--check"],
-    ["scenarios.ilc_floor"],
-    ["scenarios.scheme_accuracy", "--check"],
-    ["scenarios.scheme_accuracy", "--write", "--part", "horizons"],
+    ["scenarios.reports.reexamine"],
+    ["scenarios.reports.ilc_report"],
+    ["scenarios.reports.ilc_report", "--check"],
+    ["scenarios.ilc.floor"],
+    ["scenarios.reports.scheme_accuracy", "--check"],
+    ["scenarios.reports.scheme_accuracy", "--write", "--part", "horizons"],
+    ["scenarios.reports.module_map", "--write"],
     ["fmu_build", "--write-doc"],  # flexarm-build-fmus --write-doc
 ])
 def test_commands_that_rewrite_committed_files_refuse_outside_a_checkout(site, tmp_path, command):

@@ -307,7 +307,7 @@ def test_absurd_torque_is_an_integration_error(model, integrator):
 
 # -- Gauss-Legendre, the RK4 reference, substeps per millisecond, the exponential scheme's horizon (issue 24) --
 def free_arm(model):
-    from scenarios.scheme_accuracy import free_arm_state
+    from scenarios.reports.scheme_accuracy_parts import free_arm_state
 
     return free_arm_state(model)
 
@@ -315,7 +315,7 @@ def free_arm(model):
 def test_gauss_energy_error_is_bounded_over_10_s(model):
     """Free arm, all nine flexible modes excited, joints turning, τ = 0, ζ = 0, 4 substeps per ms: the relative
     energy error stays below 1e-4 and shows no secular growth (acceptance; the 60 s figure is generated into
-    docs/model.md by python -m scenarios.scheme_accuracy). Measured over 3 s: 1.3e-4 at 2 substeps per ms (the
+    docs/model.md by python -m scenarios.reports.scheme_accuracy). Measured over 3 s: 1.3e-4 at 2 substeps per ms (the
     aliased bracket modes), 4.9e-5 at 4, 1.1e-5 at 8; RODAS4 (error-controlled) loses 2.9e-3 in the first 2 s."""
     z = free_arm(model)
     e0 = model.total_energy(z)
@@ -395,7 +395,7 @@ def test_scheme_accuracy_tables_are_what_the_json_renders():
     (numerical damping per mode, from the stability functions) recomputes to the committed numbers."""
     import json
 
-    from scenarios import scheme_accuracy as sa
+    from scenarios.reports import scheme_accuracy as sa
 
     assert sa.check() == []
     committed = json.loads(sa.JSON_PATH.read_text())

@@ -10,9 +10,11 @@ import pytest
 from fmu_harness import built_fmus
 from native_fmus import native_fmus
 
-from scenarios import master, runner
 from scenarios.config import load_scenario
-from scenarios.loop_delay import INDEX_NAMES, loop_delay_record, loop_delay_warnings
+from scenarios.master import cosim as master
+from scenarios.run import runner
+from scenarios.run.loop_delay import INDEX_NAMES, loop_delay_record, loop_delay_warnings
+from scenarios.run.setup import desired_states, desired_trajectory, prepare
 
 DELAY = [("controller", "loop_delay"), ("controller", "loop_delay_assumed"), ("controller", "tau_index")]
 
@@ -33,7 +35,7 @@ def run(kind_fmus, scenario: str, case: str, algorithm: str, controller: dict | 
     kind, fmus = kind_fmus
     sc = load_scenario(scenario)
     folder = next(iter(fmus.values())).parent
-    setup = runner.prepare(sc, fmu_dir=folder, native_fmu_dir=folder, build=False, kind=kind, algorithm=algorithm)
+    setup = prepare(sc, fmu_dir=folder, native_fmu_dir=folder, build=False, kind=kind, algorithm=algorithm)
     parameters = dict(next(c for c in sc.cases if c.key == case).parameters)
     parameters["controller"] = {**parameters.get("controller", {}), **(controller or {})}
     connections = [c for c in setup.connections if c.dst_var not in drop]  # inputs left unwired
@@ -48,7 +50,7 @@ def run(kind_fmus, scenario: str, case: str, algorithm: str, controller: dict | 
     theta = np.column_stack([sig[f"plant.theta{i}"] for i in range(1, 12)])
     omega = np.column_stack([sig[f"plant.omega{i}"] for i in range(1, 12)])
     tau = np.column_stack([sig["controller.tau1"], sig["controller.tau2"]])
-    desired = runner.desired_states(runner.desired_trajectory(), out["time"])
+    desired = desired_states(desired_trajectory(), out["time"])
     metrics = runner.table_metrics(tau, theta, omega, desired["theta"], desired["omega"])
     return {"metrics": metrics, "tau": tau, "log": out["log"], "warnings": warnings, **delay}
 

@@ -19,8 +19,8 @@ from native_fmus import native_fmus
 from flexarm import loop_index
 from flexarm.parameters import DATA_DIR
 from flexarm.signals import INDEX_GROUP, catalogue
-from scenarios import runner
 from scenarios.config import load_scenario
+from scenarios.run.setup import prepare
 
 
 def test_the_index_rules():
@@ -136,7 +136,7 @@ def test_a_controller_says_which_sample_its_torques_are_for(kind_fmus, fmu, para
 def _run(kind: str, fmus: dict[str, Path], scenario: str, case: str, algorithm: str, n: int = 40) -> dict:
     sc = load_scenario(scenario)
     folder = next(iter(fmus.values())).parent
-    setup = runner.prepare(sc, fmu_dir=folder, native_fmu_dir=folder, build=False, kind=kind, algorithm=algorithm)
+    setup = prepare(sc, fmu_dir=folder, native_fmu_dir=folder, build=False, kind=kind, algorithm=algorithm)
     parameters = next(c for c in sc.cases if c.key == case).parameters
     extra = [("plant", "sample_index"), ("plant", "tau_lag"), ("sensors", "sample_index_m"),
              ("controller", "tau_index")]

@@ -1,7 +1,8 @@
 """No plant scheme is more than 5 % off the converged reference without the run saying so (issue 24, acceptance).
 
-The decision (:func:`scenarios.stability.loop_stability`) is checked against every measured row of docs/model.md's
-closed-loop table (docs/scheme-accuracy.json, ``loops``: each scheme's peak velocity error at 2, 5 and 10 s against
+The decision (:func:`scenarios.analysis.stability.loop_stability`) is checked against every measured row of
+docs/model.md's closed-loop table (docs/scheme-accuracy.json, ``loops``: each scheme's peak velocity error at 2, 5 and
+10 s against
 RK4 at 1.25 µs), and on short real runs whose case JSON must carry the warning.
 """
 
@@ -13,10 +14,13 @@ from pathlib import Path
 
 import pytest
 
+from scenarios.analysis.metric_deviation import DEVIATION
+from scenarios.analysis.sampled_loop import sampled_loop_growth
+from scenarios.analysis.stability import E_FOLDS, loop_stability
 from scenarios.config import load_scenario
-from scenarios.runner import run_scenario
-from scenarios.scheme_accuracy import JSON_PATH, LOOP_REFERENCE, LOOP_SCHEMES, LOOPS
-from scenarios.stability import DEVIATION, E_FOLDS, loop_stability, sampled_loop_growth
+from scenarios.reports.scheme_accuracy import JSON_PATH
+from scenarios.reports.scheme_accuracy_parts import LOOP_REFERENCE, LOOP_SCHEMES, LOOPS
+from scenarios.run.runner import run_scenario
 
 PATHS = {"controller": "build/fmus/controller.fmu"}
 
@@ -94,7 +98,7 @@ def test_the_plant_loop_carries_the_scheme():
 def test_a_stable_loop_made_unstable_by_the_scheme_is_announced():
     """The other way round: a loop the exact plant keeps (nearly) stable that the scheme's own sampled loop makes
     grow is flagged as numerical growth (the decision function on made-up rates)."""
-    from scenarios.stability import judge
+    from scenarios.analysis.stability import judge
 
     exact = {"growth_per_s": 0.1, "mode_frequency_hz": 5712.0, "aliased_frequency_hz": 288.0, "at_time_s": 0.2}
     note, dev = judge(exact, dict(exact, growth_per_s=2.0), 2.0, "gauss", 2, 1)
@@ -132,8 +136,8 @@ def test_jacobi_stepping_is_checked_with_its_delay(tmp_path):
     unpredicted loop still says), and the run's velocity error does not grow either (envelope fit from 0.2 s, well
     under 1 1/s)."""
     from flexarm.trajectory import load_trajectory
-    from scenarios.reexamine import envelope_growth, velocity_errors
-    from scenarios.stability import sampled_loop_growth
+    from scenarios.analysis.sampled_loop import sampled_loop_growth
+    from scenarios.reports.reexamine import envelope_growth, velocity_errors
 
     (r,) = run_scenario(_one_case("table2", "none", 600), tmp_path, progress=False, algorithm="jacobi")
     stab = r.loop_stability
@@ -159,7 +163,7 @@ def test_the_unresolved_bracket_modes_follow_the_table():
     modes; it refuses runs past 3 s). Structural damping is little below the largest bracket-mode growth of the
     committed gain schedules' exact loops (3.40 1/s, eq. 32 at 20 ms): ζ = 5e-5 (1.8 1/s on the 5.7 kHz mode)
     still warns, ζ = 0.005 (179 1/s) does not."""
-    from scenarios.stability import RESOLVING_SCHEMES, unresolved_bracket_modes
+    from scenarios.analysis.bracket_modes import RESOLVING_SCHEMES, unresolved_bracket_modes
 
     agreeing = {row[1] for row in measured_rows()}
     for _, s_label, *_, value, ref, status in measured_rows():
@@ -180,7 +184,7 @@ def test_the_unresolved_bracket_modes_follow_the_table():
     for integrator, sub in (("gauss", 128), ("gauss", 256), ("reference", 2), ("reference", 4), ("exponential", 2)):
         assert unresolved_bracket_modes(integrator, sub, 0.0) == {}, (integrator, sub)
     assert unresolved_bracket_modes("reference", 1, 0.0)
-    from scenarios.stability import injected_growth
+    from scenarios.analysis.bracket_modes import injected_growth
 
     inj = injected_growth()
     assert 3.3 < inj["growth_per_s"] < 3.5 and inj["gain_set"] == "eq32" and 5000 < inj["mode_frequency_hz"] < 6000
@@ -204,7 +208,7 @@ def test_feedforward_only_cannot_be_misrepresented_by_the_scheme():
     from flexarm.model import ArmModel, numpy_kernels
     from flexarm.parameters import load_parameters
     from flexarm.trajectory import load_trajectory
-    from scenarios.stability import plant_zoh
+    from scenarios.analysis.sampled_loop import plant_zoh
 
     traj, kern = load_trajectory(), numpy_kernels()
     largest = {}
@@ -240,7 +244,7 @@ def test_the_lqg_loop_matrix_is_the_controller(delay, integral):
     from flexarm.model import ArmModel, numpy_kernels
     from flexarm.parameters import load_parameters
     from flexarm.trajectory import load_trajectory
-    from scenarios.stability import lqg_closed_loop, plant_zoh
+    from scenarios.analysis.sampled_loop import lqg_closed_loop, plant_zoh
 
     ctl = lqg_controller("gamma0.1", "200ms", delay, integral, saturation=(1e6, 1e6))
     k0, nx, des = 420, 22, ctl.design
@@ -304,7 +308,7 @@ def test_the_lqg_check_predicts_the_run():
     import tempfile
 
     from flexarm.trajectory import load_trajectory
-    from scenarios.reexamine import envelope_growth, velocity_errors
+    from scenarios.reports.reexamine import envelope_growth, velocity_errors
 
     traj = load_trajectory()
     with tempfile.TemporaryDirectory() as folder:
@@ -334,7 +338,7 @@ def test_the_loop_check_at_a_runs_start_loads_neither_numba_nor_scipy_linalg():
     import subprocess
     import sys
 
-    code = ("import sys\nfrom scenarios.stability import loop_stability\n"
+    code = ("import sys\nfrom scenarios.analysis.stability import loop_stability\n"
             "for stem in ('controller', 'controller_lqg', 'my_controller'):\n"
             "    loop_stability({'c': f'x/{stem}.fmu'}, 'p', 'c', {}, 1e-3, 2.058)\n"
             "print(sorted(m for m in ('numba', 'scipy.linalg') if m in sys.modules))\n")
@@ -349,8 +353,10 @@ def test_a_default_plant_off_on_the_rms_velocity_error_says_so(tmp_path, scenari
     3; rms velocity error 0.799 against the converged plant's 0.986 deg/s, −19 %) and Table 3 noise to 10 s (−11.6 %).
     Each run now warns, naming the rms velocity error, and its JSON carries the predicted deviation of every error
     metric. The prediction is a model of the converged plant, which these runs do not run (the mode's amplitude,
-    measured per gain set from these two cases' converged runs, scenarios/stability.py): it must be past 5 % with
-    the measured sign, and its size within a factor of 2 of the measurement (the margin is the model's: one
+    measured per gain set from these two cases' converged runs, scenarios/analysis/metric_deviation.py): it must
+    be
+    past 5 % with the measured sign, and its size within a factor of 2 of the measurement (the margin is the model's:
+    one
     amplitude and the worst growth rate of the schedule, applied from t = 0)."""
     (r,) = run_scenario(_one_case(scenario, "noise", samples), tmp_path, progress=False)
     stab = r.loop_stability

@@ -7,7 +7,7 @@ from flexarm import ArmModel, load_parameters
 from flexarm.lqg import lqg_controller, simulate_lqg
 from flexarm.lqg_bank import bank_controller
 from scenarios.config import load_scenario
-from scenarios.runner import run_scenario
+from scenarios.run.runner import run_scenario
 
 TABLE2_CASES = ("none", "noise", "tip", "tip_noise")
 #: Case-key suffix of each ``estimator`` in the LQG scenarios.
@@ -93,8 +93,8 @@ def test_fmu_in_jacobi_stepping_equals_the_library_loop_with_delay_2(runs, sfx):
 def test_exported_lqg_runs_closed_loop_in_libcosim(runs, tmp_path, sfx):
     """Issue 14 item 3: an exported lqg_jacobi SSP with loop_delay_samples = 2 set runs in libcosim as in our master."""
     pytest.importorskip("libcosimpy", reason="libcosimpy (the libcosim master) is not installed")
-    from scenarios.libcosim_runner import run_case_libcosim
-    from scenarios.ssp import export_ssp
+    from scenarios.conformance.libcosim_runner import run_case_libcosim
+    from scenarios.conformance.ssp import export_ssp
 
     _, lqg = runs
     key = f"tip{sfx}"
@@ -127,7 +127,7 @@ def test_lqg_report_refuses_to_print_a_run_that_ended_with_an_fmu_error(monkeypa
     """An FMU error is no figure: the report exits 1 naming it and prints no table (not 'unbounded')."""
     from types import SimpleNamespace
 
-    from scenarios import lqg_report
+    from scenarios.reports import lqg_report
 
     def failing(scenario, out, fmu_dir, progress=False):
         return [SimpleNamespace(key=c.key, status="error", message="plant: fmi2DoStep returned fmi2Error",
@@ -144,8 +144,8 @@ def test_results_page_refuses_an_acceptance_run_that_ended_with_an_fmu_error(mon
     """The page's gamma1 runs: an FMU error stops the page (ResultsPageError, exit 1), never a 'NOT met' line."""
     from types import SimpleNamespace
 
-    from scenarios import lqg_report
-    from scenarios.results_page import ResultsPageError, lqg_acceptance_section
+    from scenarios.reports import lqg_report
+    from scenarios.reports.results_page import ResultsPageError, lqg_acceptance_section
 
     def failing(scenario, out, fmu_dir, progress=False):
         return [SimpleNamespace(key=c.key, status="error", message="sensors: fmi2DoStep returned fmi2Error",
@@ -160,7 +160,7 @@ def test_results_page_refuses_an_acceptance_run_that_ended_with_an_fmu_error(mon
 def test_acceptance_lines_give_verdicts_and_never_a_number_for_an_unbounded_run():
     """The report's verdicts follow the issue's rules: bound max(1.5 x LQR, 0.05 deg), noise ratio <= 2,
     payload at most half our LQR's within the torque limits; an unbounded run is shown as such, not met."""
-    from scenarios.lqg_report import acceptance_lines
+    from scenarios.reports.lqg_report import acceptance_lines
 
     def m(rms, tau1=5.0, tau2=1.0):
         return {"rms_position_error": rms, "rms_velocity_error": 10.0, "peak_tau1": tau1, "peak_tau2": tau2}

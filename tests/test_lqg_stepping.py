@@ -195,7 +195,7 @@ def test_ssp_export_sets_the_loop_delay_of_its_step(tmp_path):
     import zipfile
 
     from scenarios.config import load_scenario
-    from scenarios.ssp import export_ssp
+    from scenarios.conformance.ssp import export_ssp
 
     sc = load_scenario("lqg_jacobi")
     sc.cases = [c for c in sc.cases if c.key == "none"]

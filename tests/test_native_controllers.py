@@ -51,7 +51,7 @@ def test_native_controller_matches_python(name):
 
 def test_native_controller_interface_equals_the_python_one_and_is_lean():
     """Choices are Integers listing them (libcosim cannot set Enumerations), exactly as the Python FMU's."""
-    from scenarios.values import parse_choices
+    from scenarios.master.values import parse_choices
 
     fmus = native_fmus()
     md = read_model_description(str(fmus["controller"]))

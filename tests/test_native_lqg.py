@@ -239,7 +239,7 @@ def test_native_lqg_interface_and_resources():
 
 def test_native_lqg_refuses_a_changed_resource(tmp_path):
     """fmi2Instantiate checks every resource against its SHA-256 and names the file."""
-    from scenarios.master import logging_callbacks
+    from scenarios.master.fmi_callbacks import logging_callbacks
 
     native = native_fmus()["controller_lqg"]
     unz = unpack_alone(native, tmp_path / "changed")
@@ -286,7 +286,8 @@ TABLE2_CASES = ("none", "noise", "tip", "tip_noise")
 def _run_scenario(scenario: str, fmus: dict, folder, keys, controller: dict | None = None) -> dict:
     """The recorded signals of the cases `keys` of `scenario`, the controller's parameters updated by `controller`."""
     from scenarios.config import load_scenario
-    from scenarios.runner import prepare, simulate_case
+    from scenarios.run.runner import simulate_case
+    from scenarios.run.setup import prepare
 
     folder.mkdir(parents=True)
     for name in ("plant", "sensors", "controller_lqg"):

@@ -15,7 +15,8 @@ from native_fmus import native_fmus
 from flexarm.provenance import sha256_file
 from scenarios.config import SCENARIO_DIR, ScenarioError, load_scenario
 from scenarios.metrics import METRICS
-from scenarios.runner import CaseResult, format_table, prepare, simulate_case
+from scenarios.run.runner import CaseResult, format_table, simulate_case
+from scenarios.run.setup import prepare
 
 
 def _run_table2(fmus: dict, tmp_path, label: str):
@@ -62,7 +63,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
 
 def _table(stdout: str) -> str:
     """The printed table of the (one) scenario: its lines after the "== name" header, up to the wall times (the
-    per-case warnings left out: table2's undamped loop is unstable, scenarios/stability.py)."""
+    per-case warnings left out: table2's undamped loop is unstable, scenarios/analysis/stability.py)."""
     lines = stdout.split("\n== ", 1)[1].splitlines()[1:]
     return "\n".join(ln for ln in lines if ln.strip() and not ln.lstrip().startswith(("wall time", "results:"))
                      and ": warning: " not in ln)

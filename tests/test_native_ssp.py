@@ -1,7 +1,7 @@
 """The native FMUs through the SSP export: in fmpy's simulate_ssp and in libcosim, against our master.
 
 Each SSP master is compared with our master in the stepping mode that reproduces it ("fmpy-ssp" for
-simulate_ssp, "jacobi" for libcosim; see scenarios/master.py), on exactly the FMU files of the archive.
+simulate_ssp, "jacobi" for libcosim; see scenarios/master/cosim.py), on exactly the FMU files of the archive.
 The libcosim runs happen in a subprocess, as in tests/test_ssp.py.
 """
 
@@ -21,10 +21,10 @@ from fmu_harness import Slave, built_fmus, extract_ssp_fmus
 from lxml import etree
 from native_fmus import native_fmus
 
-from scenarios import runner
 from scenarios.config import ScenarioError, load_scenario
-from scenarios.master import logging_callbacks
-from scenarios.ssp import NATIVE_START_VALUES, export_ssp, validate_ssp
+from scenarios.conformance.ssp import NATIVE_START_VALUES, export_ssp, validate_ssp
+from scenarios.master.fmi_callbacks import logging_callbacks
+from scenarios.run.setup import prepare
 
 #: simulate_ssp or libcosim against our master in the mode that steps as they do, over the whole run.
 TOLERANCE = 1e-9
@@ -54,7 +54,7 @@ def ff_native(tmp_path_factory, folders):
 def _ours(scenario: str, ssp, folder, algorithm: str, parameters: dict | None = None):
     """Our master on the archive's FMUs; `parameters` None: nothing set (the archive's values are the defaults)."""
     sc = load_scenario(scenario)
-    setup = runner.prepare(sc, names=extract_ssp_fmus(ssp, folder))
+    setup = prepare(sc, names=extract_ssp_fmus(ssp, folder))
     assert set(setup.fmu_kinds().values()) == {"native"}
     params = {} if parameters is None else setup.case_parameters(parameters)
     with setup.open_master(algorithm) as m:
@@ -82,7 +82,7 @@ def _libcosim(ssp, tmp_path) -> dict:
     pytest.importorskip("libcosimpy",
                         reason="libcosimpy (the libcosim master) is not installed: pip install libcosimpy")
     out = tmp_path / f"libcosim-{ssp.stem}.npz"
-    proc = subprocess.run([sys.executable, "-m", "scenarios.libcosim_runner", str(ssp), "--out", str(out)],
+    proc = subprocess.run([sys.executable, "-m", "scenarios.conformance.libcosim_runner", str(ssp), "--out", str(out)],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, f"libcosim run failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr[-3000:]}"
     return dict(np.load(out))
@@ -182,7 +182,7 @@ def test_simulate_ssp_runs_a_case_off_the_defaults_from_the_baked_values(table2_
     plain native FMUs with the case's values set, and differs from the no-payload case."""
     sc = load_scenario("table2")
     tip = next(c for c in sc.cases if c.key == "tip")
-    setup = runner.prepare(sc, folders["fmu_dir"], build=False, kind="native",
+    setup = prepare(sc, folders["fmu_dir"], build=False, kind="native",
                            native_fmu_dir=folders["native_fmu_dir"])
     with setup.open_master("fmpy-ssp") as m:
         ours = m.run(setup.case_parameters(tip.parameters), setup.record, setup.n_steps, sc.step_size)

@@ -15,10 +15,11 @@ from fmu_harness import built_fmus
 
 from flexarm.reference import MAX_LEAD_SAMPLES, REFERENCE_OUTPUTS, ReferenceSignals, lead_samples_for
 from flexarm.trajectory import load_trajectory
-from scenarios import runner
 from scenarios.__main__ import main
 from scenarios.config import ScenarioError, load_scenario, parse_assignment, select_cases
 from scenarios.results import LAYOUT_DOC, render_layout
+from scenarios.run import runner
+from scenarios.run.setup import unfed_inputs
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "own_controller"
@@ -243,14 +244,14 @@ def test_an_input_nothing_feeds_is_refused_unless_it_has_a_start_value():
            "controller": _md("c", ("q1", "input", "0"), ("gain", "input", "1.5"), ("mystery", "input", None))}
     conns = [runner.master.Connection("plant", "q1", "controller", "q1")]
     with pytest.raises(ScenarioError, match=r"input controller\.mystery: nothing feeds it"):
-        runner.unfed_inputs(mds, conns)
+        unfed_inputs(mds, conns)
     del mds["controller"].modelVariables[2]
-    assert runner.unfed_inputs(mds, conns) == {"controller": ["gain"]}
+    assert unfed_inputs(mds, conns) == {"controller": ["gain"]}
 
 
 def _export_own_table2(examples, tmp_path, named: bool, algorithm: str | None = None) -> Path:
     """table2 with the C example as its controller (its parameters dropped), exported as SSP, case "none"."""
-    from scenarios.ssp import export_ssp
+    from scenarios.conformance.ssp import export_ssp
 
     text = (ROOT / "scenarios" / "table2.toml").read_text()
     text = text.replace('controller = "controller"', f'controller = "{examples["c"]}"'

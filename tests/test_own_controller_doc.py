@@ -34,8 +34,8 @@ def test_the_doc_names_the_three_files():
 def test_the_documented_c_fmu_builds_and_tracks_table2(tmp_path):
     import fmpy
 
-    from scenarios import runner
     from scenarios.config import load_scenario, select_cases
+    from scenarios.run import runner
 
     for name, text in doc_files().items():
         (tmp_path / name).write_text(text)

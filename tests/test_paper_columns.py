@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from scenarios.config import load_scenario, select_cases
-from scenarios.paper import paper_columns, paper_tables
-from scenarios.runner import CaseResult, format_table
+from scenarios.run.paper import paper_columns, paper_tables
+from scenarios.run.runner import CaseResult, format_table
 
 
 def test_the_column_follows_the_parameters_not_the_case_key():

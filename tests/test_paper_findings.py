@@ -3,7 +3,7 @@
 Each test names the finding and says whether it HOLDS or DOES NOT HOLD in our model (with the calibrated
 parameters, t_f = 2.058 s); where it does not, the test asserts what our model does instead. The numbers
 and their interpretation are in docs/findings.md (generated data: docs/findings-data.md,
-``python -m scenarios.reexamine``). Runs use the default plant (RODAS4, no damping) unless the test is
+``python -m scenarios.reports.reexamine``). Runs use the default plant (RODAS4, no damping) unless the test is
 about the integrator: then the non-dissipative scheme (plant integrator = 2, exponential) is used too.
 """
 
@@ -17,7 +17,7 @@ from flexarm.control import PEAK_TORQUE
 from flexarm.lqr import GainSchedule, effective_gain, zoh
 from flexarm.trajectory import load_trajectory
 from scenarios.config import load_scenario
-from scenarios.runner import run_scenario
+from scenarios.run.runner import run_scenario
 
 SCENARIOS = ("table1", "table2", "table3", "compare_ff_fb", "compare_schedule")
 EXPONENTIAL = "exponential"  # the plant FMU's integrator choice of the non-dissipative scheme (value 2)
@@ -96,7 +96,7 @@ def test_gamma1_with_noise_goes_unbounded_within_the_slew(runs, exponential_runs
     without noise alike (its 5.7 kHz bracket mode grows at about 3 1/s, linear ZOH analysis); within the
     2.058 s slew it reaches only ~150-190 deg/s peak velocity error (tau2 saturating), far from unbounded,
     and it keeps growing after the slew (docs/findings.md). With RODAS4 it looks stable (~8 deg/s). The run's
-    own samples say so: its status is "diverging" (scenarios/verdict.py), with every step done and its metrics."""
+    own samples say so: its status is "diverging" (scenarios/run/verdict.py), with every step done and its metrics."""
     for case in ("none", "noise"):
         status, m = exponential_runs[("table1", case)]
         assert status == "diverging" and m is not None  # bounded within the slew, and growing

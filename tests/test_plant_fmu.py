@@ -400,8 +400,8 @@ def test_table2_at_4_ms_keeps_the_plant_accurate(tmp_path):
     import copy
 
     from scenarios.config import load_scenario
-    from scenarios.runner import run_scenario
-    from scenarios.scheme_accuracy import step_size_comparison
+    from scenarios.reports.scheme_accuracy_parts import step_size_comparison
+    from scenarios.run.runner import run_scenario
 
     ms = 4
     base = load_scenario("table2")

@@ -23,8 +23,8 @@ import pytest
 from fmu_harness import built_fmus
 from native_fmus import native_fmus
 
-from scenarios import runner
 from scenarios.metrics import table_metrics
+from scenarios.run.setup import desired_states, desired_trajectory
 
 HOST = Path(__file__).resolve().parent / "fmi_loop_host.py"
 TRIO = ("plant", "sensors", "controller")
@@ -68,7 +68,7 @@ def run_host(spec: dict, tmp_path: Path, name: str = "host", env: dict | None = 
 
 def rms_position_error(result: dict, run: int) -> float:
     theta = result[f"run{run}_theta"]
-    desired = runner.desired_states(runner.desired_trajectory(), len(theta), 1e-3)
+    desired = desired_states(desired_trajectory(), len(theta), 1e-3)
     return table_metrics(result[f"run{run}_tau"], theta, result[f"run{run}_omega"], desired["theta"],
                          desired["omega"])["rms_position_error"]
 
@@ -132,7 +132,7 @@ def test_python_fmus_in_every_load_order_next_to_a_user_fmu_equal_the_native_kin
     never imported flexarm, a user's pythonfmu FMU with its own 'flexarm' loaded first: every order gives the
     native kind's rms position error (nothing set, Table 2 'none'), and the user's FMU keeps its own modules."""
     python, native = built_fmus(), native_fmus()
-    traj = runner.desired_trajectory()
+    traj = desired_trajectory()
     n = int(round(float(traj.t[-1] - traj.t[0]) / 1e-3))
     orders = list(itertools.permutations(TRIO))
     runs = [{"fmus": {k: str(native[k]) for k in TRIO}, "n_steps": n}]

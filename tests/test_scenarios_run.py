@@ -8,7 +8,7 @@ from flexarm.control import TrackingController, simulate_closed_loop
 from flexarm.provenance import package_version
 from flexarm.trajectory import load_trajectory
 from scenarios.config import load_scenario
-from scenarios.runner import run_scenario
+from scenarios.run.runner import run_scenario
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +61,7 @@ def test_table2_qualitative_findings(table2_results):
 
 @pytest.fixture(scope="module")
 def table2_setup():
-    from scenarios.runner import prepare
+    from scenarios.run.setup import prepare
 
     return prepare(load_scenario("table2"))
 
@@ -97,7 +97,7 @@ def test_stepping_algorithms_differ_by_one_sample_through_feedthrough(table2_set
 
 
 def test_bad_wiring_and_records_are_named(table2_setup):
-    from scenarios import master
+    from scenarios.master import cosim as master
 
     setup = table2_setup
     bad = setup.connections + [master.Connection("plant", "q1", "sensorz", "q1")]
@@ -113,7 +113,7 @@ def test_bad_wiring_and_records_are_named(table2_setup):
 def test_records_are_values_after_all_inputs_are_set(table2_setup):
     """Sensors evaluated before the plant (plant -> sensors becomes a feedback edge): their recorded
     outputs, which depend on those late inputs, are read again, so they still equal the plant's at t_k."""
-    from scenarios import master
+    from scenarios.master import cosim as master
 
     setup = table2_setup
     order = ["sensors", "controller", "plant"]
@@ -129,7 +129,8 @@ def test_records_are_values_after_all_inputs_are_set(table2_setup):
 def test_case_option_selects_cases_and_refuses_an_unknown_key(capsys):
     """`run NAME --case KEY` keeps those cases in the file's order; an unknown key is refused (exit 2), naming
     the scenario's keys, before anything runs."""
-    from scenarios.__main__ import main, select_cases
+    from scenarios.__main__ import main
+    from scenarios.config import select_cases
 
     sc = load_scenario("table2")
     assert [c.key for c in select_cases(sc, ["tip", "none"]).cases] == ["none", "tip"]
@@ -142,7 +143,7 @@ def test_case_option_selects_cases_and_refuses_an_unknown_key(capsys):
 def test_progress_is_a_bar_on_a_terminal_and_one_line_in_a_log():
     import io
 
-    from scenarios.runner import _bar
+    from scenarios.run.runner import _bar
 
     class Tty(io.StringIO):
         def isatty(self):
@@ -165,27 +166,27 @@ def test_numba_notice_only_where_numba_compiles(monkeypatch, capsys, tmp_path):
     import importlib.util
     import zipfile
 
-    from scenarios import runner
+    from scenarios.run.fmus import _say_numba_compile, numba_compiles
 
     monkeypatch.delenv("FLEXARM_NO_NUMBA", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
     has_numba = importlib.util.find_spec("numba") is not None
-    runner._say_numba_compile()
+    _say_numba_compile()
     err = capsys.readouterr().err
     assert ("compiles its Numba kernels" in err) == has_numba
     fmu = tmp_path / "plant.fmu"  # the layout of a Python FMU's private packages
     with zipfile.ZipFile(fmu, "w") as z:
         z.writestr("resources/_flexarm_plant_0123456789ab/__init__.py", "")
-    assert runner.numba_compiles(fmu) == has_numba
+    assert numba_compiles(fmu) == has_numba
     cached = tmp_path / "cache" / "flexarm-fmi" / "numba" / "_flexarm_plant_0123456789ab"
     cached.mkdir(parents=True)
     (cached / "_kernels.advance-455.py311.nbi").write_bytes(b"")
-    assert runner.numba_compiles(fmu) is False  # that build's kernels are cached
-    runner._say_numba_compile(fmu)
+    assert numba_compiles(fmu) is False  # that build's kernels are cached
+    _say_numba_compile(fmu)
     assert capsys.readouterr().err == ""
     monkeypatch.setenv("FLEXARM_NO_NUMBA", "1")
-    runner._say_numba_compile()
-    assert capsys.readouterr().err == "" and runner.numba_compiles() is False
+    _say_numba_compile()
+    assert capsys.readouterr().err == "" and numba_compiles() is False
 
 

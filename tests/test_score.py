@@ -80,8 +80,8 @@ def pd_fmu() -> Path:
 def test_a_good_pd_is_stable_and_its_metrics_are_those_of_run(pd_fmu, tmp_path):
     """The battery's paper cases take the six metrics over the samples of a run of Table 2: the same figures
     (to 1e-9: the same runs, only longer, and the metrics of the first 2059 samples)."""
-    from scenarios import runner
     from scenarios.config import load_scenario
+    from scenarios.run import runner
 
     fmu_dir, native_dir = _dirs()
     ctrl = battery.Controller("pd", str(pd_fmu))

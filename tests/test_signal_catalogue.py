@@ -11,7 +11,7 @@ from flexarm.model import OBSERVABLE_NAMES
 from flexarm.sensors import MEASURED_SIGNALS, TRUE_SIGNALS
 from fmu_build.interface_doc import blocks, render
 from fmu_build.registry import DOC_FILE
-from scenarios.runner import PLANT_STATE
+from scenarios.run.setup import PLANT_STATE
 
 
 def test_the_committed_interface_document_equals_the_generated_one():

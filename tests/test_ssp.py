@@ -1,6 +1,7 @@
-"""SSP export (scenarios.ssp) and the second, independent master: libcosim (scenarios.libcosim_runner).
+"""SSP export (scenarios.conformance.ssp) and the second, independent master: libcosim
+(scenarios.conformance.libcosim_runner).
 
-The libcosim run happens in a subprocess (``python -m scenarios.libcosim_runner``):
+The libcosim run happens in a subprocess (``python -m scenarios.conformance.libcosim_runner``):
 it keeps libcosim's copies of the FMU binaries out of the test process, which
 also loads the same FMUs through fmpy.
 """
@@ -17,9 +18,11 @@ from fmpy import read_model_description
 from fmu_harness import extract_ssp_fmus
 from lxml import etree
 
-from scenarios import runner
 from scenarios.config import load_scenario
-from scenarios.ssp import NS, export_ssp, validate_ssp
+from scenarios.conformance.ssp import NS, export_ssp, validate_ssp
+from scenarios.run import runner
+from scenarios.run.fmus import DEFAULT_FMU_DIR
+from scenarios.run.setup import Setup, connect_by_name, desired_trajectory, prepare, start_parameters
 
 #: libcosim and our master in its libcosim-compatible mode ("jacobi") must agree this closely, over the whole slew.
 SERIES_TOLERANCE = 1e-6
@@ -63,9 +66,9 @@ def test_one_valid_archive_per_case_with_its_values_as_defaults(table2_ssp):
     assert set(table2_ssp) == {c.key for c in sc.cases}
     folder = next(iter(table2_ssp.values())).parent
     assert sorted(p.name for p in folder.iterdir()) == sorted(f"{c.key}.ssp" for c in sc.cases)  # no temporaries
-    setup = runner.prepare(sc)
-    wired = {(c.src_fmu, c.src_var, c.dst_fmu, c.dst_var) for c in runner.connect_by_name(setup.paths)}
-    start = runner.start_parameters(runner.desired_trajectory())
+    setup = prepare(sc)
+    wired = {(c.src_fmu, c.src_var, c.dst_fmu, c.dst_var) for c in connect_by_name(setup.paths)}
+    start = start_parameters(desired_trajectory())
     for case in sc.cases:
         path = table2_ssp[case.key]
         assert oct(path.stat().st_mode & 0o777) == oct(0o666 & ~_umask())
@@ -116,7 +119,7 @@ def test_a_case_that_swaps_an_fmu_carries_that_fmu(tmp_path):
         with zipfile.ZipFile(paths[case.key]) as zf:
             with zipfile.ZipFile(io.BytesIO(zf.read("resources/controller.fmu"))) as fmu:
                 md = etree.fromstring(fmu.read("modelDescription.xml"))
-            wanted = read_model_description(str(runner.DEFAULT_FMU_DIR / f"{case.fmus['controller']}.fmu"))
+            wanted = read_model_description(str(DEFAULT_FMU_DIR / f"{case.fmus['controller']}.fmu"))
             assert md.get("modelName") == wanted.modelName
 
 
@@ -138,10 +141,10 @@ def test_a_case_fmu_runs_its_case_with_nothing_set(ff_ssp, tmp_path):
         s.close()
 
 
-def _run_open_loop_ours(ff_ssp, tmp_path, algorithm: str) -> tuple[runner.Setup, dict]:
+def _run_open_loop_ours(ff_ssp, tmp_path, algorithm: str) -> tuple[Setup, dict]:
     sc = load_scenario("compare_ff_fb")
     case = next(c for c in sc.cases if c.key == "ff")
-    setup = runner.prepare(sc, names=extract_ssp_fmus(ff_ssp, tmp_path))
+    setup = prepare(sc, names=extract_ssp_fmus(ff_ssp, tmp_path))
     with setup.open_master(algorithm) as m:  # the archive's FMUs already hold the case's values
         ours = m.run({}, setup.record, setup.n_steps, sc.step_size)
     assert ours["status"] == "ok", ours["message"]
@@ -177,7 +180,8 @@ def test_libcosim_runs_the_open_loop_case_as_our_master(ff_ssp, tmp_path):
     pytest.importorskip("libcosimpy", reason="libcosimpy (the libcosim master) is not installed: "
                                              "pip install libcosimpy")
     out = tmp_path / "libcosim.npz"
-    proc = subprocess.run([sys.executable, "-m", "scenarios.libcosim_runner", str(ff_ssp), "--out", str(out)],
+    proc = subprocess.run([sys.executable, "-m", "scenarios.conformance.libcosim_runner", str(ff_ssp),
+                           "--out", str(out)],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, f"libcosim run failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr[-3000:]}"
     lc = dict(np.load(out))
@@ -193,12 +197,12 @@ def test_libcosim_matches_our_jacobi_master_closed_loop(table2_ssp, tmp_path):
     pytest.importorskip("libcosimpy", reason="libcosimpy (the libcosim master) is not installed: "
                                              "pip install libcosimpy")
     out = tmp_path / "libcosim.npz"
-    proc = subprocess.run([sys.executable, "-m", "scenarios.libcosim_runner", str(table2_ssp["none"]),
+    proc = subprocess.run([sys.executable, "-m", "scenarios.conformance.libcosim_runner", str(table2_ssp["none"]),
                            "--out", str(out)], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, f"libcosim run failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr[-3000:]}"
     lc = dict(np.load(out))
     sc = load_scenario("table2")
-    setup = runner.prepare(sc, names=extract_ssp_fmus(table2_ssp["none"], tmp_path))
+    setup = prepare(sc, names=extract_ssp_fmus(table2_ssp["none"], tmp_path))
     with setup.open_master("jacobi") as m:
         ours = m.run({}, setup.record, setup.n_steps, sc.step_size)
     assert ours["status"] == "ok", ours["message"]
@@ -218,7 +222,7 @@ def test_closed_loop_under_libcosim_stepping_predicts_over_the_delay():
     """
     sc = load_scenario("table2")
     case = sc.cases[0]
-    setup = runner.prepare(sc)
+    setup = prepare(sc)
     metrics = {}
     for algorithm in ("gauss-seidel", "jacobi"):
         with setup.open_master(algorithm) as m:

@@ -69,7 +69,7 @@ def test_the_check_follows_the_communication_step():
     (3.3 e-folds over the slew): the run is told so, and that its plant shows that growth (it resolves the
     mode); at 1 ms the same gains grow only through the 5.7 kHz bracket mode, which the default plant damps
     (issue 24 item 5, issue 26)."""
-    from scenarios.stability import loop_stability
+    from scenarios.analysis.stability import loop_stability
 
     paths = {"controller": "build/fmus/controller.fmu"}
     params = {"controller": {"gain_set": 2, "schedule_period": 0.2}, "plant": {"integrator": 1, "substeps": 2}}

@@ -1,8 +1,9 @@
 """Issue 26 W1: the plant's states do not depend on the master's communication step (default plant settings).
 
 table2/none at 1, 2, 4 and 10 ms against the same run with 64 substeps per ms, through the native FMUs (about a
-second a run). The measure is :func:`scenarios.scheme_accuracy.step_size_comparison`: the rms over time and
-elements of the state difference divided by the rms of the states' motion (each state minus its start), for the 11
+second a run). The measure is :func:`scenarios.reports.scheme_accuracy_parts.step_size_comparison`: the rms over
+time and elements of the state difference divided by the rms of the states' motion (each state minus its start), for
+the 11
 angles and the 11 rates separately (the rates' own rms is far from zero, so the ratio is well posed). The Python
 kind runs the same case at 4 ms in tests/test_plant_fmu.py; the library kernels (which the Python plant runs) are
 checked here open loop at 10 ms.
@@ -18,10 +19,11 @@ import pytest
 
 from flexarm import ArmModel
 from flexarm.integrator import simulate
+from scenarios.analysis.sampled_loop import sampled_loop_growth
+from scenarios.analysis.stability import E_FOLDS
 from scenarios.config import load_scenario
-from scenarios.runner import run_scenario
-from scenarios.scheme_accuracy import plant_states, step_size_comparison
-from scenarios.stability import E_FOLDS, sampled_loop_growth
+from scenarios.reports.scheme_accuracy_parts import plant_states, step_size_comparison
+from scenarios.run.runner import run_scenario
 
 
 def table2_none(ms: int, substeps: int | None, tmp_path, kind: str = "native"):

@@ -237,13 +237,14 @@ def test_shipped_sweeps_load():
 def test_sweep_points_step_as_their_scenario(monkeypatch):
     """A sweep point's master steps with the scenario's algorithm (lqg_jacobi: Jacobi), not always
     Gauss-Seidel: the worker and the base-point probe open it through Setup.open_master."""
-    from scenarios import runner
     from scenarios.config import load_scenario
+    from scenarios.run import runner
+    from scenarios.run.setup import Setup
 
     opened = []
     monkeypatch.setattr(runner.master, "Master", lambda *args: opened.append(args[3]) or args[3])
     for name, algorithm in (("lqg_jacobi", "jacobi"), ("table2", "gauss-seidel")):
-        setup = runner.Setup.__new__(runner.Setup)
+        setup = Setup.__new__(Setup)
         setup.paths, setup.connections, setup.scenario = {}, [], load_scenario(name)
         setup.isolate, setup.step_timeout = [], 60.0  # in this process, as our FMUs named by name
         assert setup.open_master() == algorithm

@@ -1,4 +1,4 @@
-"""Issue 35 item 1: a run's verdict from its own samples (scenarios/verdict.py), on synthetic series and on real
+"""Issue 35 item 1: a run's verdict from its own samples (scenarios/run/verdict.py), on synthetic series and on real
 runs: an unstable PD is "diverging" with its growth rate, Table 2's cases and a good PD stay "ok"."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scenarios import verdict as V
+from scenarios.run import verdict as V
 
 T = np.arange(2059) * 1e-3  # a table run: 2.058 s at 1 ms
 LIMITS = (7.0, 2.25)
@@ -114,8 +114,8 @@ def test_unstable_pd_is_diverging_with_its_growth_rate_and_a_good_pd_is_ok(pd_fm
 
 
 def test_unstable_pd_in_a_jacobi_master_diverges_on_every_case(pd_fmu, tmp_path):
-    from scenarios import runner
     from scenarios.config import load_scenario
+    from scenarios.run import runner
 
     results = runner.run_scenario(load_scenario("table2"), tmp_path, controller=str(pd_fmu), progress=False,
                                   algorithm="jacobi", kind="native", overrides={"controller": {"kd1": 6.0}})
@@ -126,8 +126,8 @@ def test_unstable_pd_in_a_jacobi_master_diverges_on_every_case(pd_fmu, tmp_path)
 
 def test_table2_cases_are_ok(tmp_path):
     """The paper's LQR on Table 2: stable in all four cases (the 0.275 kg cases peak at 11.6 deg: bounded)."""
-    from scenarios import runner
     from scenarios.config import load_scenario
+    from scenarios.run import runner
 
     results = runner.run_scenario(load_scenario("table2"), tmp_path, progress=False, kind="native")
     assert [r.status for r in results] == ["ok"] * 4

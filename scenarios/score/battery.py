@@ -9,7 +9,7 @@ steps) with the scored controller swapped in, each run for the slew plus :data:`
 * ``robust``: payload 0-0.5 kg in 0.1 kg steps x noise seeds 1-3 (noise on), Gauss-Seidel.
 
 The six table metrics are taken over the slew (the samples of a ``run`` of Table 2, so they equal its figures);
-the verdict (:mod:`scenarios.verdict`) over the whole run, and the settling time after t_f from the rest.
+the verdict (:mod:`scenarios.run.verdict`) over the whole run, and the settling time after t_f from the rest.
 A change of the cases is a new :data:`BATTERY_VERSION`; the baseline file records the battery it was made with.
 """
 
@@ -133,8 +133,9 @@ _LOADED: dict = {}
 def _loaded(controller: Controller, kind: str, algorithm: str, fmu_dir: str, native_fmu_dir: str):
     from pathlib import Path
 
+    from scenarios.run.setup import prepare
+
     from ..config import load_scenario
-    from ..runner import prepare
 
     key = (controller.fmu, kind, algorithm, fmu_dir, native_fmu_dir)
     if key not in _LOADED:
@@ -155,11 +156,11 @@ def run_case(case: Case, controller: Controller, kind: str, fmu_dir: str, native
     the series the page's figures draw, every 5th sample)."""
     from flexarm.parameters import load_parameters
     from flexarm.trajectory import load_trajectory
+    from scenarios.run.runner import simulate_case
+    from scenarios.run.verdict import series_verdict
 
     from ..metrics import table_metrics
     from ..results import analysis_columns
-    from ..runner import simulate_case
-    from ..verdict import series_verdict
 
     setup, m = _loaded(controller, kind, case.algorithm, fmu_dir, native_fmu_dir)
     params = case.parameters()

@@ -64,7 +64,8 @@ def with_sets(controller: battery.Controller, sets: list[str]) -> battery.Contro
 
 
 def main(args) -> int:
-    from ..outdir import run_folder
+    from scenarios.run.outdir import run_folder
+
     from .page import render
     from .run import run_battery
 

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 
 from flexarm.provenance import write_atomic, write_json
+from scenarios.run.plots import _figure, _legend, _save, _style, tip_path
 
 from ..metrics import METRICS, UNITS
-from ..plots import _figure, _legend, _save, _style, tip_path
 from . import battery
 
 #: The figures of the page, in its order (file name, caption).

@@ -12,8 +12,9 @@ from . import battery
 def prepare_fmus(controller: battery.Controller, kind: str, fmu_dir: Path, native_fmu_dir: Path) -> None:
     """Build (when needed) and check the FMUs once, here, before workers load them: an unknown name, a file
     that is no FMU or a value the controller does not take is refused now (ScenarioError), not on a worker."""
+    from scenarios.run.setup import check_overrides, prepare
+
     from ..config import load_scenario
-    from ..runner import check_overrides, prepare
 
     setup = prepare(load_scenario("table2"), fmu_dir, controller.fmu, build=True, kind=kind,
                     native_fmu_dir=native_fmu_dir)

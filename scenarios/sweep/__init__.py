@@ -48,7 +48,7 @@ cluster (``scheduler="tcp://host:8786"``), or in-process (``serial=True``).
 The client reads the FMU files once and a worker plugin (:class:`ShipFmus`)
 writes their bytes into a content-addressed folder on every worker (also
 on workers that join or restart later); each process keeps one loaded
-:class:`~scenarios.master.Master` per FMU set (reset between runs by
+:class:`~scenarios.master.cosim.Master` per FMU set (reset between runs by
 ``fmi2Reset``). So remote workers need the project installed (same
 version) but no FMU files of their own, and the SHA-256 recorded with a
 point is that of the bytes that ran it.

@@ -10,21 +10,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from flexarm.provenance import sha256_bytes
+from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S
+from scenarios.master.isolation import apply as apply_isolation
+from scenarios.master.isolation import foreign_instances
+from scenarios.master.values import check_parameters, check_value, check_variable
+from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, known_fmu_names, read_descriptions, resolve_fmus
+from scenarios.run.setup import prepare, with_reference
 
 from ..config import ScenarioError
-from ..fmu_proxy import DEFAULT_STEP_TIMEOUT_S
-from ..isolation import apply as apply_isolation
-from ..isolation import foreign_instances
-from ..runner import (
-    DEFAULT_FMU_DIR,
-    DEFAULT_NATIVE_FMU_DIR,
-    known_fmu_names,
-    prepare,
-    read_descriptions,
-    resolve_fmus,
-    with_reference,
-)
-from ..values import check_parameters, check_value, check_variable
 from .spec import Axis, Sweep, SweepError, _require, toml_content_sha256
 
 
@@ -62,11 +55,11 @@ class Plan:
     fmu_sets: dict[str, FmuSet]  # FmuSet.key -> set
     point_set: dict[str, str]  # point key -> FmuSet.key
     scenario_sha256: str
-    #: Which FMUs run in a process of their own and how long a call may take (scenarios.runner.Setup.isolating).
+    #: Which FMUs run in a process of their own and how long a call may take (scenarios.run.setup.Setup.isolating).
     isolate: str = "foreign"
     step_timeout: float = DEFAULT_STEP_TIMEOUT_S
     #: Where the FMUs the points add by name (the reference FMU a controller's inputs ask for) are found:
-    #: ``fmu_dir``, ``kind``, ``native_fmu_dir`` of :func:`scenarios.runner.prepare`, as the sweep was started with.
+    #: ``fmu_dir``, ``kind``, ``native_fmu_dir`` of :func:`scenarios.run.setup.prepare`, as the sweep was started with.
     where: dict = field(default_factory=dict)
 
     def task(self, point: Point) -> dict:
@@ -120,10 +113,10 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
         value the FMUs refuse is reported (with the FMU's message) before any point runs.
     kind : str, optional
         "python" or "native" FMUs (default: the scenario's ``kind``); native ones are found (and built) in
-        `native_fmu_dir` (:func:`scenarios.runner.resolve_fmus`).
+        `native_fmu_dir` (:func:`scenarios.run.fmus.resolve_fmus`).
     isolate, step_timeout
         Which FMUs run in a process of their own ("foreign": those given as a .fmu path; "all") and how long
-        one call of theirs may take, s (:meth:`scenarios.runner.Setup.isolating`), in the probe and the points.
+        one call of theirs may take, s (:meth:`scenarios.run.setup.Setup.isolating`), in the probe and the points.
 
     Returns
     -------

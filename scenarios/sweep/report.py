@@ -82,8 +82,9 @@ def summary_plots(plan: Plan, rows: list[dict], folder: Path) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from scenarios.run.plots import _save
+
     from ..metrics import LABELS
-    from ..plots import _save
 
     axes = plan.sweep.axes
     ok = [r for r in rows if r["status"] == "ok"]

@@ -12,12 +12,13 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from flexarm.provenance import git_commit, package_version, write_json
+from scenarios.master.cosim import RunInterrupted
+from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S
+from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR
+from scenarios.run.outdir import check_writable, folder_lock, remove_stale
+from scenarios.run.setup import verify_data_chain
 
-from ..fmu_proxy import DEFAULT_STEP_TIMEOUT_S
-from ..master import RunInterrupted
-from ..outdir import check_writable, folder_lock, remove_stale
 from ..results import portable
-from ..runner import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, verify_data_chain
 from .journal import DONE, STATUSES, Journal, table_columns, table_rows, write_table
 from .plan import Plan, plan_sweep
 from .report import Progress, _short, format_summary, summary_plots

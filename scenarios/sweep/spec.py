@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from flexarm.provenance import sha256_bytes
+from scenarios.master.values import is_int as _is_int
+from scenarios.master.values import is_number as _is_number
 
 from ..config import MAX_SAMPLES, NAME_FORM, NAME_PATTERN, SCENARIO_DIR, Case, Scenario, ScenarioError, load_scenario
-from ..values import is_int as _is_int
-from ..values import is_number as _is_number
 
 SWEEP_DIR = SCENARIO_DIR / "sweeps"
 MAX_POINTS = 1_000_000

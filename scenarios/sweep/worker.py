@@ -2,8 +2,8 @@
 
 The client reads the FMU files once and a worker plugin (:class:`ShipFmus`) writes their bytes into a
 content-addressed folder on every worker (also on workers that join or restart later); each process keeps
-one loaded :class:`~scenarios.master.Master` per FMU set (reset between runs by ``fmi2Reset``).
-A point's record carries the run's typed outcome (:class:`scenarios.master.Outcome`): its status is
+one loaded :class:`~scenarios.master.cosim.Master` per FMU set (reset between runs by ``fmi2Reset``).
+A point's record carries the run's typed outcome (:class:`scenarios.master.cosim.Outcome`): its status is
 ``ok``, ``unbounded`` or ``error``, decided from the FMI status the master received, never from log text.
 """
 
@@ -22,12 +22,13 @@ from pathlib import Path
 from distributed import WorkerPlugin
 
 from flexarm.provenance import sha256_bytes, sha256_file, write_atomic
+from scenarios.analysis.stability import loop_stability
+from scenarios.master.cosim import CoSimulationError
+from scenarios.master.isolation import apply as apply_isolation
+from scenarios.master.isolation import foreign_instances
+from scenarios.run.runner import simulate_case
+from scenarios.run.setup import prepare
 
-from ..isolation import apply as apply_isolation
-from ..isolation import foreign_instances
-from ..master import CoSimulationError
-from ..runner import prepare, simulate_case
-from ..stability import loop_stability
 from .plan import Plan, Point
 
 #: Per process: setup key -> (Setup, open Master), least recently used first.
@@ -141,7 +142,7 @@ def run_point(task: dict) -> dict:
         ``metrics`` (None unless ok), ``wall_time_s`` (the run), ``setup_time_s``
         (loading the FMUs, 0 when they were loaded), ``steps_done``, ``worker``
         (host:pid), ``fmu_sha256``, ``trajectory_sha256``; when the point ran, ``warnings`` and
-        ``loop_stability`` as a scenario run's case JSON (:func:`scenarios.stability.loop_stability`).
+        ``loop_stability`` as a scenario run's case JSON (:func:`scenarios.analysis.stability.loop_stability`).
     """
     t0 = time.perf_counter()
     rec = {"key": task["key"], "index": task["index"], "status": "error", "message": "", "metrics": None,

@@ -1,0 +1,1 @@
+"""Iterative learning control through the FMUs: the ILC scenarios, their trials and the floor of their error."""

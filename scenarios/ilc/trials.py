@@ -1,0 +1,343 @@
+"""Iterative learning control through the FMUs: a scenario kind that repeats a case and learns between trials.
+
+A scenario file with an ``[ilc]`` table (``scenarios/ilc_payload.toml``) runs with
+``python -m scenarios run NAME`` (the command line hands such files here, :func:`is_ilc_scenario`):
+
+1. trial j = 0, 1, ..., ``trials`` − 1 of the ``learn_case`` runs the FMUs (plant at rest on the trajectory's
+   start, as every run; the sensors' ``noise_seed`` = ``seed_base`` + j) with a copy of the controller FMU that
+   carries the correction learnt so far in its resources (none in trial 0; ``fmu_build.learned``);
+2. from the *recorded sensor measurements* of the trial (encoders ``q1_m``, ``q2_m`` and strain gauges
+   ``eps1_m`` .. ``eps6_m``; never the plant's states) :mod:`flexarm.ilc` computes the next correction, which
+   is written as a learned-feedforward design file with its provenance;
+3. a line per trial is printed and appended to ``journal.jsonl`` (fsynced): an interrupted run resumes after
+   its last finished trial, with the correction that trial produced. A journal written with another scenario
+   file, other FMUs or another commit's ILC settings is refused rather than mixed;
+4. after the last trial the ``evaluate_cases`` run without and with the final correction (a payload change);
+   ``trials.csv``, ``evaluation.json``, ``convergence.png``, ``learned_feedforward.npz``/``.json`` and
+   ``learned_controller.fmu`` (the controller FMU with the final correction inside it: it runs in any FMI tool,
+   no file or String parameter to set) are written.
+
+The plant's true states are read only to score the trials (the metrics of the paper's tables over the slew,
+and the tip's distance to the end point), exactly as the other scenarios score theirs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from flexarm.provenance import git_commit, sha256_file, write_atomic, write_json
+from scenarios.config import ScenarioError
+from scenarios.ilc.scenario import IlcSettings, load_ilc
+from scenarios.ilc.trial_table import plot_convergence, trial_header, trial_line, write_trials_csv
+from scenarios.metrics import table_metrics
+from scenarios.results import portable
+from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, fmu_kind
+from scenarios.run.outdir import check_writable, folder_lock, remove_stale
+from scenarios.run.runner import N_EL
+from scenarios.run.setup import _relative, desired_states, desired_trajectory, prepare, verify_data_chain
+from scenarios.sweep.journal import Journal
+
+#: The measurements the learning reads (sensors FMU outputs): encoders, then strain gauges.
+MEASURED = ("q1_m", "q2_m", "eps1_m", "eps2_m", "eps3_m", "eps4_m", "eps5_m", "eps6_m")
+#: Tip distance to the end point that counts as arrived, m.
+TIP_TOLERANCE_M = 1e-3
+#: In an ILC result folder: the controller FMU with the final correction inside it.
+LEARNED_CONTROLLER = "learned_controller.fmu"
+
+
+# -- scoring ----------------------------------------------------------------------------
+def trial_metrics(out: dict, setup, traj, n_slew: int, measured_error_norm: float, desired=None) -> dict:
+    """The table metrics over the slew (samples 0..n_slew, as Table 2) and the whole run, joint and tip errors,
+    the tip's settling after t_f (the time after which it stays within 1 mm of the end point to the end of the
+    run), the peak torques and the 2-norm of the measured error the learning saw. `desired`: the desired states
+    of a run longer than ``setup``'s (default ``setup.desired``)."""
+    sig, p, d = out["signals"], setup.plant, setup.driver
+    theta = np.column_stack([sig[f"{p}.theta{i}"] for i in range(1, N_EL + 1)])
+    omega = np.column_stack([sig[f"{p}.omega{i}"] for i in range(1, N_EL + 1)])
+    tau = np.column_stack([sig[f"{d}.tau1"], sig[f"{d}.tau2"]])[:-1]  # the last row is never applied
+    des = setup.desired if desired is None else desired
+    slew = table_metrics(tau[:n_slew], theta[:n_slew + 1], omega[:n_slew + 1], des["theta"][:n_slew + 1],
+                         des["omega"][:n_slew + 1])
+    whole = table_metrics(tau, theta, omega, des["theta"], des["omega"])
+    from flexarm import joint_angles
+
+    q = np.array([joint_angles(th) for th in theta])
+    q_d = np.array([joint_angles(th) for th in des["theta"]])
+    qe = np.degrees(q - q_d)
+    tip = np.column_stack([sig[f"{p}.tip_x"], sig[f"{p}.tip_y"]])
+    idx = np.minimum(np.arange(len(tip)), traj.n_samples)
+    tip_err = np.linalg.norm(tip - traj.tip[idx], axis=1)
+    to_end = np.linalg.norm(tip - traj.tip[-1], axis=1)
+    far = np.flatnonzero(to_end >= TIP_TOLERANCE_M)
+    t_in = out["time"][far[-1] + 1] if len(far) and far[-1] + 1 < len(tip) else (0.0 if not len(far) else None)
+    limits = np.array([7.0, 2.25])
+    return {
+        **{f"slew_{k}": v for k, v in slew.items()},
+        **{f"run_{k}": v for k, v in whole.items()},
+        "rms_q1_error_deg": float(np.sqrt(np.mean(qe[:n_slew + 1, 0] ** 2))),
+        "rms_q2_error_deg": float(np.sqrt(np.mean(qe[:n_slew + 1, 1] ** 2))),
+        "peak_q1_error_deg": float(np.abs(qe[:, 0]).max()), "peak_q2_error_deg": float(np.abs(qe[:, 1]).max()),
+        "rms_tip_error_mm": float(1e3 * np.sqrt(np.mean(tip_err[:n_slew + 1] ** 2))),
+        "peak_tip_error_mm": float(1e3 * tip_err.max()),
+        "tip_within_1mm_after_tf_s": None if t_in is None else float(max(t_in - traj.t_f, 0.0)),
+        "tip_to_end_at_tf_plus_0.5s_mm": float(1e3 * to_end[min(n_slew + 500, len(to_end) - 1)]),
+        "saturated_samples": int(np.sum(np.abs(tau) >= limits - 1e-9)),
+        "measured_error_2norm_rad": float(measured_error_norm),
+    }
+
+
+# -- running ----------------------------------------------------------------------------
+def _config_record(scenario, settings, setup, chain) -> dict:
+    return {"key": "config", "scenario_sha256": sha256_file(scenario.path), "settings": settings.as_dict(),
+            "fmu_sha256": {i: sha256_file(p) for i, p in setup.paths.items()}, "data_sha256": chain,
+            "samples": setup.n_steps, "fmu_kind": setup.kind}
+
+
+def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | None = None,
+            native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR, plots: bool = True, progress=print,
+            trials: int | None = None) -> dict:
+    """Run (or resume) an ILC scenario; returns the summary written to ``evaluation.json``.
+
+    `trials` overrides the file's number of trials (e.g. a short check). Raises :class:`ScenarioError` for
+    refused input, :class:`scenarios.run.outdir.OutputError` for an unusable folder; a trial that ends unbounded
+    or with an FMU error stops the learning (the journal keeps it) and is reported in the summary's ``stopped``.
+    """
+    from flexarm import ilc
+    from flexarm.control import PEAK_TORQUE
+    from fmu_build.learned import LEARNING_CONTROLLERS, with_learned_feedforward
+
+    scenario, settings = load_ilc(name)
+    if trials is not None:
+        settings.trials = int(trials)
+    chain = verify_data_chain()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    folder = out / scenario.name
+    with folder_lock(out, scenario.name):
+        remove_stale(out, scenario.name, folder)
+        check_writable(folder, 2_000_000 * (settings.trials + 2))
+        cases = {c.key: c for c in scenario.cases}
+        setup = prepare(scenario, fmu_dir, kind=kind, native_fmu_dir=native_fmu_dir)
+        sensors = [inst for inst, md in setup.descriptions.items()
+                   if all(any(v.name == m for v in md.modelVariables) for m in MEASURED)]
+        ctrl = setup.driver
+        if not sensors:
+            raise ScenarioError(f"{scenario.path.name}: no FMU outputs the measurements {list(MEASURED)}")
+        md = setup.descriptions[ctrl]
+        if fmu_kind(md) == "other" or md.coSimulation.modelIdentifier not in LEARNING_CONTROLLERS:
+            raise ScenarioError(f"fmus.{ctrl}: {setup.paths[ctrl].name} does not read a learned feedforward; ILC "
+                                f"runs need one of our controllers that does ({', '.join(LEARNING_CONTROLLERS)})")
+        record = setup.record + [(sensors[0], m) for m in MEASURED if (sensors[0], m) not in setup.record]
+        traj = desired_trajectory()
+        n = setup.n_steps
+        n_slew = min(traj.n_samples, n)
+        model = ilc.closed_loop_model(n, payload_mass=settings.model_payload_mass)
+        if settings.settling_model_payload_mass != settings.model_payload_mass:
+            # the samples at and after t_f (state x_k, k >= n_slew) move by the arm with the other payload
+            after = ilc.closed_loop_model(n, payload_mass=settings.settling_model_payload_mass)
+            model = ilc.spliced_model(model, after, n_slew)
+        time_weight, output_weight = ilc.settling_weights(traj, n, settings.settling_weight,
+                                                          settings.settling_tip_weight)
+        law = _law(settings, model, n_slew, time_weight, output_weight)
+        feedforward = ilc.feedforward_over(traj, n)
+        journal = Journal(folder / "journal.jsonl")
+        records = journal.read()
+        trial_keys = sorted(k for k in records if k.startswith("trial-"))
+        if journal.tampered or trial_keys != [f"trial-{j:03d}" for j in range(len(trial_keys))]:
+            # each trial learns from the one before: an edited or missing line cannot be run again alone
+            raise ScenarioError(f"{journal.problems() or folder / 'journal.jsonl'}"
+                                f"{'' if journal.tampered else ': its trials are not consecutive'}; "
+                                "remove that folder or choose another --out")
+        config = _config_record(scenario, settings, setup, chain)
+        if records:
+            old = records.get("config", {})
+            same = {k: old.get(k) for k in config if k != "settings"} == {k: v for k, v in config.items()
+                                                                          if k != "settings"}
+            old_settings = dict(old.get("settings", {}), trials=settings.trials)
+            if not same or old_settings != settings.as_dict():
+                raise ScenarioError(f"{folder / 'journal.jsonl'}: written by another configuration (scenario "
+                                    "file, ILC settings, FMUs or data differ); remove that folder or choose "
+                                    "another --out")
+        else:
+            journal.append(config)
+        corrections = folder / "corrections"
+        corrections.mkdir(exist_ok=True)
+        commit = git_commit()
+        base_meta = _learned_metadata(scenario, settings, chain, commit)
+        stopped = None
+        rows = [records[k] for k in sorted(k for k in records if k.startswith("trial-"))]
+        done = len(rows)
+        if done and rows[-1]["status"] != "ok":
+            stopped = f"trial {done - 1}: {rows[-1]['status']} ({rows[-1].get('message', '')})"
+        trial_fmus = folder / ".trial_fmus"  # the controller with each trial's correction (removed at the end)
+        trial_fmus.mkdir(exist_ok=True)
+
+        def open_master(correction: str):
+            """A master whose controller carries `correction` ("" : none; a copy even then, so that a
+            controller FMU that already carried one runs without it)."""
+            fmu = with_learned_feedforward(setup.paths[ctrl], Path(correction) if correction else None,
+                                           trial_fmus / setup.paths[ctrl].name)
+            return dataclasses.replace(setup, paths={**setup.paths, ctrl: fmu}).open_master(scenario.algorithm)
+
+        m = None
+        try:
+            learn = cases[settings.learn_case]
+            if done:
+                progress(f"resuming {scenario.name} after trial {done - 1} ({folder / 'journal.jsonl'})")
+            progress(trial_header())
+            for row in rows:
+                progress(trial_line(row))
+            for j in range(done, settings.trials if stopped is None else done):
+                stem = corrections / f"trial_{j:03d}"
+                file = f"{stem}.npz" if j else ""
+                m = open_master(file)  # checks the correction this trial runs with
+                params = _with(learn.parameters, sensors[0], {"noise_seed": settings.seed_base + j, "noise_enabled":
+                                                    learn.parameters.get(sensors[0], {}).get("noise_enabled", True)})
+                t0 = time.perf_counter()
+                res = m.run(setup.case_parameters(params), record, n, scenario.step_size)
+                wall = time.perf_counter() - t0
+                m.close()
+                m = None
+                row = {"key": f"trial-{j:03d}", "trial": j, "seed": settings.seed_base + j, "status": res["status"],
+                       "message": res["message"], "wall_time_s": wall, "correction_file": _relative(Path(file))
+                       if file else "", "commit": commit}
+                if res["status"] == "ok":
+                    sig = res["signals"]
+                    meas = np.column_stack([sig[f"{sensors[0]}.{v}"] for v in MEASURED])
+                    err = ilc.measured_errors(meas[:, :2], meas[:, 2:], traj)
+                    row["metrics"] = trial_metrics(res, setup, traj, n_slew, float(np.linalg.norm(err)))
+                    u = np.zeros((n, 2)) if not j else ilc.read_learned_feedforward(file).correction
+                    nxt = law.update(u, err, feedforward, PEAK_TORQUE)
+                    meta = dict(base_meta, trials_learned_from=j + 1,
+                                last_trial={"trial": j, "seed": settings.seed_base + j, **row["metrics"]})
+                    ilc.write_learned_feedforward(corrections / f"trial_{j + 1:03d}", nxt, model.dt, meta)
+                else:
+                    stopped = f"trial {j}: {res['status']} ({res['message']})"
+                journal.append(row)
+                rows.append(row)
+                progress(trial_line(row))
+                if stopped:
+                    break
+            evaluation = {}
+            final = corrections / f"trial_{len(rows):03d}.npz"
+            if stopped is None and final.is_file():
+                write_atomic(folder / "learned_feedforward.npz", final.read_bytes())
+                write_atomic(folder / "learned_feedforward.json", (corrections / f"trial_{len(rows):03d}.json")
+                             .read_bytes())
+                with_learned_feedforward(setup.paths[ctrl], folder / "learned_feedforward.npz",
+                                         folder / LEARNED_CONTROLLER)
+                n_eval = settings.evaluate_samples
+                des_eval = desired_states(traj, np.arange(n_eval + 1) * scenario.step_size)
+                for key in settings.evaluate_cases:
+                    case = cases[key]
+                    evaluation[key] = {}
+                    for label, file in (("unlearned", ""), ("learned", str(final))):
+                        params = _with(case.parameters, sensors[0], {"noise_seed": settings.seed_base + len(rows)})
+                        m = open_master(file)
+                        res = m.run(setup.case_parameters(params), record, n_eval, scenario.step_size)
+                        m.close()
+                        m = None
+                        evaluation[key][label] = {"status": res["status"], "message": res["message"]}
+                        if res["status"] == "ok":
+                            evaluation[key][label]["metrics"] = trial_metrics(res, setup, traj, n_slew, float("nan"),
+                                                                              des_eval)
+        finally:
+            journal.close()
+            if m is not None:
+                m.close()
+            shutil.rmtree(trial_fmus, ignore_errors=True)
+        summary = {"scenario": scenario.name, "scenario_sha256": sha256_file(scenario.path), "commit": commit,
+                   "settings": settings.as_dict(), "fmu_kind": setup.kind,
+                   "fmu_sha256": {i: sha256_file(p) for i, p in setup.paths.items()}, "data_sha256": chain,
+                   "samples": n, "slew_samples": n_slew, "trials": rows, "stopped": stopped,
+                   "evaluation": evaluation}
+        if evaluation:
+            summary["learned_controller"] = {"file": LEARNED_CONTROLLER,
+                                             "sha256": sha256_file(folder / LEARNED_CONTROLLER)}
+        write_json(folder / "evaluation.json", portable(summary, folder))
+        write_trials_csv(folder / "trials.csv", rows)
+        if plots and rows:
+            plot_convergence(rows, folder / "convergence.png", scenario.name)
+    return summary
+
+
+def _law(settings: IlcSettings, model, n_slew: int, time_weight, output_weight):
+    """The learning law of the settings (:class:`flexarm.ilc.NormOptimalIlc`)."""
+    from flexarm import ilc
+
+    q = ({} if settings.settling_q_filter_cutoff_hz == settings.q_filter_cutoff_hz else
+         {"settling_q_cutoff_hz": settings.settling_q_filter_cutoff_hz, "settling_start": n_slew})
+    return ilc.NormOptimalIlc(model, settings.error_weight, settings.input_weight, settings.q_filter_cutoff_hz,
+                              settings.q_filter_order, settings.leak_weight, time_weight=time_weight,
+                              learning_gain=settings.learning_gain, output_weight=output_weight, **q)
+
+
+def _with(parameters: dict, inst: str, values: dict) -> dict:
+    out = {k: dict(v) for k, v in parameters.items()}
+    out.setdefault(inst, {}).update(values)
+    return out
+
+
+def _learned_metadata(scenario, settings, chain, commit) -> dict:
+    from flexarm.gain_schedule import relative_path
+    from flexarm.parameters import DEFAULT_PARAMETER_FILE
+    from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
+
+    ctrl = scenario.parameters.get("controller", {})
+    # relative to the checkout (flexarm/data/...: resolved against the package when read), no absolute path
+    return {"trajectory_file": relative_path(DEFAULT_TRAJECTORY_FILE),
+            "trajectory_sha256": sha256_file(DEFAULT_TRAJECTORY_FILE),
+            "parameter_file": relative_path(DEFAULT_PARAMETER_FILE),
+            "parameter_sha256": sha256_file(DEFAULT_PARAMETER_FILE),
+            "gain_set": ctrl.get("gain_set", "gamma0.1"), "schedule_period_s": ctrl.get("schedule_period", 0.2),
+            "ilc": settings.as_dict(), "ilc_method": "norm-optimal (Amann, Owens, Rogers), Riccati/adjoint sweep, "
+            "zero-phase Butterworth Q-filter, clipped to the motors' peak torques (flexarm.ilc)",
+            "scenario": scenario.name, "scenario_sha256": sha256_file(scenario.path),
+            "learn_case_parameters": {c.key: c.parameters for c in scenario.cases}.get(settings.learn_case),
+            "data_sha256": chain, "commit": commit}
+
+
+def refuse_run_options(args) -> None:
+    """ScenarioError (exit 2) for a ``run`` option an ILC scenario does not honour, naming it and why.
+
+    An ILC run learns the feedforward of its own controller FMU on its own cases and parameters, and writes what
+    it learnt under the scenario's name: running it with a user's controller, another case or a changed parameter
+    while reporting the scenario's figures would present our controller's numbers as the user's. Refused, never
+    ignored.
+    """
+    given = [(flag, value) for flag, value in (("--controller", getattr(args, "controller", None)),
+                                               ("--set", getattr(args, "sets", None)),
+                                               ("--case", getattr(args, "cases", None))) if value]
+    if given:
+        flags = ", ".join(f"{flag} {' '.join(map(str, v)) if isinstance(v, list) else v}" for flag, v in given)
+        raise ScenarioError(
+            f"run {args.scenario_name}: {flags}: an ILC scenario learns the feedforward of its own controller on "
+            "the cases and parameters of its file, so these options would not apply to what it runs and reports; "
+            "copy the scenario file, edit its [fmus], [parameters] or [ilc] learn_case / evaluate_cases, and run "
+            "that file instead")
+
+
+def cli(args) -> int:
+    """``python -m scenarios run`` for an ILC scenario (called by :mod:`scenarios.__main__`)."""
+    refuse_run_options(args)
+    summary = run_ilc(args.scenario_name, args.out, args.fmu_dir, args.kind, args.native_fmu_dir,
+                      plots=not args.no_plots, progress=lambda s: print(s, flush=True))
+    for key, ev in summary["evaluation"].items():
+        parts = []
+        for label in ("unlearned", "learned"):
+            r = ev[label]
+            parts.append(f"{label} " + (f"rms {r['metrics']['slew_rms_position_error']:.4f}° peak τ "
+                                        f"{r['metrics']['slew_peak_tau1']:.3f}/{r['metrics']['slew_peak_tau2']:.3f} N·m"
+                                        if r.get("metrics") else r["status"]))
+        print(f"   {key}: " + "; ".join(parts))
+    print(f"   results: {Path(args.out) / summary['scenario']}")
+    if summary["stopped"]:
+        print(f"   stopped: {summary['stopped']}", file=sys.stderr)
+        return 1
+    return 0

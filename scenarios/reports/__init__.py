@@ -1,0 +1,1 @@
+"""Generators of documents: the results page and every generated block in README.md and docs/*.md."""

@@ -1,0 +1,1 @@
+"""A scenario's run: choosing the FMUs, setting up the loop, running its cases, judging and writing the results."""
