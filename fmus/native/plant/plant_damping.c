@@ -5,6 +5,7 @@
 #include <math.h>
 #include <string.h>
 
+#include "fmi2_glue.h" /* its libm_link.h routes sqrt and fmax as in every model source */
 #include "plant_linalg.h"
 #include "plant_model.h"
 
