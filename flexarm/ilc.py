@@ -66,6 +66,11 @@ from .gain_schedule import (
     sample_time,
     schedule_index,
 )
+from .ilc_trial import desired_angles as desired_angles  # re-exported: a trial's measurements and loop
+from .ilc_trial import feedforward_over as feedforward_over
+from .ilc_trial import measured_angles as measured_angles
+from .ilc_trial import measured_errors as measured_errors
+from .ilc_trial import simulate_trial as simulate_trial
 from .learned_feedforward import (  # noqa: F401 - the design files, re-exported: flexarm.ilc documents them
     FILE_FORMAT,
     LEARNED_RESOURCE,
@@ -459,96 +464,3 @@ def settling_weights(trajectory, n_samples: int, settling_weight: float = 1.0,
     x = np.zeros((n, N, N))
     x[after] = float(tip_weight) * J.T @ J
     return w, x
-
-
-# -- measurements -------------------------------------------------------------------
-def measured_angles(q, strain) -> np.ndarray:
-    """The 11 reconstructed angles (eqs. 21-31), shape (n, 11), from encoder angles (n, 2) and gauge angles (n, 6)."""
-    from .model import reconstruct_angles
-
-    q, strain = np.asarray(q, dtype=float), np.asarray(strain, dtype=float)
-    basis = np.array([reconstruct_angles(e[:2], e[2:]) for e in np.eye(8)])  # linear map, (8, 11)
-    return np.hstack([q, strain]) @ basis
-
-
-def desired_angles(trajectory, n_samples: int) -> np.ndarray:
-    """The reconstruction of the desired state at samples 0..n_samples, shape (n_samples + 1, 11): the final state
-    after the slew (as the controller compares)."""
-    traj = as_trajectory(trajectory)
-    z = desired_states(traj)
-    idx = np.minimum(np.arange(n_samples + 1), traj.n_samples)
-    return z[idx] @ measurement_map()[:N].T
-
-
-def measured_errors(q, strain, trajectory) -> np.ndarray:
-    """The learning's error e = desired − measured reconstructed angles at samples 1..N, shape (N, 11), rad.
-
-    Parameters
-    ----------
-    q : array_like, shape (N + 1, 2)
-        Encoder angles q1, q2 at samples 0..N (the sensors' ``q1_m``, ``q2_m``), rad.
-    strain : array_like, shape (N + 1, 6)
-        Strain-gauge angles (``eps1_m`` .. ``eps6_m``), rad.
-    trajectory : TrajectoryResult or path-like
-    """
-    y = measured_angles(q, strain)
-    if not np.isfinite(y).all():
-        raise IlcError("measurements: contain non-finite values (an unbounded or failed trial teaches nothing)")
-    return (desired_angles(trajectory, len(y) - 1) - y)[1:]
-
-
-def feedforward_over(trajectory, n_samples: int) -> np.ndarray:
-    """The trajectory's feedforward over n_samples samples (zero after the slew), shape (n_samples, 2), N·m."""
-    traj = as_trajectory(trajectory)
-    out = np.zeros((n_samples, 2))
-    m = min(n_samples, traj.n_samples)
-    out[:m] = traj.tau[:m]
-    return out
-
-
-# -- the library loop (no FMI): for the tests and quick studies ------------------------
-def simulate_trial(controller, n_steps: int, payload_mass: float = 0.275, noise: bool = True, seed: int = 1,
-                   substeps: int | None = None) -> dict:
-    """One trial of the library plant and sensors under `controller`, started at rest on the trajectory.
-
-    Parameters
-    ----------
-    controller : flexarm.control.TrackingController
-        With its ``feedforward_correction`` (the trial's u_j).
-    n_steps : int
-        1 ms samples to run.
-    payload_mass : float
-        Tip payload of the plant, kg (the controller does not know it).
-    noise : bool
-        Sensor noise (the paper's uniform noise), seeded with `seed`.
-
-    Returns
-    -------
-    dict
-        ``q`` (n + 1, 2) and ``strain`` (n + 1, 6): the measured encoder and gauge angles, rad (what the
-        learning sees); ``states`` (n + 1, 22) the true states and ``torques`` (n, 2) N·m (for the metrics).
-    """
-    from .integrator import DEFAULT_SUBSTEPS, PlantSimulator
-    from .model import ArmModel
-    from .parameters import load_parameters
-    from .sensors import ENCODERS, STRAIN_GAUGES, SensorBank, SensorSettings, true_signals_from_state
-
-    model = ArmModel(load_parameters(payload_mass=payload_mass))
-    settings = SensorSettings.from_toml().replace(noise_enabled=bool(noise), noise_seed=int(seed))
-    bank = SensorBank(settings, model.params, controller.dt)
-    plant = PlantSimulator(model, controller.z[0], substeps=substeps or DEFAULT_SUBSTEPS)
-    meas, states, torques = [], [plant.z.copy()], []
-    for k in range(int(n_steps) + 1):
-        z = plant.z
-        m = bank.measure(true_signals_from_state(model, z, np.zeros(2)))
-        meas.append(m)
-        if k == n_steps:
-            break
-        tau = controller.torque_from_measurements(k, m[:10])
-        plant.step(tau, controller.dt)
-        torques.append(tau)
-        states.append(plant.z.copy())
-    meas = np.array(meas)
-    return {"q": meas[:, ENCODERS], "strain": meas[:, STRAIN_GAUGES], "states": np.array(states),
-            "torques": np.array(torques)}
-

@@ -52,13 +52,18 @@ def numpy_kernels():
     if _NUMPY_KERNELS is None:
         import importlib.util
         import os
+        import sys
 
         saved = os.environ.get("FLEXARM_NO_NUMBA")
         os.environ["FLEXARM_NO_NUMBA"] = "1"
         try:
-            spec = importlib.util.spec_from_file_location("flexarm._kernels_numpy",
-                                                          Path(__file__).with_name("_kernels.py"))
+            # A package of its own, searched in this folder: the copy's relative imports (the dynamics and
+            # integrator kernels that _kernels gathers) load NumPy copies under it, not the Numba modules.
+            name = f"{__name__.rpartition('.')[0]}._kernels_numpy"
+            spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("_kernels.py"),
+                                                          submodule_search_locations=[str(Path(__file__).parent)])
             module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
             spec.loader.exec_module(module)
         finally:
             if saved is None:

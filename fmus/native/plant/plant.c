@@ -6,10 +6,11 @@
  * fmu_build/native_codegen.py): the mass matrix M(θ), the right-hand side
  * S(θ, θ̇), the input forces B̄τ and the tangent matrices ∂(S − Mθ̈)/∂θ, ∂S/∂θ̇, all
  * from cos θ and sin θ (computed once per state here, shared by every use). This file
- * holds the numerical methods of flexarm._kernels (RODAS4 with the reduced stage system,
+ * holds the numerical methods of flexarm._integrator_kernels (RODAS4 with the reduced stage system,
  * the exponential Rosenbrock-Euler step, 2-stage Gauss-Legendre collocation with simplified
- * Newton, the RK4 reference, the modal damping matrix; the same coefficients, tolerances and
- * substeps per millisecond as flexarm.integrator), the sensor-point kinematics and the FMI mapping.
+ * Newton, the RK4 reference; the same coefficients, tolerances and substeps per millisecond as
+ * flexarm.integrator), the sensor-point kinematics and the FMI mapping. The modal damping matrix is
+ * built in plant_damping.c; the types both share are in plant_model.h.
  * Arm constants come from resources/arm_parameters.txt (SHA-256 checked).
  */
 #include <math.h>
@@ -22,37 +23,8 @@
 #include "model_vars.h"
 #include "plant_constants.h"
 #include "plant_linalg.h"
+#include "plant_model.h"
 #include "portable_math.h"
-
-#define N PLANT_N_ELEMENTS
-#define NZ (2 * N)
-#define NA (NZ + 1) /* the exponential scheme's augmented matrix */
-
-/* The model at one state (θ, θ̇), torque excluded: what every use of that state shares. */
-typedef struct {
-    double c[N], s[N];                     /* cos θ, sin θ */
-    double mass_packed[PLANT_N_MASS_PACKED]; /* M(θ), lower triangle column by column */
-    double unit_lower[PLANT_N_UNIT_LOWER];   /* M = L D Lᵀ: L below the diagonal, column by column */
-    double inverse_pivots[N], pivots[N];   /* 1/d_j, d_j */
-    double force[N];                       /* S(θ, θ̇) − C_d θ̇ */
-} Eval;
-
-typedef struct {
-    double mass0[N * N], mass1[N * N]; /* M_jk(payload) = mass0 + payload * mass1, row-major */
-    double springs[PLANT_N_SPRING_VALUES];
-    double length[N];
-    /* the model at (model_payload, model_ratio) */
-    double coeff[N * N + PLANT_N_SPRING_VALUES]; /* (M_jk row-major, stiffness non-zeros) */
-    double damping[N * N];                        /* C_d, symmetric */
-    int damped, model_ready;
-    double model_payload, model_ratio;
-    /* the evaluation at the last state whose outputs were computed: the next step starts there */
-    Eval cache;
-    double cache_z[NZ];
-    int cache_valid;
-    double w[PLANT_WORK_DOUBLES];
-    long long iw[PLANT_WORK_INTS];
-} PlantData;
 
 typedef struct {
     double z[NZ];
@@ -65,7 +37,7 @@ typedef struct {
 enum { SCHEME_RODAS4 = 1, SCHEME_EXPONENTIAL = 2, SCHEME_GAUSS = 3, SCHEME_REFERENCE = 4 };
 
 /* -- the model at a state ------------------------------------------------------------------------ */
-static int evaluate(PlantData *d, const double *z, Eval *ev)
+int evaluate(PlantData *d, const double *z, Eval *ev)
 {
     for (int i = 0; i < N; i++) flexarm_sincos(z[i], &ev->s[i], &ev->c[i]);
     const double *arg[4] = {ev->c, ev->s, z + N, d->coeff};
@@ -83,21 +55,21 @@ static int evaluate(PlantData *d, const double *z, Eval *ev)
 }
 
 /* x = M⁻¹ b at the state of `ev` (x and b distinct) */
-static void mass_solve(PlantData *d, const Eval *ev, const double *b, double *x)
+void mass_solve(PlantData *d, const Eval *ev, const double *b, double *x)
 {
     const double *arg[3] = {ev->unit_lower, ev->inverse_pivots, b};
     double *res[1] = {x};
     flexarm_ldl_solve(arg, res, d->iw, d->w, 0);
 }
 
-static void mass_full(const Eval *ev, double *mass)
+void mass_full(const Eval *ev, double *mass)
 {
     for (int j = 0, k = 0; j < N; j++)
         for (int i = j; i < N; i++, k++) mass[j * N + i] = mass[i * N + j] = ev->mass_packed[k];
 }
 
 /* θ̈ = M⁻¹ (S − C_d θ̇ + B̄τ), `forces` = B̄τ */
-static void acceleration(PlantData *d, const Eval *ev, const double *forces, double *acc)
+void acceleration(PlantData *d, const Eval *ev, const double *forces, double *acc)
 {
     double b[N];
     for (int i = 0; i < N; i++) b[i] = ev->force[i] + forces[i];
@@ -115,7 +87,7 @@ static void stage_solve(PlantData *d, const double *lu, const int *piv, const do
 }
 
 /* Q and V − C_d (column-major) at the state of `ev` with rates omega and accelerations acc. */
-static void tangents(PlantData *d, const Eval *ev, const double *omega, const double *acc, double *q, double *v)
+void tangents(PlantData *d, const Eval *ev, const double *omega, const double *acc, double *q, double *v)
 {
     const double *arg[5] = {ev->c, ev->s, omega, acc, d->coeff};
     double *res[2] = {q, v};
@@ -131,7 +103,7 @@ static void input_forces(PlantData *d, const double *tau, double *forces)
     flexarm_input_forces(arg, res, d->iw, d->w, 0);
 }
 
-/* -- RODAS4 (flexarm._kernels._rodas4_step_loops) -------------------------------------------------- */
+/* -- RODAS4 (flexarm._integrator_kernels._rodas4_step_loops) -------------------------------------- */
 /* One step of size h from z, whose evaluation is `ev0`; `ev` is workspace. -1 if a matrix is singular. */
 static int rodas4_step(PlantData *d, const double *z, const Eval *ev0, Eval *ev, const double *forces, double h,
                        double *z_new, double *err, double *err_angle)
@@ -193,7 +165,7 @@ static int rodas4_step(PlantData *d, const double *z, const Eval *ev0, Eval *ev,
     return 0;
 }
 
-/* -- exponential Rosenbrock-Euler (flexarm._kernels.exponential_euler_step) ------------------------ */
+/* -- exponential Rosenbrock-Euler (flexarm._integrator_kernels.exponential_euler_step) ------------ */
 static int exponential_step(PlantData *d, const double *z, const Eval *ev0, const double *forces, double h,
                             double *z_new)
 {
@@ -227,7 +199,7 @@ static int exponential_step(PlantData *d, const double *z, const Eval *ev0, cons
     return 0;
 }
 
-/* -- 2-stage Gauss-Legendre (flexarm._kernels.gauss_step) ---------------------------------------- */
+/* -- 2-stage Gauss-Legendre (flexarm._integrator_kernels.gauss_step) ------------------------------ */
 /* M K at the state of `ev` (packed lower triangle, column by column) */
 static void mass_times(const Eval *ev, const double *k, double *out)
 {
@@ -306,7 +278,7 @@ static int gauss_step(PlantData *d, const double *z, const Eval *ev0, Eval *ev, 
     return 0;
 }
 
-/* -- the RK4 reference (flexarm._kernels.advance_rk4) ------------------------------------------------ */
+/* -- the RK4 reference (flexarm._integrator_kernels.advance_rk4) ---------------------------------- */
 static int derivative(PlantData *d, const double *z, Eval *ev, const double *forces, double *out)
 {
     if (evaluate(d, z, ev) != 0) return -1;
@@ -335,62 +307,6 @@ static int rk4_steps(PlantData *d, const double *z, Eval *ev, const double *forc
     return 0;
 }
 
-/* -- modal damping (flexarm.model.modal_damping_matrix) -------------------------------------------- */
-/* C_d = M Φ diag(2ζω_k) Φᵀ M over the flexible modes at the damping configuration, Φ mass-normalised:
-   with M = L Lᵀ and the symmetric eigenproblem of L⁻¹ K_t L⁻ᵀ = Y Λ Yᵀ, M Φ = L Y. */
-static int build_damping(PlantData *d, double ratio)
-{
-    d->damped = 0;
-    memset(d->damping, 0, sizeof d->damping);
-    if (ratio == 0.0) return 0;
-    double z[NZ] = {0}, zero[N] = {0}, acc[N], q[N * N], v[N * N], mass[N * N], kt[N * N], a[N * N], y[N * N],
-           lam[N], lower[N * N];
-    Eval ev;
-    for (int i = 0; i < N; i++) z[i] = PLANT_DAMPING_Q1 + (i >= PLANT_JOINT2_DISTAL ? PLANT_DAMPING_Q2 : 0.0);
-    if (evaluate(d, z, &ev) != 0) return -1;
-    mass_full(&ev, mass);
-    acceleration(d, &ev, zero, acc);
-    tangents(d, &ev, zero, acc, q, v);
-    double qm[N * N];
-    memcpy(qm, q, sizeof qm);
-    for (int j = 0; j < N; j++) mass_solve(d, &ev, qm + j * N, q + j * N); /* A_θ = M⁻¹ Q, column-major */
-    for (int i = 0; i < N; i++) /* K_t = −M A_θ, row-major */
-        for (int j = 0; j < N; j++) {
-            double t = 0.0;
-            for (int k = 0; k < N; k++) t += mass[i * N + k] * q[j * N + k];
-            kt[i * N + j] = -t;
-        }
-    double low[N * N]; /* M = L Lᵀ */
-    memcpy(low, mass, sizeof low);
-    if (chol_factor(low, N) != 0) return -1;
-    for (int i = 0; i < N; i++) /* symmetric part, its columns (= rows) solved with L: L⁻¹ K */
-        for (int j = 0; j < N; j++) a[j * N + i] = 0.5 * (kt[i * N + j] + kt[j * N + i]);
-    for (int j = 0; j < N; j++) chol_forward(low, a + j * N, N);
-    for (int i = 0; i < N; i++) /* (L⁻¹ K)ᵀ's columns solved again: L⁻¹ K L⁻ᵀ */
-        for (int j = 0; j < N; j++) y[i * N + j] = a[j * N + i];
-    for (int j = 0; j < N; j++) chol_forward(low, y + j * N, N);
-    for (int i = 0; i < N; i++)
-        for (int j = 0; j < N; j++) a[i * N + j] = 0.5 * (y[i * N + j] + y[j * N + i]);
-    if (sym_eigen(a, lam, y, N) != 0) return -1;
-    for (int i = 0; i < N; i++) /* L, row-major */
-        for (int j = 0; j < N; j++) lower[i * N + j] = j <= i ? low[j * N + i] : 0.0;
-    double mphi[N * N], scaled[N * N]; /* M Φ = L Y; (M Φ diag(2ζω)) */
-    mat_mul(lower, y, mphi, N);
-    for (int i = 0; i < N; i++)
-        for (int k = 0; k < N; k++)
-            scaled[i * N + k] = k < 2 ? 0.0 : mphi[i * N + k] * (2.0 * ratio * sqrt(fmax(lam[k], 0.0)));
-    double full[N * N]; /* the two smallest (rigid-body) modes dropped above */
-    for (int i = 0; i < N; i++)
-        for (int j = 0; j < N; j++) {
-            double t = 0.0;
-            for (int k = 2; k < N; k++) t += scaled[i * N + k] * mphi[j * N + k];
-            full[i * N + j] = t;
-        }
-    for (int i = 0; i < N; i++)
-        for (int j = 0; j < N; j++) d->damping[i * N + j] = 0.5 * (full[i * N + j] + full[j * N + i]);
-    d->damped = 1;
-    return 0;
-}
 
 /* The model at (payload, ratio): mass and stiffness coefficients, damping matrix. */
 static int set_model(PlantData *d, double payload, double ratio)
