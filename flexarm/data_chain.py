@@ -1,6 +1,6 @@
 """Every committed data file, read through its own verifying loader: the data chain of a run.
 
-:func:`verify_data_files` is what a run calls before anything else (``scenarios.runner.verify_data_chain``).
+:func:`verify_data_files` is what a run calls before anything else (``scenarios.run.setup.verify_data_chain``).
 It reads, with the loaders that check each one:
 
 - the parameter file (``sandia_arm.toml``) and the sensor settings (``sensors_default.toml``): parsed and

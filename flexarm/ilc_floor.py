@@ -4,7 +4,7 @@ Used to tell what the learning (:mod:`flexarm.ilc`) could reach at best: :func:`
 the torque histories themselves, open loop and noise-free, for the smallest rms error of the 11 element angles
 along the slew (the tables' metric). Any controller's torques are one such history, so the error found is
 (up to the search's resolution: torques held over blocks, a local search) a floor for every controller.
-``python -m scenarios.ilc_floor`` writes it into docs/ilc.md.
+``python -m scenarios.ilc.floor`` writes it into docs/ilc.md.
 """
 
 from __future__ import annotations

@@ -382,7 +382,7 @@ def simulate_lqg(model, controller: LqgController, n_steps: int | None = None, p
     return np.array(states), np.array(torques).reshape(-1, 2)
 
 
-#: Master stepping algorithms (the names of :mod:`scenarios.master`).
+#: Master stepping algorithms (the names of :mod:`scenarios.master.cosim`).
 STEPPINGS = ("gauss-seidel", "jacobi")
 
 

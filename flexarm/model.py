@@ -45,7 +45,7 @@ def numpy_kernels():
     """A private copy of :mod:`flexarm._kernels` on its NumPy path: the same mathematics, no Numba.
 
     For a few evaluations in a process that has not loaded Numba (the start-up check of a run's sampled loop,
-    :mod:`scenarios.stability`, costs a third of a second more with it), and for symbolic arrays (CasADi,
+    :mod:`scenarios.analysis.stability`, costs a third of a second more with it), and for symbolic arrays (CasADi,
     :mod:`fmu_build.native_codegen`). Loaded once per process.
     """
     global _NUMPY_KERNELS

@@ -30,7 +30,7 @@ REFERENCE_OUTPUTS = names("reference", "output")
 #: Largest lead the reference FMU accepts, samples (1 s of 1 ms samples).
 MAX_LEAD_SAMPLES = 1000
 #: Steppings whose masters read every output before setting any input (one step of delay per
-#: direct-feedthrough FMU a signal crosses): libcosim, fmpy's ``simulate_ssp`` (scenarios.master's "fmpy-ssp").
+#: direct-feedthrough FMU a signal crosses): libcosim, fmpy's ``simulate_ssp`` (scenarios.master.cosim's "fmpy-ssp").
 JACOBI_STEPPINGS = ("jacobi", "fmpy-ssp")
 
 

@@ -84,7 +84,7 @@ class Var:
         Integer parameters that select one of several named choices: (value,
         name, description) of each. The allowed values are exactly these;
         the description gets ``"; choices: 1 = name1, 2 = name2"`` appended
-        (masters read it back, e.g. ``scenarios.values.parse_choices``). A choice is an Integer, not an
+        (masters read it back, e.g. ``scenarios.master.values.parse_choices``). A choice is an Integer, not an
         FMI Enumeration, because libcosim 0.11 ignores Enumeration variables.
     """
 
