@@ -301,9 +301,11 @@ def test_the_lqg_check_predicts_the_run():
     """The LQG loop (one Kalman filter per point) is checked: lqg.toml as shipped (γ = 0.1 weights) is stable
     on the undamped arm (exact −0.048 1/s; RODAS4 −0.130, RK4 at 2.5 µs −0.03 on a slow mode), no warning, and
     with the reference plant (RK4 2.5 µs) its velocity error does not grow after the slew; with γ = 0 weights and
-    the 0.275 kg payload the loop grows through the 24 Hz link mode (+0.84 1/s, every scheme alike; 3.2 e-folds
-    over 3.8 s): the run (RODAS4) says it shows that growth, and its velocity error grows at that rate over
-    2.2-3.0 s within 20 % (0.88 1/s; later the growth is no longer linear and the torques saturate at 3.87 s).
+    the 0.275 kg payload the loop of the 0.4 s point grows through the 24 Hz link mode (+0.84 1/s, every scheme
+    alike): the check takes the worst point over the whole run (3.2 e-folds over 3.8 s, a bound) and warns. Before
+    the hold point existed the run's velocity error grew at that rate after the slew (0.88 1/s over 2.2-3.0 s, on
+    the last slew point's gains); the hold (flexarm.lqg_design.HOLD_STATE_WEIGHT) now regulates it: over 2.2-3.0 s
+    it decays (−2.8 1/s; bound: any decay), which is the regulator, not the check, being right.
     """
     import tempfile
 
@@ -329,7 +331,8 @@ def test_the_lqg_check_predicts_the_run():
     t = r.series["time"]
     early = t <= 3.0
     fitted = envelope_growth(t[early], velocity_errors(r, traj)[early], 2.2)
-    assert abs(fitted / stab["growth_per_s"] - 1) < 0.2 and fitted == pytest.approx(0.88, abs=0.02), fitted
+    assert stab["growth_per_s"] == pytest.approx(0.84, abs=0.02) and stab["at_time_s"] < 2.0
+    assert fitted < 0, fitted  # the hold after the slew regulates what the slew's last gains let grow
 
 
 def test_the_loop_check_at_a_runs_start_loads_neither_numba_nor_scipy_linalg():

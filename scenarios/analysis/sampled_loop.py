@@ -169,8 +169,9 @@ def predicted_loop_growth(gain_name: str, schedule: str, damping_ratio: float, p
     from flexarm.lqr import GainSchedule, effective_gain
 
     on_prediction = effective_gain(GainSchedule.load(gain_name, schedule).gains)
-    return _filtered_loop_growth(LqgDesign.load(schedule), lambda i, n: (on_prediction[i], None), damping_ratio,
-                                 payload_mass, integrator, substeps, delay)
+    last = len(on_prediction) - 1  # the design's hold point at t_f: the law keeps its last gains there
+    return _filtered_loop_growth(LqgDesign.load(schedule), lambda i, n: (on_prediction[min(i, last)], None),
+                                 damping_ratio, payload_mass, integrator, substeps, delay)
 
 
 def _filtered_loop_growth(design, gains, damping_ratio: float, payload_mass: float, integrator: str, substeps: int,
