@@ -20,6 +20,8 @@ import functools
 import json
 import math
 
+import numpy as np
+
 from flexarm.parameters import DEFAULT_PARAMETER_FILE
 from flexarm.provenance import sha256_file
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
@@ -317,12 +319,11 @@ def _findings_joint_damping(runs: PageRuns) -> str:
     return "\n".join(lines)
 
 
-def lqg_tip_settling(payload: float, hold: bool = True, extra: int = 5000) -> float:
-    """Seconds after t_f from which the tip stays within 1 mm of its end point (to t_f + `extra` ms):
-    controller_lqg's law (γ = 0.1, 200 ms, no delay) on the library plant with `payload` (kg, unknown to the law) and
-    the paper's sensor noise (seed 1); ``hold=False`` holds with the last slew point's gains instead."""
-    import numpy as np
-
+def lqg_tip_settling(payload: float, hold: bool = True, extra: int = 5000) -> tuple[float, np.ndarray]:
+    """Seconds after t_f from which the tip stays within 1 mm of its end point (to t_f + `extra` ms), and the peak
+    torques after t_f (N·m, shape (2,)): controller_lqg's law (γ = 0.1, 200 ms, no delay) on the library plant with
+    `payload` (kg, unknown to the law) and the paper's sensor noise (seed 1); ``hold=False`` holds with the last
+    slew point's gains instead (what the law did before its design files had the hold point)."""
     from flexarm.lqg import lqg_controller, simulate_lqg
     from flexarm.model import ArmModel, N
     from flexarm.parameters import load_parameters
@@ -332,11 +333,11 @@ def lqg_tip_settling(payload: float, hold: bool = True, extra: int = 5000) -> fl
     if not hold:
         law._K[-1] = law._K[-2]
     model, n = ArmModel(load_parameters(payload_mass=payload)), law.n_steps
-    states, _ = simulate_lqg(model, law, n_steps=n + extra,
-                             sensors=SensorBank(SensorSettings(noise_enabled=True, noise_seed=1)))
+    states, torques = simulate_lqg(model, law, n_steps=n + extra,
+                                   sensors=SensorBank(SensorSettings(noise_enabled=True, noise_seed=1)))
     end = model.tip_position(law.z[-1][:N])
     outside = np.nonzero(np.linalg.norm([model.tip_position(z[:N]) - end for z in states[n:]], axis=1) > 1e-3)[0]
-    return (outside[-1] + 1) * 1e-3 if len(outside) else 0.0
+    return (outside[-1] + 1) * 1e-3 if len(outside) else 0.0, np.abs(torques[n:]).max(axis=0)
 
 
 @block("findings-hold")
@@ -360,7 +361,7 @@ def _findings_hold(runs: PageRuns) -> str:
             A, B = ArmModel(load_parameters(payload_mass=payload)).linearize(end, np.zeros(2))
             s = np.linalg.eigvals(A - B @ K)
             p = s[np.abs(s) < 200.0][np.argmax(s[np.abs(s) < 200.0].real)]
-            t = lqg_tip_settling(payload, hold)
+            t = lqg_tip_settling(payload, hold)[0]
             settle = "t_f (never outside)" if t == 0.0 else ("not by t_f + 5 s" if t >= 5.0 else f"t_f + {t:.2f} s")
             lines.append(f"| {label} | {f'{payload:g} kg' if payload else 'none'} | {p.real:.2f} ± {abs(p.imag):.2f}j "
                          f"1/s | {SETTLED_EFOLDS / -p.real:.1f} s | {settle} |")
