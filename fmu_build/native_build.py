@@ -166,7 +166,8 @@ def universal_macho(slices: list[bytes]) -> bytes:
 # -- one FMU --------------------------------------------------------------------------------------
 #: name -> the C sources of its model (relative to fmus/native/)
 NATIVE_FMUS = {
-    "plant": ("plant/plant.c", "plant/plant_damping.c", "plant/plant_linalg.h", "plant/plant_model.h"),
+    "plant": ("plant/plant.c", "plant/plant_schemes.c", "plant/plant_damping.c", "plant/plant_linalg.h",
+              "plant/plant_model.h"),
     "sensors": ("sensors/sensors.c", "sensors/pcg64.c", "sensors/pcg64.h"),
     **{name: ("controller/controller.c", "controller/lqg_core.c", "controller/controller_lqg.h",
               "controller/learned_ff.c", "controller/learned_ff.h")

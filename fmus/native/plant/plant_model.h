@@ -1,7 +1,7 @@
 /*
  * The native plant's model at a state, shared by its translation units: the state sizes, the model at one state
- * (Eval), the plant's data (PlantData) and the functions that evaluate it (plant.c); the modal damping matrix is
- * built in plant_damping.c.
+ * (Eval), the plant's data (PlantData) and the functions that evaluate it (plant.c); the integration schemes
+ * are in plant_schemes.c, the modal damping matrix is built in plant_damping.c.
  */
 #ifndef FLEXARM_PLANT_MODEL_H
 #define FLEXARM_PLANT_MODEL_H
@@ -48,6 +48,17 @@ void mass_full(const Eval *ev, double *mass);
 void acceleration(PlantData *d, const Eval *ev, const double *forces, double *acc);
 /* Q and V − C_d (column-major) at the state of `ev` with rates omega and accelerations acc. */
 void tangents(PlantData *d, const Eval *ev, const double *omega, const double *acc, double *q, double *v);
+
+/* -- one substep of each scheme (plant_schemes.c): z_new from z, whose evaluation is ev0; ev is workspace;
+      0, or -1 when a matrix is singular or the stage equations do not converge -- */
+int rodas4_step(PlantData *d, const double *z, const Eval *ev0, Eval *ev, const double *forces, double h,
+                double *z_new, double *err, double *err_angle);
+int exponential_step(PlantData *d, const double *z, const Eval *ev0, const double *forces, double h,
+                     double *z_new);
+int gauss_step(PlantData *d, const double *z, const Eval *ev0, Eval *ev, const double *forces, double h,
+               double *z_new, int *iterations);
+/* `steps` RK4 steps of size h (the reference scheme; no evaluation carried in) */
+int rk4_steps(PlantData *d, const double *z, Eval *ev, const double *forces, double h, int steps, double *z_new);
 
 /* -- modal damping (plant_damping.c) -- */
 int build_damping(PlantData *d, double ratio);
