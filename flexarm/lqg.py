@@ -278,8 +278,7 @@ class PredictedTracking:
         delay = check_loop_delay(delay)
         if delay < 1:
             raise LqgError("delay: PredictedTracking is for a delay of 1 or more samples (0: the law itself)")
-        # the design's points are the law's switching times, then its hold point at t_f (flexarm.lqg_design)
-        if law.schedule is not None and not np.array_equal(np.asarray(law.schedule.times), design.times[:-1]):
+        if law.schedule is not None and not np.array_equal(np.asarray(law.schedule.times), design.slew_times):
             raise LqgError(f"design: schedule {design.schedule!r} switches at other times than the law's gains")
         self.law, self.delay, self.dt, self.n_steps = law, delay, law.dt, law.n_steps
         # its filter and predictor only: its gains, feedforward correction and saturation are not used

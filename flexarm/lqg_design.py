@@ -311,6 +311,11 @@ class LqgDesign:
             if not np.all(np.isfinite(getattr(self, name))):
                 raise GainError(f"LQG design {name}: contains non-finite values")
 
+    @property
+    def slew_times(self) -> np.ndarray:
+        """The switching times along the slew, s: every point's but the last, the hold at t_f (:func:`design_lqg`)."""
+        return self.times[:-1]
+
     def index_at(self, t: float) -> int:
         """Index of the point in force at time t (s); the first before t_0."""
         return schedule_index(self.times, t)

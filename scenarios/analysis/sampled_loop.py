@@ -168,9 +168,11 @@ def predicted_loop_growth(gain_name: str, schedule: str, damping_ratio: float, p
     from flexarm.lqg_design import LqgDesign
     from flexarm.lqr import GainSchedule, effective_gain
 
+    design = LqgDesign.load(schedule)
     on_prediction = effective_gain(GainSchedule.load(gain_name, schedule).gains)
-    last = len(on_prediction) - 1  # the design's hold point at t_f: the law keeps its last gains there
-    return _filtered_loop_growth(LqgDesign.load(schedule), lambda i, n: (on_prediction[min(i, last)], None),
+    # one gain per slew point; at the design's hold point (t_f) the law keeps its last gains
+    last = len(design.slew_times) - 1
+    return _filtered_loop_growth(design, lambda i, n: (on_prediction[min(i, last)], None),
                                  damping_ratio, payload_mass, integrator, substeps, delay)
 
 
