@@ -21,7 +21,13 @@ Identification filters
 Quiet filter
     The arm without payload with model-trusting process noise (motor and element terms ×
     :data:`QUIET_SCALE`): it stands in for the m = 0 model in the control law, so that with no
-    payload the sensors' noise stays out. Its likelihood is not used (a model-trusting filter's
+    payload the sensors' noise stays out. So little process noise leaves the arm's 190-290 Hz modes,
+    undamped in the model, almost uncorrected: the plain Kalman gain put its slowest estimator pole at
+    |λ| = 0.999999 (a 1000 s time constant) and made the gain a property of the CPU (M regenerated to
+    6e-6 of its peak across OpenBLAS kernels). Its gain is therefore designed with a prescribed degree of
+    stability (:data:`QUIET_POLE_RADIUS`, :func:`flexarm.lqg_design.kalman_gain`): every estimator pole
+    within |λ| ≤ 0.9996 (2.6 s), faster than the identification filters' 0.9999, M reproducible to 4e-8.
+    Its likelihood is not used (a model-trusting filter's
     small S would win or lose on its confidence, not on the mass). While the posterior has ruled
     out the unloaded arm (p_0 < :data:`QUIET_RESEED_BELOW`) it is re-seeded from the unloaded
     identification filter's estimate each sample, so that a later switch to m = 0 starts from an
@@ -69,6 +75,10 @@ from .parameters import ArmParameters
 DEFAULT_MASSES = (0.0, 0.025, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4)
 #: Scale of the committed motor and element process-noise terms in the quiet filter.
 QUIET_SCALE = 0.01
+#: Largest estimator pole magnitude of the quiet filter's design (the Kalman gain of Φ/α; its poles come out
+#: at about α², 0.9996, a 2.6 s time constant at 1 ms). 0.9995 lets noise in (γ = 1 with integral action:
+#: noisy ÷ quiet 1.95 against issue 14's 2), 0.9999 keeps more noise out but M reproduces only to 9e-8.
+QUIET_POLE_RADIUS = 0.9998
 #: Smallest posterior probability of a model (lets the bank switch).
 POSTERIOR_FLOOR = 1e-4
 #: Posterior of the unloaded model below which the quiet filter is re-seeded (10 × the floor).
@@ -198,7 +208,7 @@ class PayloadBank:
 
 
 def design_bank_model(params: ArmParameters, mass: float, trajectory=None, schedule: str = "200ms",
-                      model_scale: float = 1.0) -> BankModel:
+                      model_scale: float = 1.0, estimator_pole_radius: float = 1.0) -> BankModel:
     """One filter: the LQG of the arm with payload ``mass`` (kg), its drift along the path and its S.
 
     Parameters
@@ -212,13 +222,16 @@ def design_bank_model(params: ArmParameters, mass: float, trajectory=None, sched
     schedule : str
     model_scale : float
         Scale of the committed motor and element process-noise terms (no tip force in W).
+    estimator_pole_radius : float
+        Largest magnitude of an estimator pole (:func:`flexarm.lqg_design.kalman_gain`), 1 for the plain filter.
     """
     trajectory = default_trajectory_path() if trajectory is None else trajectory
     traj = as_trajectory(trajectory)
     nominal, loaded = ArmModel(params.with_payload(0.0)), ArmModel(params.with_payload(mass))
     design = design_lqg(loaded, trajectory, schedule, payload_mass=0.0,
                         motor_torque_sigma=model_scale * MOTOR_TORQUE_SIGMA,
-                        element_force_sigma=model_scale * ELEMENT_FORCE_SIGMA)
+                        element_force_sigma=model_scale * ELEMENT_FORCE_SIGMA,
+                        estimator_pole_radius=estimator_pole_radius)
     z, dt, n = desired_states(traj), sample_time(traj), traj.n_samples
     E = np.zeros((N_STATE, N))
     E[N:] = np.eye(N)
@@ -239,7 +252,7 @@ def design_bank_model(params: ArmParameters, mass: float, trajectory=None, sched
 
 
 def design_bank(params: ArmParameters, masses=DEFAULT_MASSES, trajectory=None, schedule: str = "200ms",
-                quiet_scale: float = QUIET_SCALE) -> PayloadBank:
+                quiet_scale: float = QUIET_SCALE, quiet_pole_radius: float = QUIET_POLE_RADIUS) -> PayloadBank:
     """The identification filters for ``masses`` (kg, increasing, the first 0) and the quiet filter.
 
     Raises
@@ -251,13 +264,13 @@ def design_bank(params: ArmParameters, masses=DEFAULT_MASSES, trajectory=None, s
     if len(masses) < 2 or masses[0] != 0.0 or np.any(np.diff(masses) <= 0):
         raise LqgError(f"masses: at least two increasing payload masses starting at 0 kg, got {masses!r}")
     models = [design_bank_model(params, m, trajectory, schedule) for m in masses]
-    quiet = design_bank_model(params, 0.0, trajectory, schedule, quiet_scale)
+    quiet = design_bank_model(params, 0.0, trajectory, schedule, quiet_scale, quiet_pole_radius)
     first = quiet.design.metadata
     meta = {
         "description": "multiple-model LQG: one Kalman filter per payload mass (the arm with that payload, "
                        "its drift along the path under tau_ff) and a model-trusting quiet filter of the unloaded "
                        "arm (flexarm.lqg_bank); arrays stacked over the filters, the quiet filter last",
-        "masses_kg": masses, "quiet_scale": quiet_scale,
+        "masses_kg": masses, "quiet_scale": quiet_scale, "quiet_pole_radius": quiet_pole_radius,
         "posterior_floor": POSTERIOR_FLOOR, "quiet_reseed_below": QUIET_RESEED_BELOW,
         **{k: first[k] for k in ("sample_time_s", "trajectory_file", "trajectory_sha256", "parameter_file",
                                  "parameter_sha256", "commit", "created_utc", "versions", "weights",

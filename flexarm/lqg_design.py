@@ -139,8 +139,13 @@ def force_input_matrix(model: ArmModel, z_bar) -> tuple[np.ndarray, np.ndarray]:
     return B_d, ("tip",) * 2 + ("motor",) * 2 + ("element",) * N
 
 
-def kalman_gain(Phi, C, W, V) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def kalman_gain(Phi, C, W, V, pole_radius: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Steady-state Kalman filter of x_{j+1} = Φx_j + w_j, y_j = Cx_j + v_j (current-estimator form).
+
+    With ``pole_radius`` α < 1 the gain is the Kalman gain of Φ/α (a prescribed degree of stability, Anderson
+    & Moore, *Optimal Control*, §3.5 dual): every pole of the error dynamics (I − MC)Φ lies within |λ| < α,
+    however little process noise W puts on a mode. The covariances returned are then the true steady-state
+    ones of that gain (a discrete Lyapunov equation), not the Riccati solution of Φ/α.
 
     Parameters
     ----------
@@ -150,6 +155,8 @@ def kalman_gain(Phi, C, W, V) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         Process-noise covariance (symmetric PSD).
     V : array_like, shape (p, p)
         Measurement-noise covariance (symmetric PD).
+    pole_radius : float
+        Largest allowed magnitude of an estimator pole, in (0, 1]; 1 is the plain Kalman filter.
 
     Returns
     -------
@@ -161,9 +168,15 @@ def kalman_gain(Phi, C, W, V) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     Phi, C, W, V = (np.asarray(a, dtype=float) for a in (Phi, C, W, V))
     import scipy.linalg  # here, not at import: a run that only reads designs needs no SciPy linalg
 
-    P = scipy.linalg.solve_discrete_are(Phi.T, C.T, W, V)
+    if not 0.0 < pole_radius <= 1.0:
+        raise ValueError(f"pole_radius: a number in (0, 1], got {pole_radius!r}")
+    P = scipy.linalg.solve_discrete_are(Phi.T / pole_radius, C.T, W, V)
     P = 0.5 * (P + P.T)
     M = np.linalg.solve(C @ P @ C.T + V, C @ P).T
+    if pole_radius < 1.0:  # the prior covariance of the filter with this gain: e⁻ ← Φ(I − MC)e⁻ − ΦMv + w
+        F = Phi @ (np.eye(len(P)) - M @ C)
+        P = scipy.linalg.solve_discrete_lyapunov(F, W + Phi @ M @ V @ M.T @ Phi.T)
+        P = 0.5 * (P + P.T)
     P_post = (np.eye(len(P)) - M @ C) @ P
     return M, P, 0.5 * (P_post + P_post.T)
 
@@ -209,7 +222,8 @@ class LqgPoint:
 
 def design_point(model: ArmModel, z_bar, tau_bar, V, tip_force_sigma: float, dt: float = 1e-3,
                  integral_weight: float = INTEGRAL_WEIGHT, motor_torque_sigma: float = MOTOR_TORQUE_SIGMA,
-                 element_force_sigma: float = ELEMENT_FORCE_SIGMA, state_weights=None) -> LqgPoint:
+                 element_force_sigma: float = ELEMENT_FORCE_SIGMA, state_weights=None,
+                 estimator_pole_radius: float = 1.0) -> LqgPoint:
     """LQG design at one operating point (module docstring).
 
     Parameters
@@ -234,6 +248,8 @@ def design_point(model: ArmModel, z_bar, tau_bar, V, tip_force_sigma: float, dt:
     state_weights : sequence of ndarray, shape (22, 22), optional
         One Q per :data:`flexarm.gain_sets.WEIGHT_NAMES` entry; default their own weights (the end point's hold
         passes :data:`HOLD_STATE_WEIGHT` for every name).
+    estimator_pole_radius : float
+        Largest magnitude of an estimator pole (:func:`kalman_gain`); 1 for the plain Kalman filter.
     """
     A, B = model.linearize(z_bar, tau_bar)
     B_d, kinds = force_input_matrix(model, z_bar)
@@ -247,7 +263,7 @@ def design_point(model: ArmModel, z_bar, tau_bar, V, tip_force_sigma: float, dt:
     Wt = (Gdt * sigma**2) @ Gdt.T
     Wt = 0.5 * (Wt + Wt.T)
     C = measurement_matrix()
-    Mt, Ppt, Pqt = kalman_gain(Phit, C @ T, Wt, V)
+    Mt, Ppt, Pqt = kalman_gain(Phit, C @ T, Wt, V, estimator_pole_radius)
     Cq = C[0:2]
     import scipy.linalg
 
@@ -347,7 +363,7 @@ class LqgDesign:
 def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: SensorSettings | None = None,
                integral_weight: float = INTEGRAL_WEIGHT, payload_mass: float = PAYLOAD_MASS_KG,
                motor_torque_sigma: float = MOTOR_TORQUE_SIGMA,
-               element_force_sigma: float = ELEMENT_FORCE_SIGMA) -> LqgDesign:
+               element_force_sigma: float = ELEMENT_FORCE_SIGMA, estimator_pole_radius: float = 1.0) -> LqgDesign:
     """LQG design at every point of a schedule along a trajectory.
 
     Parameters
@@ -365,6 +381,8 @@ def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: Se
         The process-noise model (module docstring): payload the filter absorbs, kg; motor torque error,
         N·m; model-error force per element, N·m. The committed designs use the defaults;
         :mod:`flexarm.lqg_tradeoff` varies them.
+    estimator_pole_radius : float
+        Largest magnitude of an estimator pole (:func:`kalman_gain`), 1 for the plain Kalman filter.
     """
     traj, traj_path, traj_sha = load_desired(trajectory)
     z, dt = desired_states(traj), float(traj.t[1] - traj.t[0])
@@ -375,15 +393,15 @@ def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: Se
     tip_sigma = payload_mass * a_tip
     # the feedforward of the last sample is the hold's zero torque
     tau_bar = np.array([traj.tau[k] if k < traj.n_samples else np.zeros(2) for k in idx])
-    points = [design_point(model, z[k], tb, V, tip_sigma, dt, integral_weight, motor_torque_sigma, element_force_sigma)
-              for k, tb in zip(idx, tau_bar)]
+    points = [design_point(model, z[k], tb, V, tip_sigma, dt, integral_weight, motor_torque_sigma, element_force_sigma,
+                           estimator_pole_radius=estimator_pole_radius) for k, tb in zip(idx, tau_bar)]
     # The hold: one more point at t_f, the end state at rest with zero torque, regulated by HOLD_STATE_WEIGHT
     # for every gain set (the controllers use the point in force, so every sample from t_f on holds with it).
     n = traj.n_samples
     times, idx = np.r_[times, n * dt], np.r_[idx, n]
     tau_bar = np.vstack([tau_bar, np.zeros(2)])
     points.append(design_point(model, z[n], np.zeros(2), V, tip_sigma, dt, integral_weight, motor_torque_sigma,
-                               element_force_sigma, [HOLD_STATE_WEIGHT] * len(WEIGHT_NAMES)))
+                               element_force_sigma, [HOLD_STATE_WEIGHT] * len(WEIGHT_NAMES), estimator_pole_radius))
     stack = lambda a: np.array([getattr(p, a) for p in points])  # noqa: E731
     meta = {
         "description": "discrete-time LQG per schedule point: Kalman gains M (current form), LQR gains K "
@@ -395,6 +413,7 @@ def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: Se
         "process_noise": {"payload_mass_kg": payload_mass, "rms_tip_acceleration_m_s2": a_tip,
                           "tip_force_sigma_N": tip_sigma, "motor_torque_sigma_Nm": motor_torque_sigma,
                           "element_force_sigma_Nm": element_force_sigma},
+        **({"estimator_pole_radius": estimator_pole_radius} if estimator_pole_radius < 1.0 else {}),
         "linearization": "about (z_d(t_k), tau_ff(t_k)), 1 ms zero-order hold",
         "hold": {"time_s": float(n * dt), "state_weight": "diag(1e4 I11, 1 I11) for every weight",
                  "why": "the end point's regulator (flexarm.lqg_design.HOLD_STATE_WEIGHT)"},
