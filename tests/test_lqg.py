@@ -269,15 +269,60 @@ def test_committed_payload_bank_is_what_its_command_designs(payload_bank):
     assert tuple(payload_bank.masses) == DEFAULT_MASSES and payload_bank.quiet.mass == 0.0
     for new, old in zip(fresh.filters, payload_bank.filters):
         assert new.mass == old.mass
-        # The quiet filter (last) trusts the model: its process noise is QUIET_SCALE times smaller, and its
-        # gain M regenerates only to 3.2e-4 of its peak on this CPU (measured; to investigate).
+        # The quiet filter (last) trusts the model (process noise QUIET_SCALE times smaller): its Riccati
+        # equation is worse conditioned even with the prescribed pole radius (M moves 1.5e-8 for a 1e-15
+        # relative change of Phi, a condition number of about 1.5e7; across OpenBLAS kernels its M agrees to
+        # 4e-8), so its bound is 1e-6 (the plain Kalman gain's M agreed only to 6e-6 and would fail it).
         quiet = old is payload_bank.quiet
         for name in ("Phi", "Gamma", "M", "K", "K_integral", "P_prior"):
             a, b = getattr(new.design, name), getattr(old.design, name)
-            bound = 1e-3 if quiet else 1e-6 if name == "P_prior" else 1e-7
+            bound = 1e-6 if quiet or name == "P_prior" else 1e-7
             assert np.abs(a - b).max() <= bound * np.abs(b).max(), (old.mass, name)
         for a, b in ((new.drift, old.drift), (new.S_inv, old.S_inv), (new.log_det_S, old.log_det_S)):
-            assert np.abs(a - b).max() <= (1e-3 if quiet else 1e-7) * max(np.abs(b).max(), 1e-300)
+            assert np.abs(a - b).max() <= (1e-6 if quiet else 1e-7) * max(np.abs(b).max(), 1e-300)
+
+
+_QUIET_ON_ANOTHER_KERNEL = (
+    "import pickle, sys\n"
+    "from flexarm.lqg_bank import QUIET_POLE_RADIUS, QUIET_SCALE, design_bank_model\n"
+    "from flexarm.parameters import load_parameters\n"
+    "q = design_bank_model(load_parameters(), 0.0, None, '200ms', QUIET_SCALE, QUIET_POLE_RADIUS)\n"
+    "sys.stdout.buffer.write(pickle.dumps(q))\n")
+
+
+def test_quiet_filter_is_well_posed_and_its_closed_loop_reproduces_on_another_kernel(payload_bank):
+    """Issue 35 item 9: the quiet filter's slowest estimator pole is inside the committed radius at every
+    point (the plain Kalman gain left the 190-290 Hz modes at |λ| = 0.999999, a 1000 s time constant), and
+    its closed loop is what matters, not its matrix entries: designed afresh on another OpenBLAS kernel
+    (Prescott: SSE3 only, other summation orders), the γ = 1 loop with integral action, noise and a 2-sample
+    delay gives the committed bank's torques to 1e-8 of their peak. Measured 5e-11 (the plain gain: 4e-10);
+    the bound leaves 200× for other CPUs and BLAS builds, far below the noise's own effect (about 1e-2)."""
+    import dataclasses
+    import os
+    import pickle
+    import subprocess
+    import sys
+
+    from flexarm.gain_schedule import default_trajectory_path
+    from flexarm.lqg import simulate_lqg
+    from flexarm.lqg_bank import QUIET_POLE_RADIUS, BankController
+    from flexarm.parameters import load_parameters
+    from flexarm.sensors import SensorBank
+
+    d = payload_bank.quiet.design
+    slowest = [np.abs(np.linalg.eigvals((np.eye(22) - d.M[j] @ d.C) @ d.Phi[j])).max() for j in range(len(d.times))]
+    assert max(slowest) < QUIET_POLE_RADIUS, slowest
+    assert payload_bank.metadata["quiet_pole_radius"] == QUIET_POLE_RADIUS
+    out = subprocess.run([sys.executable, "-c", _QUIET_ON_ANOTHER_KERNEL], capture_output=True, check=True,
+                         env={**os.environ, "OPENBLAS_CORETYPE": "Prescott"}, timeout=600).stdout
+    other = dataclasses.replace(payload_bank, quiet=pickle.loads(out))
+    params = load_parameters()
+    runs = []
+    for bank in (payload_bank, other):
+        law = BankController(default_trajectory_path(), bank, "gamma1", 2, True, params.peak_torque)
+        sensors = SensorBank(SensorSettings(noise_enabled=True, noise_seed=1))
+        runs.append(simulate_lqg(ArmModel(params), law, sensors=sensors)[1])
+    assert np.abs(runs[1] - runs[0]).max() <= 1e-8 * np.abs(runs[0]).max()
     assert payload_bank.metadata["npz_sha256"] and payload_bank.metadata["trajectory_sha256"]
 
 
