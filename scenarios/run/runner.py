@@ -1,4 +1,4 @@
-"""Run a scenario: plan, connect, run, judge, write (docs/architecture.md, "Data flow"); one module per stage.
+"""Run a scenario: plan, connect, run, judge, write (docs/architecture.md, "A scenario run, stage by stage").
 
 Before any case runs (:func:`run_scenario`): the data chain is verified and the trajectory loaded once
 (:func:`scenarios.run.plan.read_run_data`), the output folder is locked and checked writable
