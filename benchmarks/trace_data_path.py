@@ -6,7 +6,9 @@ Runs :func:`scenarios.run.runner.run_scenario` for one case (default: ``table2``
 * **entries** per module: calls whose nearest calling ``scenarios`` function lives in another module;
 * **bounces**: the sum of the entries (every module-to-module hand-over of the control flow);
 * **modules crossed**: how many distinct modules the control flow visits;
-* **trajectory loads**: calls of :func:`flexarm.trajectory.load_trajectory`;
+* **trajectory loads**: calls of :func:`flexarm.trajectory.load_trajectory`, and how many of them a function of
+  ``scenarios`` made itself (the others are flexarm's: its data-chain check, the reference signals, the
+  sampled-loop model);
 * **case parameter checks**: calls of :func:`scenarios.master.values.check_parameters` (a case's, the ``--set``
   values') and of the FMU set's ``case_parameters``.
 
@@ -48,6 +50,7 @@ class DataPathTrace:
         self.entries: Counter[str] = Counter()
         self.visited: set[str] = set()
         self.trajectory_loads = 0
+        self.trajectory_loads_by_scenarios = 0
         self.parameter_checks = 0
         self.case_parameter_calls = 0
         self._modules: dict = {}
@@ -64,6 +67,7 @@ class DataPathTrace:
         code = frame.f_code
         if code.co_name == "load_trajectory" and "flexarm" in code.co_filename:
             self.trajectory_loads += 1
+            self.trajectory_loads_by_scenarios += self._of(frame.f_back.f_code) is not None
         mod = self._of(code)
         if mod is None:
             return
@@ -93,7 +97,8 @@ class DataPathTrace:
         lines += [f"{m:40s} {n:7d}" for m, n in sorted(self.entries.items(), key=lambda kv: (-kv[1], kv[0]))]
         lines += ["", f"bounces (module-to-module hand-overs): {sum(self.entries.values())}",
                   f"modules crossed:                       {len(self.visited)}",
-                  f"trajectory loads:                      {self.trajectory_loads}",
+                  f"trajectory loads:                      {self.trajectory_loads} "
+                  f"({self.trajectory_loads_by_scenarios} by scenarios, the others inside flexarm's own functions)",
                   f"parameter checks (check_parameters):   {self.parameter_checks}",
                   f"case_parameters calls:                 {self.case_parameter_calls}"]
         return "\n".join(lines)
