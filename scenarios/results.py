@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import re
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -93,7 +94,7 @@ def portable(obj, folder: str | Path, root: str | Path = SOURCE_ROOT):
         return clean(obj)
     if isinstance(obj, Path):
         return clean(str(obj))
-    if isinstance(obj, dict):
+    if isinstance(obj, Mapping):  # a dict, or a plan's read-only view of one
         return {clean(k) if isinstance(k, str) else k: portable(v, folder, root) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [portable(v, folder, root) for v in obj]

@@ -22,8 +22,8 @@ from test_faults import TIMEOUT, cli, prepare_table2, scenario_file, stderr_line
 from flexarm.provenance import sha256_bytes
 from scenarios.__main__ import main
 from scenarios.master import fmu_files
-from scenarios.run import runner
 from scenarios.run import setup as run_setup
+from scenarios.run import write as run_write
 from scenarios.run.setup import verify_data_chain
 from scenarios.sweep import Journal, run_sweep
 
@@ -159,7 +159,7 @@ def test_disk_full_while_writing_gives_one_line_and_publishes_nothing(tmp_path, 
     def full(path, columns):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
-    monkeypatch.setattr(runner, "write_csv", full)
+    monkeypatch.setattr(run_write, "write_csv", full)  # the write stage (scenarios/run/write.py)
     sc = scenario_file(tmp_path, "table2")
     assert main(["run", str(sc), "--out", str(out), "--quiet", "--no-plots"]) == 3
     err = stderr_line(capsys)

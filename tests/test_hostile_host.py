@@ -13,6 +13,7 @@ controller's ``setReal``, gives the same run bit for bit.
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import tempfile
 
@@ -42,8 +43,8 @@ def _setups(name: str, kind: str, cases, n_steps: int | None = None):
     assert [c.key for c in sc.cases] == list(cases)
     setup = prepare(sc, kind=kind)
     if n_steps is not None:
-        setup.n_steps = n_steps
-        setup.desired = {k: v[:n_steps + 1] for k, v in setup.desired.items()}
+        setup = dataclasses.replace(setup, n_steps=n_steps,
+                                    desired={k: v[:n_steps + 1] for k, v in setup.desired.items()})
     return sc, setup
 
 

@@ -55,7 +55,7 @@ def _ours(scenario: str, ssp, folder, algorithm: str, parameters: dict | None = 
     """Our master on the archive's FMUs; `parameters` None: nothing set (the archive's values are the defaults)."""
     sc = load_scenario(scenario)
     setup = prepare(sc, names=extract_ssp_fmus(ssp, folder))
-    assert set(setup.fmu_kinds().values()) == {"native"}
+    assert set(setup.fmu_kinds.values()) == {"native"}
     params = {} if parameters is None else setup.case_parameters(parameters)
     with setup.open_master(algorithm) as m:
         out = m.run(params, setup.record, setup.n_steps, sc.step_size)

@@ -244,9 +244,8 @@ def test_sweep_points_step_as_their_scenario(monkeypatch):
     opened = []
     monkeypatch.setattr(runner.master, "Master", lambda *args: opened.append(args[3]) or args[3])
     for name, algorithm in (("lqg_jacobi", "jacobi"), ("table2", "gauss-seidel")):
-        setup = Setup.__new__(Setup)
-        setup.paths, setup.connections, setup.scenario = {}, [], load_scenario(name)
-        setup.isolate, setup.step_timeout = [], 60.0  # in this process, as our FMUs named by name
+        setup = Setup(load_scenario(name), {}, [], "plant", "controller", [], 0, {}, {},
+                      isolate=[], step_timeout=60.0)  # in this process, as our FMUs named by name
         assert setup.open_master() == algorithm
         assert setup.open_master("gauss-seidel") == "gauss-seidel"  # an explicit choice wins
     assert opened == ["jacobi", "gauss-seidel", "gauss-seidel", "gauss-seidel"]

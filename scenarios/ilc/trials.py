@@ -40,7 +40,7 @@ from scenarios.results import portable
 from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, fmu_kind
 from scenarios.run.outdir import check_writable, folder_lock, remove_stale
 from scenarios.run.runner import N_EL
-from scenarios.run.setup import _relative, desired_states, desired_trajectory, prepare, verify_data_chain
+from scenarios.run.setup import _relative, desired_states, prepare, verified_data
 from scenarios.sweep.journal import Journal
 
 #: The measurements the learning reads (sensors FMU outputs): encoders, then strain gauges.
@@ -115,7 +115,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
     scenario, settings = load_ilc(name)
     if trials is not None:
         settings.trials = int(trials)
-    chain = verify_data_chain()
+    chain, traj = verified_data()  # the trajectory loaded once, with the data chain
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     folder = out / scenario.name
@@ -123,7 +123,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         remove_stale(out, scenario.name, folder)
         check_writable(folder, 2_000_000 * (settings.trials + 2))
         cases = {c.key: c for c in scenario.cases}
-        setup = prepare(scenario, fmu_dir, kind=kind, native_fmu_dir=native_fmu_dir)
+        setup = prepare(scenario, fmu_dir, kind=kind, native_fmu_dir=native_fmu_dir, trajectory=traj)
         sensors = [inst for inst, md in setup.descriptions.items()
                    if all(any(v.name == m for v in md.modelVariables) for m in MEASURED)]
         ctrl = setup.driver
@@ -134,7 +134,6 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
             raise ScenarioError(f"fmus.{ctrl}: {setup.paths[ctrl].name} does not read a learned feedforward; ILC "
                                 f"runs need one of our controllers that does ({', '.join(LEARNING_CONTROLLERS)})")
         record = setup.record + [(sensors[0], m) for m in MEASURED if (sensors[0], m) not in setup.record]
-        traj = desired_trajectory()
         n = setup.n_steps
         n_slew = min(traj.n_samples, n)
         model = ilc.closed_loop_model(n, payload_mass=settings.model_payload_mass)

@@ -20,12 +20,10 @@ def foreign_instances(scenario: Scenario, controller: str | None = None,
     return sorted(inst for inst, name in names.items() if name.endswith(".fmu"))
 
 
-def apply(setup, isolate: str, step_timeout: float):
-    """Set a :class:`scenarios.run.setup.Setup`'s isolated instances (`isolate` "all": every one; "foreign": those
-    it was prepared with) and step timeout; returns the setup."""
+def isolated_instances(isolate: str, instances, foreign) -> list[str]:
+    """The instances that run each in a process of their own: every one of `instances` with `isolate` "all",
+    the `foreign` ones (:func:`foreign_instances`) with "foreign"; :class:`ScenarioError` for another `isolate`.
+    Decided once, when a run is planned (:func:`scenarios.run.setup.prepare`)."""
     if isolate not in ISOLATE:
         raise ScenarioError(f"--isolate: one of {list(ISOLATE)}, got {isolate!r}")
-    if isolate == "all":
-        setup.isolate = list(setup.paths)
-    setup.step_timeout = step_timeout
-    return setup
+    return list(instances) if isolate == "all" else list(foreign)

@@ -1,79 +1,53 @@
-"""Run a scenario's cases through the master, score them, write results.
+"""Run a scenario: plan, connect, run, judge, write (docs/architecture.md, "A scenario run, stage by stage").
 
-Before any case runs (:func:`run_scenario`): the data chain is verified (:func:`verify_data_chain`), every
-FMU is resolved and read (an unknown name or a file that is no FMU is refused), every case's values are
-checked against the FMUs' model descriptions (:mod:`scenarios.master.values`), the output folder is locked and
-checked writable (:mod:`scenarios.run.outdir`), and every case is initialised and stepped once with the
-scenario's communication step (:meth:`scenarios.master.cosim.Master.probe`), so a step or a value an FMU refuses
-is reported with the FMU's message before anything runs. Each case then ends with one outcome (see
-docs/outcomes.md); the results folder is published only when every case has finished.
+Before any case runs (:func:`run_scenario`): the data chain is verified and the trajectory loaded once
+(:func:`scenarios.run.plan.read_run_data`), the output folder is locked and checked writable
+(:mod:`scenarios.run.outdir`), every FMU is resolved and read (an unknown name or a file that is no FMU is refused)
+and every case's values are checked once against the FMUs' model descriptions (:func:`scenarios.run.plan.plan_run`,
+:mod:`scenarios.master.values`), and every case is initialised and stepped once with the scenario's communication
+step (:mod:`scenarios.run.connect`), so a step or a value an FMU refuses is reported with the FMU's message before
+anything runs. Each case then runs here (:func:`simulate`), is judged (:func:`scenarios.run.verdict.judge_case`)
+and written (:mod:`scenarios.run.write`); it ends with one outcome (see docs/outcomes.md); the results folder is
+published only when every case has finished.
 """
 
 from __future__ import annotations
 
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from flexarm.parameters import DEFAULT_PARAMETER_FILE
-from flexarm.provenance import git_commit, package_version, sha256_file, write_json
-from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
-from scenarios.analysis.stability import loop_stability
-from scenarios.config import Scenario, ScenarioError
+from scenarios.config import Scenario
 from scenarios.master import cosim as master
-from scenarios.master import isolation
 from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S
-from scenarios.metrics import METRICS, UNITS, saturation_warnings, table_metrics
-from scenarios.results import analysis_columns, portable, write_csv
+from scenarios.metrics import METRICS, saturation_warnings, table_metrics
+from scenarios.run.connect import StepRefused, connected, probe_cases
 from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, _say_numba_compile
 from scenarios.run.loop_delay import loop_delay_record, loop_delay_warnings
 from scenarios.run.outdir import check_writable, run_folder
-from scenarios.run.setup import (
-    Setup,
-    _relative,
-    check_overrides,
-    desired_states,
-    desired_trajectory,
-    prepare,
-    swap_report,
-    verify_data_chain,
-    with_overrides,
-)
-from scenarios.run.verdict import judge
+from scenarios.run.plan import PlannedCase, RunPlan, plan_run, read_run_data
+from scenarios.run.setup import FmuSetPlan, desired_states, desired_trajectory, prepare, verify_data_chain
+from scenarios.run.verdict import CaseResult, judge_case
+from scenarios.run.write import write_case, write_figures
+
+#: prepare and verify_data_chain (scenarios.run.setup) are named here as well: callers import them from the runner.
+__all__ = ["CaseResult", "StepRefused", "format_table", "prepare", "probe_cases", "run_case", "run_scenario",
+           "simulate", "simulate_case", "verify_data_chain"]
 
 N_EL = 11
 #: Bytes a case's CSV and JSON take per sample (about 150 columns of 20 characters), for the free-space check.
 BYTES_PER_SAMPLE = 3000
 
 
-@dataclass
-class CaseResult:
-    key: str
-    label: str
-    status: str
-    message: str
-    metrics: dict[str, float] | None
-    wall_time_s: float
-    series: dict[str, np.ndarray]
-    outcome: master.Outcome = field(default_factory=lambda: master.Outcome("ok"))
-    #: What the run did not do well (e.g. torque saturation, :func:`scenarios.metrics.saturation_warnings`; an
-    #: unstable sampled loop the plant scheme cannot show, :func:`scenarios.analysis.stability.loop_stability`).
-    warnings: list[str] = field(default_factory=list)
-    #: The linearised sampled loop's stability (:func:`scenarios.analysis.stability.loop_stability`: the check, or
-    #: why it was not made and whether the plant scheme could show a bracket-mode instability anyway).
-    loop_stability: dict | None = None
-    #: The run's verdict from its own samples (:func:`scenarios.run.verdict.verdict`); None when it did not finish.
-    verdict: dict | None = None
-
-
-def simulate_case(setup: Setup, m: master.Master, parameters: dict[str, dict],
-                  progress=None, divergence_limit: float = 1e4) -> tuple[dict, dict[str, float] | None]:
-    """One run on a loaded master: the master's result and the table metrics (None unless the outcome is ok)."""
+def simulate(setup: FmuSetPlan, m: master.Master, parameters, progress=None,
+             divergence_limit: float = 1e4) -> tuple[dict, dict[str, float] | None]:
+    """One run on a loaded master with checked `parameters` (a planned case's,
+    :attr:`scenarios.run.plan.PlannedCase.parameters`): the master's result and the table metrics (None unless
+    the outcome is ok)."""
     delay = loop_delay_record(setup.descriptions, setup.driver)
-    out = m.run(setup.case_parameters(parameters), setup.record + setup.seen + delay, setup.n_steps,
+    out = m.run(parameters, setup.record + setup.seen + delay, setup.n_steps,
                 setup.scenario.step_size, divergence_limit, progress=progress)
     out.setdefault("warnings", []).extend(loop_delay_warnings(out, delay))
     if out["status"] != "ok":
@@ -84,25 +58,29 @@ def simulate_case(setup: Setup, m: master.Master, parameters: dict[str, dict],
     tau = np.column_stack([sig[f"{d}.tau1"], sig[f"{d}.tau2"]])
     desired = setup.desired
     if len(desired["theta"]) != len(theta):  # a master that reports other time points
-        desired = desired_states(desired_trajectory(), out["time"])
+        traj = setup.trajectory if setup.trajectory is not None else desired_trajectory()
+        desired = desired_states(traj, out["time"])
     from flexarm.parameters import load_parameters
 
     out.setdefault("warnings", []).extend(saturation_warnings(tau, load_parameters().peak_torque))
     return out, table_metrics(tau, theta, omega, desired["theta"], desired["omega"])
 
 
-class StepRefused(ScenarioError):
-    """An FMU refused a case's values or the communication step when probed, before anything ran."""
+def simulate_case(setup: FmuSetPlan, m: master.Master, parameters: dict[str, dict],
+                  progress=None, divergence_limit: float = 1e4) -> tuple[dict, dict[str, float] | None]:
+    """:func:`simulate` with a case's values as the scenario file gives them (checked here first)."""
+    return simulate(setup, m, setup.case_parameters(parameters), progress, divergence_limit)
 
 
-def probe_cases(setup: Setup, m: master.Master, cases) -> None:
-    """Initialise and step once per case (:meth:`master.Master.probe`); :class:`StepRefused` with the FMU's message."""
-    for case in cases:
-        outcome = m.probe(setup.case_parameters(case.parameters), setup.scenario.step_size)
-        if outcome.status == "error":
-            raise StepRefused(f"{setup.scenario.path.name}: case {case.key}, communication step "
-                              f"{setup.scenario.step_size:g} s: refused by {outcome.fmu} ({outcome.function} "
-                              f"returned {outcome.fmu_status}): {outcome.fmu_message or outcome.message}")
+def run_case(plan: RunPlan, case: PlannedCase, m: master.Master, progress: bool = True,
+             divergence_limit: float = 1e4) -> tuple[CaseResult, dict]:
+    """The run and judge stages of one planned case on its loaded master: its :class:`CaseResult` and the
+    master's result (which the write stage records)."""
+    t0 = time.perf_counter()
+    bar = _bar(f"{plan.scenario.name}:{case.key}") if progress else None
+    out, metrics = simulate(case.fmu_set, m, case.parameters, progress=bar, divergence_limit=divergence_limit)
+    wall = time.perf_counter() - t0
+    return judge_case(case, out, metrics, wall, plan.algorithm, plan.data.reference), out
 
 
 def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
@@ -126,91 +104,28 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
     descriptions like scenario values and applied to every case after the scenario's own.
     ``divergence_limit``: a recorded |value| above it ends a case as "unbounded" (:meth:`master.Master.run`).
     ``isolate`` and ``step_timeout``: which FMUs run in a process of their own, and how long a call of theirs
-    may take (:func:`scenarios.master.isolation.apply`).
+    may take (:func:`scenarios.master.isolation.isolated_instances`).
     """
-    algorithm = algorithm or scenario.algorithm
-    scenario = with_overrides(scenario, overrides)
-    chain = verify_data_chain()
-    by_key: dict[str, CaseResult] = {}
-    commit = git_commit()
-    scenario_sha = sha256_file(scenario.path)
-    from flexarm.reference import ReferenceSignals
-
-    reference = ReferenceSignals(desired_trajectory())  # the CSV's ref.* columns (scenarios/results.py)
-    with run_folder(out_dir, scenario.name) as folder:  # locked and writable before FMUs are built
-        groups: dict[tuple, list] = {}
-        reported: list[str] = []
-        for case in scenario.cases:
-            groups.setdefault(tuple(sorted(case.fmus.items())) if case.fmus else (), []).append(case)
-        setups = []
-        for names, cases in groups.items():
-            setup = prepare(scenario, fmu_dir, controller, dict(names) if names else None, kind=kind,
-                            native_fmu_dir=native_fmu_dir, algorithm=algorithm)
-            isolation.apply(setup, isolate, step_timeout)
-            check_overrides(setup, overrides or {})
-            for case in cases:
-                setup.case_parameters(case.parameters, f"{scenario.path.name}: cases[{case.key}].parameters")
-            setups.append((setup, cases))
-            for line in swap_report(setup):  # once per run, not once per FMU set
-                if line not in reported:
-                    reported.append(line)
-                    print(line)
-        check_writable(folder, sum(BYTES_PER_SAMPLE * (s.n_steps + 1) * len(c) for s, c in setups))
+    data = read_run_data(scenario, overrides)  # refused data leaves no results folder behind
+    with run_folder(out_dir, data.scenario.name) as folder:  # locked and writable before FMUs are built
+        plan = plan_run(scenario, fmu_dir=fmu_dir, controller=controller, kind=kind, native_fmu_dir=native_fmu_dir,
+                        algorithm=algorithm, overrides=overrides, isolate=isolate, step_timeout=step_timeout,
+                        data=data)
+        for line in plan.notes:
+            print(line)
+        check_writable(folder, sum(BYTES_PER_SAMPLE * (fs.n_steps + 1) * len(cases) for fs, cases in plan.groups))
         if progress:  # a Python plant FMU whose build has no kernels cached yet compiles them on its first step
-            for plant in dict.fromkeys(s.paths[s.plant] for s, _ in setups):
+            for plant in dict.fromkeys(fs.paths[fs.plant] for fs, _ in plan.groups):
                 _say_numba_compile(plant)
-        opened = []
-        try:
-            for setup, cases in setups:  # every case probed before the first one runs
-                opened.append(setup.open_master(algorithm))
-                probe_cases(setup, opened[-1], cases)
-            for (setup, cases), m in zip(setups, opened):
-                checksums = {inst: sha256_file(p) for inst, p in setup.paths.items()}
-                kinds = setup.fmu_kinds()
+        by_key: dict[str, CaseResult] = {}
+        with connected(plan) as masters:  # every case probed before the first one runs
+            for _, cases, m in masters:
                 for case in cases:
-                    params = setup.case_parameters(case.parameters)
-                    t0 = time.perf_counter()
-                    bar = _bar(f"{scenario.name}:{case.key}") if progress else None
-                    out, metrics = simulate_case(setup, m, case.parameters, progress=bar,
-                                                 divergence_limit=divergence_limit)
-                    wall = time.perf_counter() - t0
-                    series = {"time": out["time"], **out["signals"]}
-                    stab = loop_stability(setup.paths, setup.plant, setup.driver, params, scenario.step_size,
-                                          setup.n_steps * scenario.step_size, algorithm, metrics=metrics)
-                    notes = list(out.get("warnings", [])) + ([stab["note"]] if stab and stab["note"] else [])
-                    series.update(analysis_columns(series, setup.plant, reference))
-                    status, message, judged = judge(out, series, setup.driver)  # scenarios/run/verdict.py
-                    by_key[case.key] = CaseResult(case.key, case.label, status, message, metrics,
-                                                  wall, series, out["outcome"], notes, stab, judged)
-                    write_csv(folder / f"{case.key}.csv", series)
-                    write_json(folder / f"{case.key}.json", portable({
-                        "scenario": scenario.name, "scenario_file": str(scenario.path),
-                        "scenario_sha256": scenario_sha, "case": case.key, "label": case.label,
-                        "status": status, "message": message, "outcome": out["outcome"].as_dict(),
-                        "verdict": judged,
-                        "warnings": by_key[case.key].warnings,
-                        "metrics": metrics, "metric_units": dict(UNITS), "parameters": params,
-                        "samples": setup.n_steps, "step_size_s": scenario.step_size, "algorithm": algorithm,
-                        "fmus": {k: str(v) for k, v in setup.paths.items()}, "fmu_sha256": checksums,
-                        "fmu_kind": setup.kind, "fmu_kinds": kinds, "parameters_left_out": setup.left_out,
-                        "inputs_held_at_start": setup.held_inputs, "overrides": overrides or {},
-                        "commit": commit, "version": package_version(), "wall_time_s": wall,
-                        "steps_done": out["steps_done"],
-                        "trajectory_sha256": chain[_relative(DEFAULT_TRAJECTORY_FILE)],
-                        "parameter_file": _relative(DEFAULT_PARAMETER_FILE),
-                        "parameter_file_sha256": chain[_relative(DEFAULT_PARAMETER_FILE)],
-                        "data_sha256": chain, "fmu_log_tail": out["log"][-20:], "loop_stability": stab,
-                    }, folder))
-        finally:
-            for m in opened:
-                m.close()
-        results = [by_key[c.key] for c in scenario.cases]
+                    by_key[case.key], out = run_case(plan, case, m, progress, divergence_limit)
+                    write_case(folder, plan, case, by_key[case.key], out)
+        results = [by_key[c.key] for c in plan.scenario.cases]
         if plots:
-            from scenarios.run.plots import plot_scenario
-
-            traj = desired_trajectory()
-            setup = setups[0][0]
-            plot_scenario(scenario.name, results, setup.desired, traj, setup.plant, setup.driver, folder)
+            write_figures(folder, plan, results)
     return results
 
 

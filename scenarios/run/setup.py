@@ -1,5 +1,5 @@
 """A run's setup: the data chain verified, the FMUs wired and checked, what every case of one FMU set shares
-(:class:`Setup`, built once by :func:`prepare`).
+(:class:`FmuSetPlan`, frozen, built once by :func:`prepare`; the whole run's plan is :mod:`scenarios.run.plan`).
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flexarm.provenance import sha256_file
 from flexarm.signals import names as signal_names
 from scenarios.config import Scenario, ScenarioError, check_inputs_given, check_size
 from scenarios.master import cosim as master
@@ -75,6 +76,11 @@ def desired_trajectory():
 
 
 def verify_data_chain() -> dict[str, str]:
+    """Check every data file through flexarm's verifying loaders; the SHA-256 of each (:func:`verified_data`)."""
+    return verified_data()[0]
+
+
+def verified_data():
     """Check every data file through flexarm's verifying loaders (:func:`flexarm.data_chain.verify_data_files`:
     parameters, sensor settings, trajectory, gains, LQG designs and bank, every JSON's seal); refuse a mismatch.
 
@@ -86,6 +92,8 @@ def verify_data_chain() -> dict[str, str]:
     dict
         Every .npz, .json and .toml of flexarm/data (relative to the repository) -> SHA-256, for the results'
         provenance (``data_sha256``).
+    TrajectoryResult
+        The trajectory the run tracks (:func:`desired_trajectory`), loaded once, through the same loader.
 
     Raises
     ------
@@ -98,12 +106,12 @@ def verify_data_chain() -> dict[str, str]:
 
     try:
         chain = verify_data_files(REPO)
-        desired_trajectory()  # the trajectory the run tracks, through the same loader
+        traj = desired_trajectory()
     except FlexarmDataChainError as exc:
         raise DataChainError(str(exc)) from exc
     except TrajectoryError as exc:
         raise DataChainError(f"data chain: {exc}") from exc
-    return chain
+    return chain, traj
 
 
 def _relative(path: Path) -> str:
@@ -111,9 +119,11 @@ def _relative(path: Path) -> str:
     return str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path)
 
 
-@dataclass
-class Setup:
-    """What every case of one FMU set shares: FMU paths, wiring, records, run length, desired states."""
+@dataclass(frozen=True)
+class FmuSetPlan:
+    """What every case of one FMU set shares: FMU paths, wiring, records, run length, desired states, and which
+    FMUs run in a process of their own. Frozen: decided once by :func:`prepare` (``dataclasses.replace`` makes
+    a variant); its dicts and lists are not to be changed either."""
 
     scenario: Scenario
     paths: dict[str, Path]
@@ -122,7 +132,7 @@ class Setup:
     driver: str
     record: list[tuple[str, str]]
     n_steps: int
-    desired: dict[str, np.ndarray]
+    desired: dict[str, np.ndarray] = field(repr=False)
     start: dict[str, float]
     descriptions: dict = field(default_factory=dict, repr=False)
     #: The kind the names were resolved as ("python" or "native"; see :func:`resolve_fmus`).
@@ -141,10 +151,12 @@ class Setup:
     isolate: list[str] = field(default_factory=list)
     #: Seconds a call of an isolated FMU may take (``--step-timeout``).
     step_timeout: float = DEFAULT_STEP_TIMEOUT_S
-
-    def fmu_kinds(self) -> dict[str, str]:
-        """Instance -> kind of the FMU file it runs, from its model description (:func:`fmu_kind`)."""
-        return {inst: fmu_kind(md) for inst, md in self.descriptions.items()}
+    #: Instance -> kind of the FMU file it runs, from its model description (:func:`scenarios.run.fmus.fmu_kind`).
+    fmu_kinds: dict[str, str] = field(default_factory=dict)
+    #: Instance -> SHA-256 of its FMU file, for the results' provenance.
+    fmu_sha256: dict[str, str] = field(default_factory=dict, repr=False)
+    #: The trajectory the desired states and the start come from (loaded once per run, :func:`verified_data`).
+    trajectory: object = field(default=None, repr=False, compare=False)
 
     def open_master(self, algorithm: str | None = None) -> master.Master:
         """Load this set's FMUs once (reuse the master for every case that shares them), stepping with
@@ -155,7 +167,7 @@ class Setup:
     def case_parameters(self, case_parameters: dict[str, dict], where: str = "") -> dict[str, dict]:
         """The case's parameters checked against the FMUs and converted
         (:func:`scenarios.master.values.check_parameters`), with the plant started on the trajectory unless the case
-        says otherwise."""
+        says otherwise. A run checks each case once, when it is planned (:func:`scenarios.run.plan.plan_case`)."""
         case_parameters = {inst: {k: v for k, v in values.items() if k not in self.left_out.get(inst, ())}
                            for inst, values in case_parameters.items()}
         params = check_parameters(where or f"{self.scenario.path.name}: parameters", self.descriptions,
@@ -166,17 +178,26 @@ class Setup:
         return params
 
 
+#: The name tests and docs knew the FMU set's plan by.
+Setup = FmuSetPlan
+
+
 def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str | None = None,
             names: dict[str, str] | None = None, build: bool = True, kind: str | None = None,
-            native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR, algorithm: str | None = None) -> Setup:
+            native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR, algorithm: str | None = None, *,
+            isolate: str = "foreign", step_timeout: float = DEFAULT_STEP_TIMEOUT_S,
+            named_as: dict[str, str] | None = None, trajectory=None) -> FmuSetPlan:
     """Resolve (and build) the FMUs, read and wire them, and precompute what the cases share.
 
     `kind` (default the scenario's): "python" or "native", see :func:`resolve_fmus`. `algorithm` (default the
     scenario's): the stepping the FMUs will run in, which sets the reference FMU's lead (:func:`reference_lead`).
+    `isolate` and `step_timeout`: which FMUs run in a process of their own ("foreign": those named by a .fmu path
+    in `named_as`, default `names`, else the scenario's; "all") and how long a call of theirs may take
+    (:func:`scenarios.master.isolation.isolated_instances`). `trajectory`: the run's, when already loaded.
     """
     kind = kind or scenario.kind
     paths = resolve_fmus(scenario, fmu_dir, controller, build, names, kind, native_fmu_dir)
-    foreign = isolation.foreign_instances(scenario, controller, names)
+    foreign = isolation.foreign_instances(scenario, controller, names if named_as is None else named_as)
     descriptions = read_descriptions(paths)
     scenario, paths, descriptions = with_reference(scenario, paths, descriptions, fmu_dir, build, kind,
                                                    native_fmu_dir)
@@ -192,14 +213,17 @@ def prepare(scenario: Scenario, fmu_dir: Path = DEFAULT_FMU_DIR, controller: str
     plant, driver = torque_edges[0].dst_fmu, torque_edges[0].src_fmu
     record = [(plant, v) for v in PLANT_STATE + ["tip_x", "tip_y"]] + [(driver, "tau1"), (driver, "tau2")]
     record += [tuple(s.split(".", 1)) for s in scenario.record if tuple(s.split(".", 1)) not in record]
-    traj = desired_trajectory()
+    traj = desired_trajectory() if trajectory is None else trajectory
     n = run_length(scenario, traj)
     seen = [(c.src_fmu, c.src_var) for c in connections if c.dst_fmu == driver and (c.src_fmu, c.src_var) not in record
             and c.src_var not in INDEX_NAMES]  # the sample indices are bookkeeping, not signals
-    return Setup(scenario, paths, connections, plant, driver, record, n,
-                 desired_states(traj, np.arange(n + 1) * scenario.step_size), start_parameters(traj),
-                 descriptions, kind, left_out, held, list(dict.fromkeys(seen)),
-                 reference_lead(scenario, descriptions, algorithm or scenario.algorithm), foreign)
+    return FmuSetPlan(scenario, paths, connections, plant, driver, record, n,
+                      desired_states(traj, np.arange(n + 1) * scenario.step_size), start_parameters(traj),
+                      descriptions, kind, left_out, held, list(dict.fromkeys(seen)),
+                      reference_lead(scenario, descriptions, algorithm or scenario.algorithm),
+                      isolation.isolated_instances(isolate, paths, foreign), step_timeout,
+                      {inst: fmu_kind(md) for inst, md in descriptions.items()},
+                      {inst: sha256_file(p) for inst, p in paths.items()}, traj)
 
 
 #: The FMU name of the reference signals (fmus/reference/), added to a run whose controller asks for them.
@@ -235,7 +259,7 @@ def with_reference(scenario: Scenario, paths: dict[str, Path], descriptions: dic
 def reference_lead(scenario: Scenario, descriptions: dict, algorithm: str) -> int | None:
     """The reference FMU's ``lead_samples`` for `algorithm` at the scenario's step
     (:func:`flexarm.reference.lead_samples_for`: 0 Gauss-Seidel, the step in samples Jacobi); None when the run
-    has no reference FMU with that parameter. A case's own value wins (:meth:`Setup.case_parameters`)."""
+    has no reference FMU with that parameter. A case's own value wins (:meth:`FmuSetPlan.case_parameters`)."""
     from flexarm.reference import lead_samples_for
     from flexarm.trajectory.io import SAMPLE_TIME
 
@@ -292,7 +316,7 @@ def left_out_parameters(scenario: Scenario, descriptions: dict, instance: str = 
     return {instance: missing} if missing else {}
 
 
-def check_overrides(setup: Setup, overrides: dict[str, dict]) -> dict[str, dict]:
+def check_overrides(setup: FmuSetPlan, overrides: dict[str, dict]) -> dict[str, dict]:
     """``--set`` values checked against the FMUs' model descriptions
     (:func:`scenarios.master.values.check_parameters`)."""
     return check_parameters("--set", setup.descriptions, overrides)
@@ -314,7 +338,7 @@ def with_overrides(scenario: Scenario, overrides: dict[str, dict] | None) -> Sce
     return replace(scenario, cases=cases)
 
 
-def swap_report(setup: Setup) -> list[str]:
+def swap_report(setup: FmuSetPlan) -> list[str]:
     """Lines naming the scenario parameters a swapped-in FMU does not have (left out), the inputs held at their
     start values, and what the reference FMU feeds."""
     name, lines = setup.scenario.name, []

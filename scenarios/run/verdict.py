@@ -32,7 +32,13 @@ not of the controller. Diverging wins over saturated (an unstable loop saturates
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
+
+from scenarios.analysis.stability import loop_stability
+from scenarios.master import cosim as master
+from scenarios.results import analysis_columns
 
 #: Window of the envelope, s: longer than the period of the arm's slowest closed-loop oscillation seen in an
 #: unstable run (about 0.03-0.1 s; the first flexible mode is at a few Hz), so each window holds a peak.
@@ -234,7 +240,7 @@ def series_verdict(series: dict, driver: str, limits) -> dict:
 
 
 def judge(out: dict, series: dict, driver: str) -> tuple[str, str, dict | None]:
-    """A case's status, message and verdict (the runner's :class:`~scenarios.run.runner.CaseResult`).
+    """A case's status, message and verdict (its :class:`CaseResult`'s).
 
     The master's outcome (``out["status"]``: ok, unbounded, error), unless the run finished ("ok") and its own
     samples say ``diverging`` or ``saturated`` (:func:`series_verdict`, against the parameter file's motor
@@ -249,3 +255,41 @@ def judge(out: dict, series: dict, driver: str) -> tuple[str, str, dict | None]:
     if judged["verdict"] == "stable":
         return "ok", out["message"], judged
     return judged["verdict"], judged["message"], judged
+
+
+@dataclass
+class CaseResult:
+    """A case run and judged: what :func:`scenarios.run.runner.run_scenario` returns, one per case."""
+
+    key: str
+    label: str
+    status: str
+    message: str
+    metrics: dict[str, float] | None
+    wall_time_s: float
+    series: dict[str, np.ndarray]
+    outcome: master.Outcome = field(default_factory=lambda: master.Outcome("ok"))
+    #: What the run did not do well (e.g. torque saturation, :func:`scenarios.metrics.saturation_warnings`; an
+    #: unstable sampled loop the plant scheme cannot show, :func:`scenarios.analysis.stability.loop_stability`).
+    warnings: list[str] = field(default_factory=list)
+    #: The linearised sampled loop's stability (:func:`scenarios.analysis.stability.loop_stability`: the check, or
+    #: why it was not made and whether the plant scheme could show a bracket-mode instability anyway).
+    loop_stability: dict | None = None
+    #: The run's verdict from its own samples (:func:`verdict`); None when it did not finish.
+    verdict: dict | None = None
+
+
+def judge_case(case, out: dict, metrics: dict | None, wall_time_s: float, algorithm: str, reference) -> CaseResult:
+    """The judge stage of a run: a planned case's (:class:`scenarios.run.plan.PlannedCase`) master result `out`
+    with its table `metrics`, its sampled loop's stability, the analysis columns (errors against `reference`,
+    :func:`scenarios.results.analysis_columns`) and its verdict (:func:`judge`)."""
+    fs = case.fmu_set
+    step = fs.scenario.step_size
+    series = {"time": out["time"], **out["signals"]}
+    stab = loop_stability(fs.paths, fs.plant, fs.driver, case.parameters, step, fs.n_steps * step, algorithm,
+                          metrics=metrics)
+    notes = list(out.get("warnings", [])) + ([stab["note"]] if stab and stab["note"] else [])
+    series.update(analysis_columns(series, fs.plant, reference))
+    status, message, judged = judge(out, series, fs.driver)
+    return CaseResult(case.key, case.label, status, message, metrics, wall_time_s, series, out["outcome"], notes,
+                      stab, judged)

@@ -131,6 +131,7 @@ _LOADED: dict = {}
 
 
 def _loaded(controller: Controller, kind: str, algorithm: str, fmu_dir: str, native_fmu_dir: str):
+    from dataclasses import replace
     from pathlib import Path
 
     from scenarios.run.setup import prepare
@@ -143,9 +144,10 @@ def _loaded(controller: Controller, kind: str, algorithm: str, fmu_dir: str, nat
         from flexarm.trajectory import load_trajectory
 
         traj = load_trajectory()
-        scenario.samples = math.ceil(traj.t_f / scenario.step_size - 1e-9) + round(SETTLE_S / scenario.step_size)
+        scenario = replace(scenario, samples=math.ceil(traj.t_f / scenario.step_size - 1e-9)
+                           + round(SETTLE_S / scenario.step_size))
         setup = prepare(scenario, Path(fmu_dir), controller.fmu, build=False, kind=kind,
-                        native_fmu_dir=Path(native_fmu_dir), algorithm=algorithm)
+                        native_fmu_dir=Path(native_fmu_dir), algorithm=algorithm, trajectory=traj)
         _LOADED[key] = (setup, setup.open_master(algorithm))
     return _LOADED[key]
 
@@ -155,8 +157,8 @@ def run_case(case: Case, controller: Controller, kind: str, fmu_dir: str, native
     """One battery run: status, verdict, the slew's six metrics, the settling time (and, with `keep_series`,
     the series the page's figures draw, every 5th sample)."""
     from flexarm.parameters import load_parameters
-    from flexarm.trajectory import load_trajectory
-    from scenarios.run.runner import simulate_case
+    from scenarios.run.plan import plan_case
+    from scenarios.run.runner import simulate
     from scenarios.run.verdict import series_verdict
 
     from ..metrics import table_metrics
@@ -170,14 +172,14 @@ def run_case(case: Case, controller: Controller, kind: str, fmu_dir: str, native
         ctrl["loop_delay_samples"] = JACOBI_LOOP_DELAY
     if ctrl:
         params["controller"] = ctrl
-    out, _ = simulate_case(setup, m, params)
+    out, _ = simulate(setup, m, plan_case(setup, case.key, case.key, params).parameters)
     rec = {"case": case.key, "status": out["status"], "message": out["message"], "verdict": None,
            "growth_rate_per_s": None, "metrics": None, "settle_s": None}
     if out["status"] != "ok":
         return rec
-    traj = load_trajectory()
+    traj = setup.trajectory  # the FMU set's, loaded once per process
     series = {"time": out["time"], **out["signals"]}
-    series.update(analysis_columns(series, setup.plant, _reference()))
+    series.update(analysis_columns(series, setup.plant, _reference(traj)))
     judged = series_verdict(series, setup.driver, load_parameters().peak_torque)
     n = math.ceil(traj.t_f / setup.scenario.step_size - 1e-9) + 1  # the samples of a run of Table 2
     p, d = setup.plant, setup.driver
@@ -205,13 +207,12 @@ def run_case(case: Case, controller: Controller, kind: str, fmu_dir: str, native
     return rec
 
 
-def _reference():
-    """The reference signals (loaded once per process)."""
+def _reference(traj):
+    """The reference signals of the trajectory `traj` (made once per process)."""
     if "reference" not in _LOADED_REF:
         from flexarm.reference import ReferenceSignals
-        from flexarm.trajectory import load_trajectory
 
-        _LOADED_REF["reference"] = ReferenceSignals(load_trajectory())
+        _LOADED_REF["reference"] = ReferenceSignals(traj)
     return _LOADED_REF["reference"]
 
 

@@ -11,11 +11,10 @@ from pathlib import Path
 
 from flexarm.provenance import sha256_bytes
 from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S
-from scenarios.master.isolation import apply as apply_isolation
-from scenarios.master.isolation import foreign_instances
-from scenarios.master.values import check_parameters, check_value, check_variable
-from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, known_fmu_names, read_descriptions, resolve_fmus
-from scenarios.run.setup import prepare, with_reference
+from scenarios.master.values import check_value, check_variable
+from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, known_fmu_names
+from scenarios.run.plan import PlannedCase, plan_case
+from scenarios.run.setup import FmuSetPlan, prepare
 
 from ..config import ScenarioError
 from .spec import Axis, Sweep, SweepError, _require, toml_content_sha256
@@ -55,7 +54,7 @@ class Plan:
     fmu_sets: dict[str, FmuSet]  # FmuSet.key -> set
     point_set: dict[str, str]  # point key -> FmuSet.key
     scenario_sha256: str
-    #: Which FMUs run in a process of their own and how long a call may take (scenarios.run.setup.Setup.isolating).
+    #: Which FMUs run in a process of their own and how long a call may take (scenarios.run.setup.prepare).
     isolate: str = "foreign"
     step_timeout: float = DEFAULT_STEP_TIMEOUT_S
     #: Where the FMUs the points add by name (the reference FMU a controller's inputs ask for) are found:
@@ -116,7 +115,8 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
         `native_fmu_dir` (:func:`scenarios.run.fmus.resolve_fmus`).
     isolate, step_timeout
         Which FMUs run in a process of their own ("foreign": those given as a .fmu path; "all") and how long
-        one call of theirs may take, s (:meth:`scenarios.run.setup.Setup.isolating`), in the probe and the points.
+        one call of theirs may take, s (:func:`scenarios.master.isolation.isolated_instances`), in the probe and
+        the points.
 
     Returns
     -------
@@ -145,23 +145,24 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
                 _require(v in known, where, f"FMU names of this project {known} or paths to .fmu files", v)
     for combo in itertools.product(*(a.values for a in fmu_axes)):
         names = {**case.fmus, **{a.instance: v for a, v in zip(fmu_axes, combo)}}
-        try:
-            paths = resolve_fmus(scenario, fmu_dir, None, build, names, kind, native_fmu_dir)
-            descriptions = read_descriptions(paths)
-            with_reference(scenario, paths, descriptions, fmu_dir, build, kind, native_fmu_dir)  # built now, if asked
-            check_parameters(f"{scenario.path.name}: cases[{case.key}].parameters", descriptions, case.parameters)
+        try:  # planned as a run plans an FMU set and a case (scenarios.run.plan); FMU names built now, if asked
+            fmu_set = prepare(scenario, fmu_dir, None, names, build, kind, native_fmu_dir, isolate=isolate,
+                              step_timeout=step_timeout)
+            base = plan_case(fmu_set, case.key, case.label, case.parameters,
+                             f"{scenario.path.name}: cases[{case.key}].parameters")
         except ScenarioError as exc:
             raise SweepError(f"{sweep.path.name}: FMUs {names}: {exc}") from exc
         except Exception as exc:  # noqa: BLE001 - a failed build is named with the FMU set
             raise SweepError(f"{sweep.path.name}: FMUs {names}: could not resolve or build them: {exc}") from exc
+        paths = {inst: p for inst, p in fmu_set.paths.items() if inst in names}  # without a reference FMU added
         for axis in sweep.axes:
             if not axis.is_fmu:
-                _check_axis(sweep, axis, descriptions[axis.instance], paths[axis.instance])
+                _check_axis(sweep, axis, fmu_set.descriptions[axis.instance], paths[axis.instance])
         blobs = {inst: p.read_bytes() for inst, p in paths.items()}
         shas = {inst: sha256_bytes(b) for inst, b in blobs.items()}
         fs = FmuSet(names, paths, shas, blobs)
         if probe and fs.key not in fmu_sets:
-            _probe(sweep, fs, isolate, step_timeout, dirs)
+            _probe(sweep, fmu_set, base)
         fmu_sets.setdefault(fs.key, fs)
         by_combo[combo] = fs.key
     points, point_set = [], {}
@@ -179,13 +180,10 @@ def plan_sweep(sweep: Sweep, fmu_dir: Path = DEFAULT_FMU_DIR, build: bool = True
     return Plan(sweep, points, fmu_sets, point_set, scenario_sha, isolate, step_timeout, dirs)
 
 
-def _probe(sweep: Sweep, fs: FmuSet, isolate: str, step_timeout: float, where: dict) -> None:
+def _probe(sweep: Sweep, fmu_set: FmuSetPlan, base: PlannedCase) -> None:
     """Initialise the base point on this FMU set and step once; a refusal is a :class:`SweepError`."""
-    setup = prepare(sweep.scenario, names={k: str(v) for k, v in fs.paths.items()}, build=False, **where)
-    setup.isolate = foreign_instances(sweep.scenario, names=fs.names)  # by the names given, not the files' paths
-    apply_isolation(setup, isolate, step_timeout)
-    with setup.open_master() as m:  # with a reference FMU added; stepping as the scenario does
-        outcome = m.probe(setup.case_parameters(sweep.case.parameters), sweep.scenario.step_size)
+    with fmu_set.open_master() as m:  # with a reference FMU added; stepping as the scenario does
+        outcome = m.probe(base.parameters, sweep.scenario.step_size)
     if outcome.status == "error":
         raise SweepError(f"{sweep.path.name}: base point (case {sweep.case.key}, communication step "
                          f"{sweep.scenario.step_size:g} s) refused by {outcome.fmu} ({outcome.function} returned "

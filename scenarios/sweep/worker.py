@@ -24,9 +24,8 @@ from distributed import WorkerPlugin
 from flexarm.provenance import sha256_bytes, sha256_file, write_atomic
 from scenarios.analysis.stability import loop_stability
 from scenarios.master.cosim import CoSimulationError
-from scenarios.master.isolation import apply as apply_isolation
-from scenarios.master.isolation import foreign_instances
-from scenarios.run.runner import simulate_case
+from scenarios.run.plan import plan_case
+from scenarios.run.runner import simulate
 from scenarios.run.setup import prepare
 
 from .plan import Plan, Point
@@ -108,9 +107,8 @@ def _loaded(task: dict):
             raise CoSimulationError(f"fmus.{inst}: {p} missing on this worker (the client ships FMUs with a "
                                     "worker plugin: was the sweep started through scenarios.sweep?)")
         paths[inst] = str(p)
-    setup = prepare(task["scenario"], names=paths, build=False, **task.get("where", {}))
-    setup.isolate = foreign_instances(task["scenario"], names=task["fmu_names"])  # as named, not the cache paths
-    apply_isolation(setup, task["isolate"], task["step_timeout"])
+    setup = prepare(task["scenario"], names=paths, build=False, **task.get("where", {}), isolate=task["isolate"],
+                    step_timeout=task["step_timeout"], named_as=task["fmu_names"])  # foreign as named, not cached
     m = setup.open_master()
     _LOADED[key] = (setup, m)
     return setup, m
@@ -157,13 +155,14 @@ def run_point(task: dict) -> dict:
             from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
             _TRAJECTORY_SHA.append(sha256_file(DEFAULT_TRAJECTORY_FILE))
-        out, metrics = simulate_case(setup, m, task["parameters"])
+        case = plan_case(setup, task["key"], task["key"], task["parameters"])  # checked once, as a run's case
+        out, metrics = simulate(setup, m, case.parameters)
         rec["wall_time_s"] = time.perf_counter() - t1
         outcome = out["outcome"]
         rec.update(status=outcome.status, message=outcome.message, outcome=outcome.as_dict(), metrics=metrics,
                    steps_done=out["steps_done"])
         # a point whose loop grows in a way its plant scheme cannot show says so, as a scenario run does
-        stab = loop_stability(setup.paths, setup.plant, setup.driver, setup.case_parameters(task["parameters"]),
+        stab = loop_stability(setup.paths, setup.plant, setup.driver, case.parameters,
                               setup.scenario.step_size, setup.n_steps * setup.scenario.step_size,
                               setup.scenario.algorithm, metrics=metrics)
         rec.update(warnings=list(out.get("warnings", [])) + ([stab["note"]] if stab and stab["note"] else []),
