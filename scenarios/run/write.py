@@ -15,6 +15,7 @@ from scenarios.run.setup import _relative
 #: The trajectory and the parameter file, as the results name them (relative to the checkout).
 TRAJECTORY_FILE, PARAMETER_FILE = _relative(DEFAULT_TRAJECTORY_FILE), _relative(DEFAULT_PARAMETER_FILE)
 
+
 def write_case(folder: Path, plan, case, result, out: dict) -> None:
     """``<key>.csv`` (the judged series) and ``<key>.json`` (status, verdict, metrics and the run's provenance)
     of a planned case (:class:`scenarios.run.plan.PlannedCase`) of `plan` (:class:`scenarios.run.plan.RunPlan`);
