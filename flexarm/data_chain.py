@@ -39,7 +39,9 @@ def data_files(data_dir: Path = DATA_DIR) -> list[Path]:
                   and not p.name.startswith("."))
 
 
-def _relative(path: Path, root: Path) -> str:
+def relative_path(path: Path, root: Path) -> str:
+    """`path` relative to `root` with forward slashes (a key of the data chain, the same on every OS); as it is
+    when outside `root`."""
     path = Path(path)
     return path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)
 
@@ -106,4 +108,4 @@ def verify_data_files(root: Path | None = None) -> dict[str, str]:
     except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:  # a file a loader cannot even parse
         raise DataChainError(f"data chain: {reading}: cannot be read ({type(exc).__name__}: {exc}); regenerate "
                              f"the data with `{CHAIN_COMMAND}` (or restore it from git)") from exc
-    return {_relative(f, root): sha256_file(f) for f in files}
+    return {relative_path(f, root): sha256_file(f) for f in files}

@@ -40,7 +40,7 @@ from scenarios.results import portable
 from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, fmu_kind
 from scenarios.run.outdir import check_writable, folder_lock, remove_stale
 from scenarios.run.runner import N_EL
-from scenarios.run.setup import _relative, desired_states, prepare, verified_data
+from scenarios.run.setup import checkout_relative, desired_states, prepare, verified_data
 from scenarios.sweep.journal import Journal
 
 #: The measurements the learning reads (sensors FMU outputs): encoders, then strain gauges.
@@ -204,7 +204,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                 m.close()
                 m = None
                 row = {"key": f"trial-{j:03d}", "trial": j, "seed": settings.seed_base + j, "status": res["status"],
-                       "message": res["message"], "wall_time_s": wall, "correction_file": _relative(Path(file))
+                       "message": res["message"], "wall_time_s": wall, "correction_file": checkout_relative(Path(file))
                        if file else "", "commit": commit}
                 if res["status"] == "ok":
                     sig = res["signals"]

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flexarm.data_chain import relative_path
 from flexarm.provenance import sha256_file
 from flexarm.signals import names as signal_names
 from scenarios.config import Scenario, ScenarioError, check_inputs_given, check_size
@@ -114,9 +115,9 @@ def verified_data():
     return chain, traj
 
 
-def _relative(path: Path) -> str:
-    path = Path(path)
-    return str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path)
+def checkout_relative(path: Path) -> str:
+    """`path` as the results name it: relative to the checkout, as the data chain's keys are."""
+    return relative_path(path, REPO)
 
 
 @dataclass(frozen=True)

@@ -10,10 +10,11 @@ from flexarm.provenance import write_json
 from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 from scenarios.metrics import UNITS
 from scenarios.results import portable, write_csv
-from scenarios.run.setup import _relative
+from scenarios.run.setup import checkout_relative
 
 #: The trajectory and the parameter file, as the results name them (relative to the checkout).
-TRAJECTORY_FILE, PARAMETER_FILE = _relative(DEFAULT_TRAJECTORY_FILE), _relative(DEFAULT_PARAMETER_FILE)
+TRAJECTORY_FILE, PARAMETER_FILE = checkout_relative(DEFAULT_TRAJECTORY_FILE), checkout_relative(
+    DEFAULT_PARAMETER_FILE)
 
 
 def write_case(folder: Path, plan, case, result, out: dict) -> None:
