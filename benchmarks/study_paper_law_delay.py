@@ -12,9 +12,16 @@ tables' tracking errors beside the delay-free run:
 * ``Kalman predictor``: the LQG design's Kalman filter and predictor to a, and the paper's law on the measurement it
   predicts for a, K(t_a) E C x_a (flexarm.lqg.PredictedTracking: what controller.fmu does in a Jacobi master);
 * ``filter state``: the paper's reduced gains on the filter's whole predicted state, K(t_a) x_a (what
-  controller.fmu did before: the filter's angles and unmeasured velocities are not the reconstruction's).
+  controller.fmu did before: the filter's angles and unmeasured velocities are not the reconstruction's);
+* ``transient gain`` (with ``--initial-covariance F``): the Kalman predictor whose filter starts from the prior
+  covariance F P (P: the design's steady prior at t = 0) and runs the covariance recursion, so its gain starts
+  high (the estimate follows the measurements) and settles to the steady gain; not what the FMUs do (yet);
+* ``..., FMU start`` (with ``--initial-covariance``): the same with sample 1's torque as the FMUs compute it in a
+  Jacobi master, fed through from sample 0's measurement before the first ``fmi2DoStep`` has measured the delay
+  (the filter told the torque held), the start-up the FMUs add to the library's figure.
 
     python benchmarks/study_paper_law_delay.py [--delay 2] [--payload 0.275] [--gain-set gamma0] [--noise-seeds 5]
+                                               [--initial-covariance 1000]
 
 The acceptance of issue 31 asks every master to give the Gauss-Seidel figures within 5 % or 0.005 deg
 (0.05 deg/s).
@@ -23,13 +30,14 @@ The acceptance of issue 31 asks every master to give the Gauss-Seidel figures wi
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 import numpy as np
 
 from flexarm.control import TrackingController, tracking_errors
 from flexarm.gain_schedule import GainSchedule
 from flexarm.integrator import PlantSimulator
-from flexarm.lqg import PredictedTracking
+from flexarm.lqg import LqgController, PredictedTracking
 from flexarm.lqg_design import LqgDesign, measurement_covariance
 from flexarm.lqr import default_trajectory_path
 from flexarm.model import ArmModel, joint_angles, joint_velocities, strain_gauge_angles
@@ -41,14 +49,52 @@ def measurements(z: np.ndarray) -> np.ndarray:
     return np.concatenate([joint_angles(th), joint_velocities(om), strain_gauge_angles(th)])
 
 
+class TransientGainFilter(LqgController):
+    """The LQG filter and predictor with the time-varying Kalman gain of the covariance recursion started from
+    the prior covariance `scale` P_prior(0) at sample 0, for `samples` samples (then the design's steady gain).
+
+    The recursion, per sample j at the design point i in force: M_j = P_j C^T (C P_j C^T + V)^-1,
+    P_{j+1} = Phi_i (I - M_j C) P_j Phi_i^T + W_i (the design's W and V)."""
+
+    def __init__(self, law, design: LqgDesign, delay: int, scale: float, samples: int = 2000):
+        super().__init__(law.trajectory, design, "gamma0.1", delay)
+        c, v, p = design.C, design.V, scale * design.P_prior[0]
+        self.gains = []
+        for j in range(samples):
+            i = design.index_at(j * self.dt)
+            m = np.linalg.solve(c @ p @ c.T + v, c @ p).T
+            self.gains.append(m)
+            p = design.Phi[i] @ (np.eye(len(p)) - m @ c) @ p @ design.Phi[i].T + design.W[i]
+            p = 0.5 * (p + p.T)
+
+    def estimate(self, state, k, measurements):
+        j = max(k - self.delay, 0)
+        if j >= len(self.gains):
+            return super().estimate(state, k, measurements)
+        steady = self.design
+        m = steady.M.copy()
+        m[steady.index_at(min(j, self.n_steps) * self.dt)] = self.gains[j]
+        self.design = dataclasses.replace(steady, M=m)
+        try:
+            return super().estimate(state, k, measurements)
+        finally:
+            self.design = steady
+
+
 def run(law: TrackingController, design: LqgDesign, model: ArmModel, how: str, d: int,
-        noise_seed: int | None = None) -> dict[str, float]:
+        noise_seed: int | None = None, initial_covariance: float = 0.0) -> dict[str, float]:
     n = law.n_steps
     # the paper's uniform sensor noise (+-a per channel, the committed sensor file), seeded; None: noise-free
     rng = None if noise_seed is None else np.random.default_rng(noise_seed)
     half = np.sqrt(3.0 * np.diag(measurement_covariance()))
     plant = PlantSimulator(model, law.z[0])
-    predictor = PredictedTracking(law, design, d) if how in ("Kalman predictor", "filter state") else None
+    predictor = None
+    fmu_start = how.endswith(", FMU start")
+    how = how.removesuffix(", FMU start")
+    if how in ("Kalman predictor", "filter state", "transient gain"):
+        predictor = PredictedTracking(law, design, d)
+    if how == "transient gain":
+        predictor.filter = TransientGainFilter(law, design, d, initial_covariance)
     state = None if predictor is None else predictor.initial_state()
     measured, states, held = [], [plant.z.copy()], {}
     for a in range(n):
@@ -56,8 +102,11 @@ def run(law: TrackingController, design: LqgDesign, model: ArmModel, how: str, d
         j = a - d
         if how == "no delay":
             tau = law.torque_from_measurements(a, measured[a])
-        elif how == "Kalman predictor":  # what controller.fmu does in a Jacobi master
+        elif how in ("Kalman predictor", "transient gain"):  # the first: what controller.fmu does in Jacobi
             tau, state = predictor.step(state, a, measured[j] if j >= 0 else predictor.desired_measurement(0))
+            if fmu_start and a == 1:  # the FMUs' sample 1: fed through from sample 0's measurement, held
+                tau = law.torque_from_measurements(1, measured[0])
+                state = dataclasses.replace(state, du=np.vstack([state.du[:-1], tau - predictor.filter.feedforward(1)]))
         elif predictor is not None:  # "filter state"
             x_post, x_now = predictor.filter.estimate(state, a, measured[j] if j >= 0 else
                                                       predictor.desired_measurement(0))
@@ -85,21 +134,29 @@ def main() -> None:
     ap.add_argument("--noise-seeds", type=int, default=0,
                     help="also run the delay-free law and the Kalman predictor under the paper's sensor noise with "
                          "seeds 1..N: how far apart two noise realisations put one loop's figures")
+    ap.add_argument("--initial-covariance", type=float, default=0.0,
+                    help="also run the Kalman predictor with the transient gain from F times the steady prior "
+                         "covariance (e.g. 1000; 0: not run)")
     args = ap.parse_args()
     law = TrackingController(default_trajectory_path(), GainSchedule.load(args.gain_set, "200ms"))
     design = LqgDesign.load("200ms")
     model = ArmModel(load_parameters().with_payload(args.payload)) if args.payload else ArmModel(load_parameters())
     print(f"the paper's law, {args.gain_set}, 200 ms schedule, payload {args.payload} kg, loop delay {args.delay} "
           "samples")
-    print(f"{'':26} {'rms pos, deg':>13} {'rms vel, deg/s':>15} {'peak pos, deg':>14}")
-    for how in ("no delay", "delayed", "model prediction", "Kalman predictor", "filter state"):
-        r = run(law, design, model, how, 0 if how == "no delay" else args.delay)
-        print(f"{how:26} {r['pos_rms']:13.5g} {r['vel_rms']:15.5g} {r['pos_peak']:14.5g}", flush=True)
+    print(f"{'':31} {'rms pos, deg':>13} {'rms vel, deg/s':>15} {'peak pos, deg':>14}")
+    rows = ["no delay", "delayed", "model prediction", "Kalman predictor", "filter state"]
+    noisy = ["no delay", "Kalman predictor"]
+    if args.initial_covariance:
+        rows += ["transient gain", "Kalman predictor, FMU start", "transient gain, FMU start"]
+        noisy.append("transient gain")
+    for how in rows:
+        r = run(law, design, model, how, 0 if how == "no delay" else args.delay, None, args.initial_covariance)
+        print(f"{how:31} {r['pos_rms']:13.5g} {r['vel_rms']:15.5g} {r['pos_peak']:14.5g}", flush=True)
     for seed in range(1, args.noise_seeds + 1):
-        for how in ("no delay", "Kalman predictor"):
-            r = run(law, design, model, how, 0 if how == "no delay" else args.delay, seed)
+        for how in noisy:
+            r = run(law, design, model, how, 0 if how == "no delay" else args.delay, seed, args.initial_covariance)
             label = f"{how}, noise {seed}"
-            print(f"{label:26} {r['pos_rms']:13.5g} {r['vel_rms']:15.5g} {r['pos_peak']:14.5g}", flush=True)
+            print(f"{label:31} {r['pos_rms']:13.5g} {r['vel_rms']:15.5g} {r['pos_peak']:14.5g}", flush=True)
 
 
 if __name__ == "__main__":
