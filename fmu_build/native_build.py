@@ -46,7 +46,7 @@ from .native_description import (
     _vars_c,
     interface_description,
 )
-from .progress import say
+from .progress import heartbeat, say
 from .registry import SOURCES
 
 #: The native FMUs' C sources (the installed ``fmus/native`` folder; the code that builds them lives here).
@@ -278,12 +278,14 @@ def build_native_fmu(name: str, python_fmu: Path, out_dir: Path, platforms=tuple
     with tempfile.TemporaryDirectory(prefix=f"flexarm-native-{name}-") as tmp:
         staging = Path(tmp) / "fmu"
         say(f"native {name}.fmu: generating its C sources and resources")
-        model_identifier, guid, sources = _stage_sources(name, staging, Path(python_fmu))
+        with heartbeat(f"native {name}.fmu, sources"):
+            model_identifier, guid, sources = _stage_sources(name, staging, Path(python_fmu))
         (staging / "modelDescription.xml").write_bytes(_model_description(
             interface_description(_read_description(Path(python_fmu))), model_identifier, guid, sources))
-        for platform in platforms:  # a line per step: the first build of Zig's C libraries takes minutes, silently
+        for platform in platforms:  # a line per step: the first build of Zig's C libraries takes minutes
             say(f"native {name}.fmu: compiling for {platform}")
-            compile_binary(staging / "sources", model_identifier, platform, staging)
+            with heartbeat(f"native {name}.fmu, {platform}"):
+                compile_binary(staging / "sources", model_identifier, platform, staging)
         tmp_fmu = Path(tmp) / f"{name}.fmu"
         with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
             for p in sorted(staging.rglob("*")):

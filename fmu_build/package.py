@@ -51,7 +51,7 @@ from xml.etree import ElementTree
 from .compile import BuildError, c_compiler, check_platform, compile_shim
 from .docs import render_documentation
 from .isolate import build_digest, private_name, rewrite_tree
-from .progress import say
+from .progress import heartbeat, say
 from .registry import COMMON_DIR, DOC_FILE, FLEXARM_DIR, FMUS, SHIM_FILES, SOURCES, FmuSpec, default_out_dir
 
 #: The pythonfmu version whose internals the glue works around (fmus/common/flexarm_fmu_pythonfmu.py).
@@ -258,18 +258,26 @@ def interfaces() -> dict[str, dict]:
     return out
 
 
-def _sources(spec: FmuSpec) -> list[Path]:
-    """Every file the FMU may be made from (for the up-to-date check)."""
-    return [spec.script, *spec.extra_files, *sorted(COMMON_DIR.glob("*.py")), *SHIM_FILES,
-            *bundle_files(FLEXARM_DIR), *bundle_files(Path(__file__).parent)]
+def _shared_sources() -> list[Path]:
+    """The files every FMU may be made from: the glue, the C front end, flexarm and the build tooling."""
+    return [*sorted(COMMON_DIR.glob("*.py")), *SHIM_FILES, *bundle_files(FLEXARM_DIR),
+            *bundle_files(Path(__file__).parent), *([DOC_FILE] * DOC_FILE.is_file())]
 
 
-def is_up_to_date(spec: FmuSpec, fmu: Path) -> bool:
-    """True if `fmu` exists and is newer than every source (and the build tooling)."""
+def _newest(paths) -> float:
+    return max((p.stat().st_mtime for p in paths), default=0.0)
+
+
+def is_up_to_date(spec: FmuSpec, fmu: Path, shared_newest: float | None = None) -> bool:
+    """True if `fmu` exists and is newer than every source (and the build tooling).
+
+    `shared_newest`: the newest modification time of :func:`_shared_sources`, when the caller checks several
+    FMUs at once (:func:`build_all` walks those folders once, not once per FMU: issue 34, start-up).
+    """
     if not fmu.is_file():
         return False
-    newest = max(p.stat().st_mtime for p in [*_sources(spec)] + ([DOC_FILE] * DOC_FILE.is_file()))
-    return fmu.stat().st_mtime >= newest
+    shared = _newest(_shared_sources()) if shared_newest is None else shared_newest
+    return fmu.stat().st_mtime >= max(shared, _newest([spec.script, *spec.extra_files]))
 
 
 @functools.lru_cache(maxsize=1)
@@ -435,14 +443,16 @@ def build_all(out_dir: str | os.PathLike | None = None, only=None, force: bool =
     if unknown:
         raise BuildError(f"unknown FMU name(s) {unknown}; choose from {sorted(FMUS)}")
     result, peers = {}, None
+    shared_newest = None if force else _newest(_shared_sources())
     for name in names:
         spec = FMUS[name]
         target = out_dir / f"{name}.fmu"
-        if not force and is_up_to_date(spec, target):
+        if not force and is_up_to_date(spec, target, shared_newest):
             result[name] = target
             continue
         peers = interfaces() if peers is None else peers  # once per build, for the documentation
         say(f"building {name}.fmu into {out_dir} (Python FMU: compile its C front end, trace and bundle its "
             f"modules; about 10-20 s)")
-        result[name] = build_fmu(spec, out_dir, peers)
+        with heartbeat(f"building {name}.fmu"):  # the first build on a machine also builds Zig's C libraries
+            result[name] = build_fmu(spec, out_dir, peers)
     return result

@@ -253,6 +253,24 @@ def test_a_normal_run_leaves_no_unpacked_fmus(tmp_path):
     assert list((tmp_path / "unpack" / "flexarm-fmus").iterdir()) == []
 
 
+def test_an_fmu_replaced_in_place_is_read_anew_not_from_the_description_cache(tmp_path):
+    """read_description parses each FMU version once per process (issue 34, start-up): a file replaced under
+    the same name, as a rebuild or a user's copy does, is read again; a removed one is refused by name."""
+    from fmu_harness import built_fmus
+
+    fmus = built_fmus()
+    path = tmp_path / "my.fmu"
+    path.write_bytes(fmus["plant"].read_bytes())
+    first = fmu_files.read_description(path)
+    assert fmu_files.read_description(path) is first  # the same version: parsed once
+    path.write_bytes(fmus["sensors"].read_bytes())
+    again = fmu_files.read_description(path)
+    assert again is not first and again.modelName != first.modelName
+    path.unlink()
+    with pytest.raises(fmu_files.NotAnFmuError, match="my.fmu: no such FMU file"):
+        fmu_files.read_description(path)
+
+
 def test_stale_tmp_files_in_a_sweep_folder_are_removed(tmp_path):
     sweep = tmp_path / "tmpfiles.toml"
     sweep.write_text("[sweep]\nname='tmpfiles'\nscenario='table2'\nsamples=20\n[axes]\nplant.payload_mass=[0.0]\n")

@@ -101,3 +101,18 @@ def test_entry_point_is_thin_and_sources_are_found_from_the_package():
         assert len(top.read_text().splitlines()) <= 150
     assert all(spec.script.is_file() for spec in registry.FMUS.values())
     assert registry.SHIM_SOURCES and all(p.is_file() for p in registry.SHIM_SOURCES)
+
+
+def test_a_long_step_prints_a_heartbeat_and_stops_with_it(capsys):
+    """Issue 34: no silence over 10 s on a first run. A step wrapped in heartbeat() prints a line every `every`
+    seconds while it runs (here a sleep, which holds no lock), and none once it has ended."""
+    import time
+
+    from fmu_build.progress import heartbeat
+
+    with heartbeat("compiling X", every=0.05):
+        time.sleep(0.3)
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) >= 3 and all(ln.startswith("fmu_build: compiling X: still at it, ") for ln in lines), lines
+    time.sleep(0.15)
+    assert capsys.readouterr().err == ""

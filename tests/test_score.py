@@ -154,3 +154,21 @@ def test_the_csv_states_its_units_and_numpy_and_pandas_read_it(tmp_path):
     frame = pd.read_csv(tmp_path / "c.csv", comment="#")
     assert list(frame.columns) == list(cols) and frame["controller.tau1"].dtype == float
     np.testing.assert_array_equal(frame["time"].to_numpy(), t)
+
+
+def test_the_csv_numbers_read_back_as_the_same_doubles_nan_and_inf_included(tmp_path):
+    """write_csv formats with orjson (issue 34: writing costs less than simulating), and by repr the rows
+    orjson cannot write (it writes every non-finite number as null): every double reads back bit for bit."""
+    from scenarios.results import csv_rows, write_csv
+
+    rng = np.random.default_rng(7)
+    data = rng.standard_normal((40, 9)) * np.logspace(-300, 300, 9)  # the whole exponent range
+    data[1, 0], data[2, 3], data[3, 8] = 5e-324, -0.0, np.finfo(float).max  # subnormal, signed zero, largest
+    data[4, 2], data[5, 5], data[6, 6] = np.nan, np.inf, -np.inf
+    write_csv(tmp_path / "c.csv", {f"c{i}": data[:, i] for i in range(data.shape[1])})
+    lines = (tmp_path / "c.csv").read_text().splitlines()[2:]
+    back = np.array([[float(x) for x in line.split(",")] for line in lines])
+    assert back.shape == data.shape and "null" not in "".join(lines)
+    assert np.array_equal(back.view(np.uint64)[~np.isnan(data)], data.view(np.uint64)[~np.isnan(data)])
+    assert np.isnan(back[4, 2]) and back[5, 5] == np.inf and back[6, 6] == -np.inf
+    assert csv_rows(np.zeros((0, 3))) == [] and csv_rows(np.array([[1.5, 2.0]])) == ["1.5,2.0"]

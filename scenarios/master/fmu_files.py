@@ -30,10 +30,30 @@ class NotAnFmuError(ValueError):
 
 
 def read_description(path: str | os.PathLike):
-    """fmpy's model description of the FMU at `path`, or :class:`NotAnFmuError` naming the file and why."""
+    """fmpy's model description of the FMU at `path`, or :class:`NotAnFmuError` naming the file and why.
+
+    Parsed once per process and file version: a run reads each FMU's description in planning and again when it
+    loads the FMU (issue 34: start-up). The cache key is the file's identity and modification (device, inode,
+    size, mtime in ns), which change whenever the file is rewritten or replaced; callers must not change the
+    returned object.
+    """
     path = Path(path)
     if not path.is_file():
         raise NotAnFmuError(f"{path}: no such FMU file")
+    st = path.stat()
+    key = (str(path.resolve()), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+    if key not in _DESCRIPTIONS:
+        if len(_DESCRIPTIONS) >= _KEEP_DESCRIPTIONS:  # a long test process reads hundreds of FMU versions
+            del _DESCRIPTIONS[next(iter(_DESCRIPTIONS))]
+        _DESCRIPTIONS[key] = _parse_description(path)
+    return _DESCRIPTIONS[key]
+
+
+_DESCRIPTIONS: dict = {}
+_KEEP_DESCRIPTIONS = 32
+
+
+def _parse_description(path: Path):
     try:
         with zipfile.ZipFile(path) as archive:
             if "modelDescription.xml" not in archive.namelist():

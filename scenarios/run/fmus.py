@@ -183,10 +183,13 @@ def numba_compiles(fmu: Path | None = None) -> bool:
     return bool(bundled) and not any(next((cache_root() / b).glob("*.nbi"), None) for b in bundled)
 
 
-def _say_numba_compile(fmu: Path | None = None) -> None:
-    if numba_compiles(fmu):
-        try:
-            print("the Python plant FMU compiles its Numba kernels on its first step (about 20 s, once per FMU "
-                  "build: then cached; FLEXARM_NO_NUMBA=1 runs NumPy instead)", file=sys.stderr, flush=True)
-        except (OSError, ValueError):  # standard error unwritable: no reason to stop a run
-            pass
+def _say_numba_compile(fmu: Path | None = None) -> bool:
+    """Say so when the Python plant FMU `fmu` will compile its Numba kernels on its first step; whether it will."""
+    if not numba_compiles(fmu):
+        return False
+    try:
+        print("the Python plant FMU compiles its Numba kernels on its first step (about 20 s, once per FMU "
+              "build: then cached; FLEXARM_NO_NUMBA=1 runs NumPy instead)", file=sys.stderr, flush=True)
+    except (OSError, ValueError):  # standard error unwritable: no reason to stop a run
+        pass
+    return True

@@ -11,6 +11,7 @@ plan their FMU sets and their points with the same two functions, :func:`scenari
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,20 +40,25 @@ class RunData:
     commit: str | None
     version: str
     scenario_sha256: str
-    #: The reference signals of the trajectory (the CSV's ``ref.*`` and ``err.*`` columns, scenarios/results.py).
-    reference: object = field(repr=False)
+
+    @functools.cached_property
+    def reference(self):
+        """The reference signals of the trajectory (the CSV's ``ref.*`` and ``err.*`` columns,
+        scenarios/results.py), made when the judge stage first needs them, after the run: nothing the master's
+        first step waits for (issue 34, start-up)."""
+        from flexarm.reference import ReferenceSignals
+
+        return ReferenceSignals(self.trajectory)
 
 
 def read_run_data(scenario: Scenario, overrides: dict[str, dict] | None = None) -> RunData:
     """The ``--set`` values applied (an unknown instance refused), the data chain verified (a mismatch refused:
     :class:`scenarios.run.setup.DataChainError`), the trajectory loaded once: nothing here touches an FMU or
     the results folder."""
-    from flexarm.reference import ReferenceSignals
-
     scenario = with_overrides(scenario, overrides)
     chain, traj = verified_data()
     return RunData(scenario, MappingProxyType(dict(overrides or {})), traj, MappingProxyType(chain), git_commit(),
-                   package_version(), sha256_file(scenario.path), ReferenceSignals(traj))
+                   package_version(), sha256_file(scenario.path))
 
 
 @dataclass(frozen=True)

@@ -13,12 +13,14 @@ published only when every case has finished.
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from fmu_build.progress import heartbeat
 from scenarios.config import Scenario
 from scenarios.master import cosim as master
 from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S
@@ -114,15 +116,20 @@ def run_scenario(scenario: Scenario, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_
         for line in plan.notes:
             print(line)
         check_writable(folder, sum(BYTES_PER_SAMPLE * (fs.n_steps + 1) * len(cases) for fs, cases in plan.groups))
+        compiling = False
         if progress:  # a Python plant FMU whose build has no kernels cached yet compiles them on its first step
             for plant in dict.fromkeys(fs.paths[fs.plant] for fs, _ in plan.groups):
-                _say_numba_compile(plant)
+                compiling = _say_numba_compile(plant) or compiling
         by_key: dict[str, CaseResult] = {}
-        with connected(plan) as masters:  # every case probed before the first one runs
-            for _, cases, m in masters:
-                for case in cases:
-                    by_key[case.key], out = run_case(plan, case, m, progress, divergence_limit)
-                    write_case(folder, plan, case, by_key[case.key], out)
+        with contextlib.ExitStack() as first_case:
+            if compiling:  # a sign of life until the first case has run (issue 34: no silence over 10 s)
+                first_case.enter_context(heartbeat("the Numba compile", prefix=""))
+            with connected(plan) as masters:  # every case probed before the first one runs
+                for _, cases, m in masters:
+                    for case in cases:
+                        by_key[case.key], out = run_case(plan, case, m, progress, divergence_limit)
+                        first_case.close()
+                        write_case(folder, plan, case, by_key[case.key], out)
         results = [by_key[c.key] for c in plan.scenario.cases]
         if plots:
             write_figures(folder, plan, results)
