@@ -209,12 +209,29 @@ def _render_lqg(s: dict) -> list[str]:
     rises = sum(b > a for a, b in zip(e, e[1:]))
     out += ["", f"Stopped: {s['stopped']}." if s["stopped"] else
             f"‖e‖₂ {e[0]:.3f} → {e[-1]:.3f} rad, {rises} rises in {len(e) - 1} trials.", ""]
+    n_eval = s["settings"].get("evaluate_samples", s["samples"])
+    after = (n_eval - s["slew_samples"]) / 1000
+    if s["evaluation"]:
+        out += [f"Evaluation: each case once without and once with the final correction, run to t_f + {after:.1f} s "
+                "(the correction zero after the trials' end); the tip's time is from t_f until it stays within 1 mm "
+                "of the end point to the end of that run (—: not within at the end).", ""]
     for key, ev in s["evaluation"].items():
         a, b = ev["unlearned"].get("metrics"), ev["learned"].get("metrics")
         if a and b:
             ra, rb = a["slew_rms_position_error"], b["slew_rms_position_error"]
             out.append(f"* {key}: unlearned {ra:.3f}°, learned {rb:.3f}° (×{rb / ra:.2f}); "
-                       f"peak τ {b['slew_peak_tau1']:.3f} / {b['slew_peak_tau2']:.3f} N·m")
+                       f"peak τ {b['slew_peak_tau1']:.3f} / {b['slew_peak_tau2']:.3f} N·m; tip within 1 mm from "
+                       f"t_f + {_fmt(a['tip_within_1mm_after_tf_s'], '{:.2f}')} s unlearned, "
+                       f"{_fmt(b['tip_within_1mm_after_tf_s'], '{:.2f}')} s learned")
+    held = _held(s)
+    if held is not None:
+        t_in = held[1]
+        verdict = "met" if t_in is not None and t_in <= 0.5 else "missed"
+        out += ["", "| item | target | measured | verdict |", "|---|---|---|---|",
+                f"| tip within 1 mm of the end point after t_f, payload and noise (issue 32) | ≤ 0.5 s, measured to "
+                f"t_f + 5 s | the final correction, learn case, run to t_f + {held[0]:.1f} s: "
+                + ("not within 1 mm at its end" if t_in is None else f"{t_in:.2f} s, then within 1 mm to the end")
+                + f" | {verdict if held[0] >= 5.0 else 'not measured to t_f + 5 s'} |"]
     return out
 
 

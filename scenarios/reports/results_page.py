@@ -405,4 +405,4 @@ def _slew_steps(runs: PageRuns) -> str:
 
 
 # docs/findings.md's and docs/model.md's cost blocks live beside the code that explains them; importing registers them.
-from scenarios.reports import conformance_doc, cost_doc, findings_doc, module_map  # noqa: E402,F401
+from scenarios.reports import conformance_doc, cost_doc, findings_doc, module_map, speed_doc  # noqa: E402,F401
