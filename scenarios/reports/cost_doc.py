@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 
-from scenarios.reports.page_blocks import _MARKED, REPO, PageRuns, block, splice_blocks
+from scenarios.reports.page_blocks import REPO, PageRuns, block, rewrite_block
 
 COST_JSON = REPO / "docs" / "plant-step-cost.json"
 DOC = REPO / "docs" / "model.md"
@@ -45,10 +45,4 @@ def _plant_step_cost(runs: PageRuns) -> str:
 
 def write_block(data: dict):
     """Rewrite docs/model.md's block from `data` (atomically); returns the path."""
-    from flexarm.provenance import write_atomic
-
-    text = DOC.read_text(encoding="utf-8")
-    # the page's other blocks keep their committed text
-    blocks = {m.group(1): m.group(2).strip("\n") for m in _MARKED.finditer(text)}
-    blocks["plant-step-cost"] = render(data)
-    return write_atomic(DOC, splice_blocks(text, blocks, "docs/model.md"))
+    return rewrite_block(DOC, "plant-step-cost", render(data))

@@ -18,7 +18,7 @@ from scenarios.run.fmus import DEFAULT_FMU_DIR
 from scenarios.run.runner import CaseResult, run_scenario
 from scenarios.run.setup import REPO
 
-__all__ = ["BLOCKS", "REPO", "PageRuns", "ResultsPageError", "block", "splice_blocks"]
+__all__ = ["BLOCKS", "REPO", "PageRuns", "ResultsPageError", "block", "rewrite_block", "splice_blocks"]
 
 
 class ResultsPageError(Exception):
@@ -92,6 +92,17 @@ def splice_blocks(text: str, blocks: dict[str, str], where: str = "text") -> str
         return f"{begin}\n{body}\n{end}" if "\n" in body or m.group(2).startswith("\n") else f"{begin}{body}{end}"
 
     return _MARKED.sub(replace, text)
+
+
+def rewrite_block(doc: Path, name: str, body: str) -> Path:
+    """Rewrite block `name` of the document `doc` with `body` (atomically), every other block as committed: what
+    a benchmark's ``--write`` does after recording its file (the page renders the same block from that file)."""
+    from flexarm.provenance import write_atomic
+
+    text = doc.read_text(encoding="utf-8")
+    blocks = {m.group(1): m.group(2).strip("\n") for m in _MARKED.finditer(text)}
+    blocks[name] = body
+    return write_atomic(doc, splice_blocks(text, blocks, str(doc.relative_to(REPO))))
 
 
 def _paper() -> dict:

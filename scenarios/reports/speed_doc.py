@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 
-from scenarios.reports.page_blocks import _MARKED, REPO, PageRuns, block, splice_blocks
+from scenarios.reports.page_blocks import REPO, PageRuns, block, rewrite_block
 
 SPEED_JSON = REPO / "docs" / "run-speed.json"
 DOC = REPO / "docs" / "benchmarks.md"
@@ -56,9 +56,4 @@ def _run_speed(runs: PageRuns) -> str:
 
 def write_block(data: dict):
     """Rewrite docs/benchmarks.md's block from `data` (atomically); returns the path."""
-    from flexarm.provenance import write_atomic
-
-    text = DOC.read_text(encoding="utf-8")
-    blocks = {m.group(1): m.group(2).strip("\n") for m in _MARKED.finditer(text)}  # other blocks as committed
-    blocks["run-speed"] = render(data)
-    return write_atomic(DOC, splice_blocks(text, blocks, "docs/benchmarks.md"))
+    return rewrite_block(DOC, "run-speed", render(data))
