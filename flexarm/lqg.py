@@ -145,10 +145,15 @@ class LqgController:
         A learned correction (N·m, :mod:`flexarm.ilc`) added to the feedforward of samples 0..m−1. The
         filter's input stays the deviation from the nominal feedforward it was linearised about
         (τ − τ_ff, correction included), so it predicts the correction's effect.
+    initial_covariance : float, optional
+        Run the filter as the time-varying Kalman filter over the slew, its prior covariance at sample 0 this
+        factor times the design's steady prior there (:func:`transient_gains`); None: the design's steady gain
+        of each schedule point throughout.
     """
 
     def __init__(self, trajectory, design: LqgDesign, gain_set: str = "gamma0.1", loop_delay_samples: int = 0,
-                 integral_action: bool = False, saturation=(7.0, 2.25), feedforward_correction=None):
+                 integral_action: bool = False, saturation=(7.0, 2.25), feedforward_correction=None,
+                 initial_covariance: float | None = None):
         delay, sat = check_loop_delay(loop_delay_samples), check_saturation(saturation)
         self.correction = check_correction(feedforward_correction)
         self.trajectory = as_trajectory(trajectory)
@@ -166,6 +171,9 @@ class LqgController:
         self._K_xi = design.K_integral[:, w, :, N_STATE:] if integral_action else np.zeros((len(design.times), 2, 2))
         self._index = np.array([design.index_at(k * self.dt) for k in range(self.n_steps + 1)])
         self._y_d = self.z @ design.C.T  # desired measurements (the sensor map is linear)
+        #: The filter's gain of samples 0 .. n_steps − 1 (None: the design's steady gain of each point).
+        self.gains = None if initial_covariance is None else transient_gains(design, self._index[:-1],
+                                                                           initial_covariance)
         self._Cq = design.C[0:2]
 
     # -- trajectory lookup --------------------------------------------------------------
@@ -210,7 +218,8 @@ class LqgController:
             i_p = self._index[self._c(j - 1)]
             x = self.design.Phi[i_p] @ x + self.design.Gamma[i_p] @ state.du[0]
         dy = np.asarray(measurements, dtype=float) - self._y_d[self._c(j)]
-        x_post = x + self.design.M[i_j] @ (dy - self.design.C @ x)
+        gain = self.design.M[i_j] if self.gains is None or j >= len(self.gains) else self.gains[j]
+        x_post = x + gain @ (dy - self.design.C @ x)
         x_now = x_post
         sent = state.du[1:] if k - d >= 0 else state.du[d + 1 - k:]  # torques of samples j .. k − 1
         for n, du in enumerate(sent):
@@ -249,6 +258,43 @@ class LqgController:
         return tau, LqgState(k + 1, x_post, du, xi, True)
 
 
+#: The predicting law's prior covariance at sample 0, a factor of the design's steady prior there
+#: (:class:`PredictedTracking`): large enough that the first samples' estimate follows the measurements. The
+#: velocity error it gives is flat from about 1e4 to 1e9 (``benchmarks/study_paper_law_delay.py``).
+PREDICTOR_PRIOR = 1e6
+
+
+def transient_gains(design: LqgDesign, points, initial_covariance: float) -> np.ndarray:
+    """Kalman gains of the time-varying filter, sample by sample, from a prior covariance at sample 0.
+
+    P_0 = `initial_covariance` · P_prior(point of sample 0); then, at sample j with design point i = points[j],
+    M_j = P_j Cᵀ (C P_j Cᵀ + V)⁻¹ and P_{j+1} = Φ_i (I − M_j C) P_j Φ_iᵀ + W_i (the design's W and V).
+
+    Parameters
+    ----------
+    design : LqgDesign
+    points : sequence of int, shape (n,)
+        The design point of each sample.
+    initial_covariance : float
+        The factor, > 0.
+
+    Returns
+    -------
+    ndarray, shape (n, 22, 10)
+    """
+    if not np.isfinite(initial_covariance) or initial_covariance <= 0:
+        raise LqgError(f"initial_covariance: a factor > 0, got {initial_covariance!r}")
+    C, V = design.C, design.V
+    P = initial_covariance * design.P_prior[points[0]]
+    identity = np.eye(len(P))
+    gains = np.empty((len(points), *C.T.shape))
+    for j, i in enumerate(points):
+        gains[j] = np.linalg.solve(C @ P @ C.T + V, C @ P).T  # P Cᵀ S⁻¹, S and P symmetric
+        P = design.Phi[i] @ ((identity - gains[j] @ C) @ P) @ design.Phi[i].T + design.W[i]
+        P = 0.5 * (P + P.T)
+    return gains
+
+
 class PredictedTracking:
     """The paper's tracking law over a loop delay of d ≥ 1 samples (issue 31): predict, then the paper's gains.
 
@@ -281,8 +327,9 @@ class PredictedTracking:
         if law.schedule is not None and not np.array_equal(np.asarray(law.schedule.times), design.slew_times):
             raise LqgError(f"design: schedule {design.schedule!r} switches at other times than the law's gains")
         self.law, self.delay, self.dt, self.n_steps = law, delay, law.dt, law.n_steps
-        # its filter and predictor only: its gains, feedforward correction and saturation are not used
-        self.filter = LqgController(law.trajectory, design, "gamma0.1", delay)
+        # its filter and predictor only: its gains, feedforward correction and saturation are not used; the
+        # time-varying filter from a large prior: the first half second follows the measurements
+        self.filter = LqgController(law.trajectory, design, "gamma0.1", delay, initial_covariance=PREDICTOR_PRIOR)
 
     def initial_state(self) -> LqgState:
         """On the trajectory, nothing sent."""

@@ -5,12 +5,14 @@ desired measurements as the law forms them) and :meth:`flexarm.lqg_design.LqgDes
 the design files' data chain), written as IEEE-754 bit patterns (:func:`fmu_build.native_codegen.write_resource`),
 exact on every platform. ``fmus/native/controller/controller_lqg.c`` reads them.
 
-* ``lqg_trajectory.txt``: ``n_steps``, ``dt`` (s), ``feedforward_torque`` ((n_steps + 1) x 2, N·m) and
-  ``desired_measurements`` ((n_steps + 1) x 10: z_d C^T, the law's ``y_d``).
+* ``lqg_trajectory.txt``: ``n_steps``, ``dt`` (s), ``feedforward_torque`` ((n_steps + 1) x 2, N·m),
+  ``desired_measurements`` ((n_steps + 1) x 10: z_d C^T, the law's ``y_d``) and ``predictor_prior``
+  (:data:`flexarm.lqg.PREDICTOR_PRIOR`).
 * ``lqg_<schedule>.txt`` for each schedule (``200ms``, ``20ms``, ``single``): ``count``, ``times`` (s),
   ``Phi`` (count x 22 x 22), ``Gamma`` (count x 22 x 2), ``M`` (count x 22 x 10), ``C`` (10 x 22),
   ``K`` (count x 4 x 2 x 22) and ``K_integral`` (count x 4 x 2 x 24), the weights in the order of
-  :data:`flexarm.gain_sets.WEIGHT_NAMES` (= the ``gain_set`` values 1..4), all row-major.
+  :data:`flexarm.gain_sets.WEIGHT_NAMES` (= the ``gain_set`` values 1..4), ``W`` (count x 22 x 22), ``V``
+  (10 x 10) and ``P_prior0`` (22 x 22, the steady prior at the point of t = 0), all row-major.
 * ``lqg_bank_<schedule>.txt`` for each schedule with a payload bank (:data:`flexarm.lqg_bank.BANK_SCHEDULES`,
   ``estimator = 2``), from :meth:`flexarm.lqg_bank.PayloadBank.load`: ``n_models``, ``n_filters``
   (= n_models + 1: the identification filters by mass, then the quiet filter), ``count``, ``schedule_period``
@@ -29,7 +31,7 @@ import numpy as np
 
 from flexarm.gain_schedule import default_trajectory_path
 from flexarm.gain_sets import WEIGHT_NAMES
-from flexarm.lqg import lqg_controller
+from flexarm.lqg import PREDICTOR_PRIOR, lqg_controller
 from flexarm.lqg_bank import BANK_SCHEDULES, POSTERIOR_FLOOR, QUIET_RESEED_BELOW, PayloadBank, bank_controller
 from flexarm.lqg_design import DEFAULT_LQG_DIR, LqgDesign
 from flexarm.provenance import sha256_file
@@ -99,6 +101,7 @@ def write_lqg_resources(directory: Path, bank: bool = True) -> list[Path]:
     write_resource(out[0], {
         "n_steps": [law.n_steps], "dt": [law.dt], "feedforward_torque": law.trajectory.tau,
         "desired_measurements": law.z @ law.design.C.T,  # the law's y_d, the same expression
+        "predictor_prior": [PREDICTOR_PRIOR],  # the paper's law predicting over a delay: its filter's prior
     }, "flexarm LQG controller: trajectory (IEEE-754 hex bit patterns), fmu_build/native_resources.py\n"
        f"source: {traj_file.name} sha256 {sha256_file(traj_file)}")
     for schedule in SCHEDULES:
@@ -107,6 +110,8 @@ def write_lqg_resources(directory: Path, bank: bool = True) -> list[Path]:
         write_resource(path, {
             "count": [len(design.times)], "times": design.times, "Phi": design.Phi, "Gamma": design.Gamma,
             "M": design.M, "C": design.C, "K": design.K, "K_integral": design.K_integral,
+            # the noise model of the predicting law's time-varying filter (flexarm.lqg.transient_gains)
+            "W": design.W, "V": design.V, "P_prior0": design.P_prior[design.index_at(0.0)],
         }, f"flexarm LQG design {schedule} (IEEE-754 hex bit patterns), fmu_build/native_resources.py\n"
            f"source: lqg_{schedule}.npz sha256 {sha256_file(DEFAULT_LQG_DIR / f'lqg_{schedule}.npz')}\n"
            f"weights (gain_set 1..4): {', '.join(WEIGHT_NAMES)}")

@@ -239,8 +239,10 @@ class ControllerSlave(FeedthroughSlave):
         x = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)  # q1_m .. eps6_m
         k = self.law.sample_index(self.time)
         index = self._values[self._index_vr]
-        # a master's placeholder (fmpy's first step: no index, all zero) is no measurement of q = 0: no feedback
-        if not is_placeholder(index, x):
+        # a master's placeholder (fmpy's first step: no index, all zero) is no measurement of q = 0, and one whose
+        # index names an earlier sample (a Jacobi master's first step, before fmi2DoStep has measured the delay)
+        # none of sample k: no feedback, as the predicting law has none before its first measurement
+        if not is_placeholder(index, x) and not measured_delay(k, index) >= 1:
             tau = self.law.torque_from_measurements(k, x)
         else:
             tau = self.law.feedforward(k)

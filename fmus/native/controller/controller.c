@@ -70,6 +70,8 @@ typedef struct {
     long n_correction;
     const Schedule *schedule; /* the gains in force (feedback variants) */
     LqgData lqg;          /* the predictor over a measured delay: trajectory, designs (feedback variants) */
+    Noise noise[3];       /* each design's noise model: the predictor's time-varying filter */
+    double predictor_prior; /* its prior covariance at sample 0, times the steady one (flexarm.lqg.PREDICTOR_PRIOR) */
 } ControllerData;
 
 static int read_schedule(Instance *inst, const char *file, const char *text, int set, int s, Schedule *out)
@@ -89,7 +91,7 @@ static int read_schedule(Instance *inst, const char *file, const char *text, int
 }
 
 /* The predictor's trajectory and designs (resources of the feedback variants, fmu_build/native_resources.py). */
-static int load_predictor(Instance *inst, char *const *contents, LqgData *p)
+static int load_predictor(Instance *inst, char *const *contents, LqgData *p, Noise *noise, double *prior)
 {
     p->designs = calloc(3, sizeof *p->designs);
     if (p->designs == NULL) return -1;
@@ -104,10 +106,14 @@ static int load_predictor(Instance *inst, char *const *contents, LqgData *p)
             p->feedforward = lqg_read_array(inst, file, text, "feedforward_torque", (size_t)(p->n_steps + 1) * 2);
             p->desired = lqg_read_array(inst, file, text, "desired_measurements", (size_t)(p->n_steps + 1) * N_MEAS);
             p->index = calloc((size_t)p->n_steps + 1, sizeof *p->index);
-            if (!p->feedforward || !p->desired || !p->index) return -1;
+            if (!p->feedforward || !p->desired || !p->index ||
+                glue_read_doubles(inst, file, text, "predictor_prior", prior, 1))
+                return -1;
         }
         for (int s = 0; s < 3; s++)
-            if (strcmp(file, LQG_FILES[s]) == 0 && lqg_read_design(inst, file, text, &p->designs[s], p->c)) return -1;
+            if (strcmp(file, LQG_FILES[s]) == 0 && (lqg_read_design(inst, file, text, &p->designs[s], p->c) ||
+                                                    lqg_read_noise(inst, file, text, p->designs[s].count, &noise[s])))
+                return -1;
     }
     for (int s = 0; s < 3; s++)
         if (p->designs[s].times == NULL || p->index == NULL) {
@@ -130,8 +136,9 @@ static void controller_unload(Instance *inst)
     for (int s = 0; d->lqg.designs != NULL && s < 3; s++) {
         Design *g = &d->lqg.designs[s];
         free(g->times), free(g->phi), free(g->gamma), free(g->m), free(g->k), free(g->k_integral);
+        free(d->noise[s].w);
     }
-    free(d->lqg.designs);
+    free(d->lqg.designs), free(d->lqg.gains);
     free(d);
     inst->data = NULL;
 }
@@ -168,7 +175,7 @@ static int controller_load(Instance *inst, char *const *contents, const size_t *
         for (int s = 0; s < 3; s++)
             if (read_schedule(inst, MODEL_INFO.resources[gains].file, contents[gains], i + 1, s, &d->schedules[i][s]))
                 goto fail;
-    if (load_predictor(inst, contents, &d->lqg)) goto fail;
+    if (load_predictor(inst, contents, &d->lqg, d->noise, &d->predictor_prior)) goto fail;
 #else
     (void)read_schedule;
 #endif
@@ -217,6 +224,7 @@ static fmi2Status configure(Instance *inst)
     const Schedule *sch = &d->schedules[(int)key[0] - 1][s];
     d->schedule = sch;
     d->lqg.design = &d->lqg.designs[s]; /* the predictor's filter, of the same schedule */
+    free(d->lqg.gains), d->lqg.gains = NULL, d->lqg.n_gains = 0; /* its time-varying gains: made at the switch */
     lqg_schedule_index(d->lqg.design->times, d->lqg.design->count, d->lqg.n_steps, d->lqg.dt, d->lqg.index);
     const double *est = d->estimator[(int)key[2] - 1];
     free(d->gain_per_meas);
@@ -291,7 +299,9 @@ static fmi2Status controller_sample(Instance *inst)
     for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
     const double index = VALUE(inst, IDX_sample_index_m);
 #if CONTROLLER_FEEDBACK
-    if (!loop_is_placeholder(index, m, N_MEAS)) { /* fmpy's first step: no sample yet, not a measurement of q = 0 */
+    /* fmpy's first step: no sample yet, not a measurement of q = 0; an index naming an earlier sample (a Jacobi
+       master's first step, before fmi2DoStep has measured the delay): no measurement of sample k either */
+    if (!loop_is_placeholder(index, m, N_MEAS) && !(loop_measured_delay((double)k, index) >= 1.0)) {
         const double *ke = d->gain_per_meas + (size_t)d->gain_index[kc] * 2 * N_MEAS;
         for (int i = 0; i < 2; i++) {
             double acc = 0.0;
@@ -406,6 +416,9 @@ static fmi2Status controller_do_step(Instance *inst, double t, double h)
     if (n == 0) return fmi2OK; /* no sample instant in the step: nothing changes */
     ControllerState *st = inst->state;
     const double k = nearbyint(t / d->dt), index = VALUE(inst, IDX_sample_index_m);
+    if ((st->delay > 0 || loop_measured_delay(k, index) >= 1.0) && d->lqg.gains == NULL &&
+        lqg_transient_gains(inst, &d->lqg, &d->noise[d->lqg.design - d->lqg.designs], d->predictor_prior))
+        return fmi2Error; /* the predictor's time-varying filter, once per configuration */
     double m[N_MEAS], applied[2];
     for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]); /* present at fmi2DoStep, held in the step */
     const int foreign = lqg_plant_applied(inst, (long long)k, st->delay == 0 || k <= (double)st->switch_end, applied);

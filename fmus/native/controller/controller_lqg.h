@@ -50,7 +50,19 @@ typedef struct {
     int *index; /* n_steps + 1: the design point in force at each sample */
     double *correction; /* n_correction x 2: the learned feedforward correction (NULL: none), N.m */
     long n_correction;
+    /* the time-varying filter's gains of samples 0 .. n_gains - 1 (lqg_transient_gains; NULL: the design's
+       steady gain of each point throughout) */
+    double *gains;
+    long n_gains;
 } LqgData;
+
+/* A design's noise model (resources lqg_<schedule>.txt: W, V and the steady prior covariance at its first point):
+   what the time-varying filter's covariance recursion needs (flexarm.lqg.transient_gains). */
+typedef struct {
+    double *w;                      /* count x 22 x 22 */
+    double v[N_MEAS * N_MEAS];      /* 10 x 10 */
+    double p_prior0[N_STATE * N_STATE];
+} Noise;
 
 /* The feedforward sent at sample k: the trajectory's (zero after the slew) plus the learned correction (into
  * command); the nominal one (into nominal), about which the filter's model is linearised. */
@@ -72,6 +84,12 @@ int lqg_read_design(Instance *inst, const char *file, const char *text, Design *
 /* Steps 1-3: the posterior at j = max(k - d, 0) and the error predicted to sample k (d->design, d->delay). */
 void lqg_estimate(const LqgData *d, const LqgState *s, long long k, const double m[N_MEAS], double x_post[N_STATE],
                   double x_now[N_STATE]);
+/* A design resource's noise model (W, V, P_prior0) into `noise`. */
+int lqg_read_noise(Instance *inst, const char *file, const char *text, int count, Noise *noise);
+/* d->gains for samples 0 .. d->n_steps - 1 of d->design (its points d->index) from the prior covariance `factor`
+   times the steady prior at sample 0 (flexarm.lqg.transient_gains); -1 (logged) when out of memory or the
+   innovation covariance is not positive definite. */
+int lqg_transient_gains(Instance *inst, LqgData *d, const Noise *noise, double factor);
 /* The plant's reports of the torque it held (see lqg_core.c): a few are enough, a switch comes early. */
 #define LQG_N_FOREIGN 16
 int lqg_plant_applied(Instance *inst, long long k, int any_lag, double torque[2]);

@@ -106,7 +106,9 @@ void lqg_estimate(const LqgData *d, const LqgState *s, long long k, const double
     const double *y_d = d->desired + lqg_clamp(d, j) * N_MEAS;                                            /* 2 */
     lqg_mat_vec(d->c, N_MEAS, N_STATE, N_STATE, x, cx);
     for (int r = 0; r < N_MEAS; r++) innovation[r] = (m[r] - y_d[r]) - cx[r];
-    lqg_mat_vec(g->m + (size_t)d->index[lqg_clamp(d, j)] * N_STATE * N_MEAS, N_STATE, N_MEAS, N_MEAS, innovation, mi);
+    const double *gain = d->gains != NULL && j < d->n_gains ? d->gains + (size_t)j * N_STATE * N_MEAS
+                                                             : g->m + (size_t)d->index[lqg_clamp(d, j)] * N_STATE * N_MEAS;
+    lqg_mat_vec(gain, N_STATE, N_MEAS, N_MEAS, innovation, mi);
     for (int r = 0; r < N_STATE; r++) x_post[r] = x[r] + mi[r];
     memcpy(x_now, x_post, N_STATE * sizeof *x_now); /* 3: the torques of samples j .. k - 1 */
     int first = k - dl >= 0 ? 1 : (int)(dl + 1 - k);
@@ -164,4 +166,100 @@ void lqg_remember(double foreign[][3], int *n, long long sample, const double to
     }
     foreign[*n][0] = (double)sample, foreign[*n][1] = torque[0], foreign[*n][2] = torque[1];
     (*n)++;
+}
+
+/* -- the time-varying filter of the predicting law ------------------------------------------------------------ */
+int lqg_read_noise(Instance *inst, const char *file, const char *text, int count, Noise *noise)
+{
+    noise->w = lqg_read_array(inst, file, text, "W", (size_t)count * N_STATE * N_STATE);
+    if (noise->w == NULL || glue_read_doubles(inst, file, text, "V", noise->v, N_MEAS * N_MEAS) ||
+        glue_read_doubles(inst, file, text, "P_prior0", noise->p_prior0, N_STATE * N_STATE))
+        return -1;
+    return 0;
+}
+
+/* c = a b for a (n x m), b (m x p), all row-major; compensated sums as lqg_mat_vec. */
+static void mat_mul(const double *a, const double *b, int n, int m, int p, double *c)
+{
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < p; j++) {
+            double sum = 0.0, carry = 0.0;
+            for (int r = 0; r < m; r++) NEUMAIER(sum, carry, a[i * m + r] * b[r * p + j]);
+            c[i * p + j] = sum + carry;
+        }
+}
+
+int lqg_transient_gains(Instance *inst, LqgData *d, const Noise *noise, double factor)
+{
+    const Design *g = d->design;
+    const long n = d->n_steps;
+    double *gains = malloc((size_t)n * N_STATE * N_MEAS * sizeof *gains);
+    double *p = malloc(5 * N_STATE * N_STATE * sizeof *p);
+    if (gains == NULL || p == NULL) {
+        free(gains), free(p);
+        glue_log(inst, fmi2Error, "the predictor's filter gains: out of memory");
+        return -1;
+    }
+    double *a = p + N_STATE * N_STATE, *b = a + N_STATE * N_STATE, *phi_t = b + N_STATE * N_STATE;
+    double *ct = phi_t + N_STATE * N_STATE; /* C^T, 22 x 10 */
+    double cp[N_MEAS * N_STATE], s[N_MEAS * N_MEAS];
+    for (int i = 0; i < N_STATE * N_STATE; i++) p[i] = factor * noise->p_prior0[i];
+    for (int r = 0; r < N_STATE; r++)
+        for (int q = 0; q < N_MEAS; q++) ct[r * N_MEAS + q] = d->c[q * N_STATE + r];
+    for (long j = 0; j < n; j++) {
+        const int i = d->index[j];
+        mat_mul(d->c, p, N_MEAS, N_STATE, N_STATE, cp); /* C P */
+        mat_mul(cp, ct, N_MEAS, N_STATE, N_MEAS, s);    /* S = C P C^T + V */
+        for (int q = 0; q < N_MEAS * N_MEAS; q++) s[q] += noise->v[q];
+        for (int r = 0; r < N_MEAS; r++) /* S symmetric: its upper triangle onto the lower, as NumPy's solve sees it */
+            for (int q = 0; q < r; q++) s[r * N_MEAS + q] = s[q * N_MEAS + r] = 0.5 * (s[r * N_MEAS + q] + s[q * N_MEAS + r]);
+        for (int r = 0; r < N_MEAS; r++) { /* Cholesky S = L L^T, in place (lower) */
+            for (int q = 0; q <= r; q++) {
+                double sum = s[r * N_MEAS + q];
+                for (int t = 0; t < q; t++) sum -= s[r * N_MEAS + t] * s[q * N_MEAS + t];
+                if (q == r) {
+                    if (!(sum > 0.0)) {
+                        free(gains), free(p);
+                        glue_log(inst, fmi2Error, "the predictor's filter: the innovation covariance at sample %ld "
+                                 "is not positive definite", j);
+                        return -1;
+                    }
+                    s[r * N_MEAS + r] = sqrt(sum);
+                } else {
+                    s[r * N_MEAS + q] = sum / s[q * N_MEAS + q];
+                }
+            }
+        }
+        double *gain = gains + (size_t)j * N_STATE * N_MEAS; /* M = P C^T S^-1: solve S M^T = C P, column by column */
+        for (int col = 0; col < N_STATE; col++) {
+            double y[N_MEAS];
+            for (int r = 0; r < N_MEAS; r++) {
+                double sum = cp[r * N_STATE + col];
+                for (int t = 0; t < r; t++) sum -= s[r * N_MEAS + t] * y[t];
+                y[r] = sum / s[r * N_MEAS + r];
+            }
+            for (int r = N_MEAS - 1; r >= 0; r--) {
+                double sum = y[r];
+                for (int t = r + 1; t < N_MEAS; t++) sum -= s[t * N_MEAS + r] * y[t];
+                y[r] = sum / s[r * N_MEAS + r];
+            }
+            for (int r = 0; r < N_MEAS; r++) gain[col * N_MEAS + r] = y[r];
+        }
+        /* P <- Phi (I - M C) P Phi^T + W */
+        mat_mul(gain, cp, N_STATE, N_MEAS, N_STATE, a); /* M C P */
+        for (int q = 0; q < N_STATE * N_STATE; q++) a[q] = p[q] - a[q];
+        const double *phi = g->phi + (size_t)i * N_STATE * N_STATE;
+        mat_mul(phi, a, N_STATE, N_STATE, N_STATE, b);
+        for (int r = 0; r < N_STATE; r++)
+            for (int q = 0; q < N_STATE; q++) phi_t[r * N_STATE + q] = phi[q * N_STATE + r];
+        mat_mul(b, phi_t, N_STATE, N_STATE, N_STATE, p);
+        const double *w = noise->w + (size_t)i * N_STATE * N_STATE;
+        for (int q = 0; q < N_STATE * N_STATE; q++) p[q] += w[q];
+        for (int r = 0; r < N_STATE; r++)
+            for (int q = 0; q < r; q++) p[r * N_STATE + q] = p[q * N_STATE + r] = 0.5 * (p[r * N_STATE + q] + p[q * N_STATE + r]);
+    }
+    free(p);
+    free(d->gains);
+    d->gains = gains, d->n_gains = n;
+    return 0;
 }
