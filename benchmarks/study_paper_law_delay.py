@@ -9,19 +9,18 @@ tables' tracking errors beside the delay-free run:
 * ``delayed``: the law on the measurement of a - d, with sample a's feedforward and desired values;
 * ``model prediction``: the reconstructed error of a - d (eqs. 21-31, the nine unmeasured velocities taken as
   0) carried to a by the linearised model along the slew (the LQG design's Phi, Gamma) with the torques sent;
-* ``Kalman predictor``: the LQG design's Kalman filter and predictor to a, and the paper's law on the measurement it
-  predicts for a, K(t_a) E C x_a (flexarm.lqg.PredictedTracking: what controller.fmu does in a Jacobi master);
-* ``filter state``: the paper's reduced gains on the filter's whole predicted state, K(t_a) x_a (what
-  controller.fmu did before: the filter's angles and unmeasured velocities are not the reconstruction's);
-* ``transient gain`` (with ``--initial-covariance F``): the Kalman predictor whose filter starts from the prior
-  covariance F P (P: the design's steady prior at t = 0) and runs the covariance recursion, so its gain starts
-  high (the estimate follows the measurements) and settles to the steady gain; not what the FMUs do (yet);
-* ``..., FMU start`` (with ``--initial-covariance``): the same with sample 1's torque as the FMUs compute it in a
-  Jacobi master, fed through from sample 0's measurement before the first ``fmi2DoStep`` has measured the delay
-  (the filter told the torque held), the start-up the FMUs add to the library's figure.
+* ``steady filter``: the LQG design's Kalman filter (the steady gain of each schedule point) and predictor to a,
+  and the paper's law on the measurement it predicts for a, K(t_a) E C x_a (what controller.fmu did before);
+* ``filter state``: the paper's reduced gains on the steady filter's whole predicted state, K(t_a) x_a (what
+  controller.fmu did first: the filter's angles and unmeasured velocities are not the reconstruction's);
+* ``Kalman predictor``: the same with the time-varying filter from a large prior covariance
+  (flexarm.lqg.PredictedTracking, PREDICTOR_PRIOR: what controller.fmu does in a Jacobi master);
+* ``steady filter, FMU start``: the steady filter with sample 1's torque fed through from sample 0's measurement
+  (the filter told the torque held), as the FMUs did before sample 1 took the feedforward;
+* ``transient gain`` (with ``--initial-covariance F``): the time-varying filter from F times the steady prior.
 
     python benchmarks/study_paper_law_delay.py [--delay 2] [--payload 0.275] [--gain-set gamma0] [--noise-seeds 5]
-                                               [--initial-covariance 1000]
+                                               [--initial-covariance 1e4]
 
 The acceptance of issue 31 asks every master to give the Gauss-Seidel figures within 5 % or 0.005 deg
 (0.05 deg/s).
@@ -49,36 +48,10 @@ def measurements(z: np.ndarray) -> np.ndarray:
     return np.concatenate([joint_angles(th), joint_velocities(om), strain_gauge_angles(th)])
 
 
-class TransientGainFilter(LqgController):
-    """The LQG filter and predictor with the time-varying Kalman gain of the covariance recursion started from
-    the prior covariance `scale` P_prior(0) at sample 0, for `samples` samples (then the design's steady gain).
-
-    The recursion, per sample j at the design point i in force: M_j = P_j C^T (C P_j C^T + V)^-1,
-    P_{j+1} = Phi_i (I - M_j C) P_j Phi_i^T + W_i (the design's W and V)."""
-
-    def __init__(self, law, design: LqgDesign, delay: int, scale: float, samples: int = 2000):
-        super().__init__(law.trajectory, design, "gamma0.1", delay)
-        c, v, p = design.C, design.V, scale * design.P_prior[0]
-        self.gains = []
-        for j in range(samples):
-            i = design.index_at(j * self.dt)
-            m = np.linalg.solve(c @ p @ c.T + v, c @ p).T
-            self.gains.append(m)
-            p = design.Phi[i] @ (np.eye(len(p)) - m @ c) @ p @ design.Phi[i].T + design.W[i]
-            p = 0.5 * (p + p.T)
-
-    def estimate(self, state, k, measurements):
-        j = max(k - self.delay, 0)
-        if j >= len(self.gains):
-            return super().estimate(state, k, measurements)
-        steady = self.design
-        m = steady.M.copy()
-        m[steady.index_at(min(j, self.n_steps) * self.dt)] = self.gains[j]
-        self.design = dataclasses.replace(steady, M=m)
-        try:
-            return super().estimate(state, k, measurements)
-        finally:
-            self.design = steady
+def with_filter(predictor: PredictedTracking, law, design: LqgDesign, d: int, initial_covariance) -> None:
+    """`predictor` with its filter started from `initial_covariance` times the steady prior (None: the design's
+    steady gain of each point throughout, the filter before issue 31's change)."""
+    predictor.filter = LqgController(law.trajectory, design, "gamma0.1", d, initial_covariance=initial_covariance)
 
 
 def run(law: TrackingController, design: LqgDesign, model: ArmModel, how: str, d: int,
@@ -91,10 +64,12 @@ def run(law: TrackingController, design: LqgDesign, model: ArmModel, how: str, d
     predictor = None
     fmu_start = how.endswith(", FMU start")
     how = how.removesuffix(", FMU start")
-    if how in ("Kalman predictor", "filter state", "transient gain"):
-        predictor = PredictedTracking(law, design, d)
+    if how in ("Kalman predictor", "filter state", "transient gain", "steady filter"):
+        predictor = PredictedTracking(law, design, d)  # the shipped law: the transient-gain filter (PREDICTOR_PRIOR)
     if how == "transient gain":
-        predictor.filter = TransientGainFilter(law, design, d, initial_covariance)
+        with_filter(predictor, law, design, d, initial_covariance)
+    if how in ("steady filter", "filter state"):
+        with_filter(predictor, law, design, d, None)
     state = None if predictor is None else predictor.initial_state()
     measured, states, held = [], [plant.z.copy()], {}
     for a in range(n):
@@ -102,7 +77,7 @@ def run(law: TrackingController, design: LqgDesign, model: ArmModel, how: str, d
         j = a - d
         if how == "no delay":
             tau = law.torque_from_measurements(a, measured[a])
-        elif how in ("Kalman predictor", "transient gain"):  # the first: what controller.fmu does in Jacobi
+        elif how in ("Kalman predictor", "transient gain", "steady filter"):  # the first: controller.fmu in Jacobi
             tau, state = predictor.step(state, a, measured[j] if j >= 0 else predictor.desired_measurement(0))
             if fmu_start and a == 1:  # the FMUs' sample 1: fed through from sample 0's measurement, held
                 tau = law.torque_from_measurements(1, measured[0])
@@ -144,10 +119,11 @@ def main() -> None:
     print(f"the paper's law, {args.gain_set}, 200 ms schedule, payload {args.payload} kg, loop delay {args.delay} "
           "samples")
     print(f"{'':31} {'rms pos, deg':>13} {'rms vel, deg/s':>15} {'peak pos, deg':>14}")
-    rows = ["no delay", "delayed", "model prediction", "Kalman predictor", "filter state"]
-    noisy = ["no delay", "Kalman predictor"]
+    rows = ["no delay", "delayed", "model prediction", "steady filter", "filter state", "Kalman predictor",
+            "steady filter, FMU start"]
+    noisy = ["no delay", "steady filter", "Kalman predictor"]
     if args.initial_covariance:
-        rows += ["transient gain", "Kalman predictor, FMU start", "transient gain, FMU start"]
+        rows.append("transient gain")
         noisy.append("transient gain")
     for how in rows:
         r = run(law, design, model, how, 0 if how == "no delay" else args.delay, None, args.initial_covariance)

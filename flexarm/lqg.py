@@ -302,7 +302,10 @@ class PredictedTracking:
     measurement of the sample it computes; in a Jacobi master that measurement is d samples old, and the stiff
     γ = 0.1 loop goes unstable on it. Here the LQG design's Kalman filter of the same schedule takes the
     measurement of sample k − d and predicts the error state to sample k with the torques actually sent
-    (:meth:`LqgController.estimate`, the linearised model along the slew). The paper's law then runs on the
+    (:meth:`LqgController.estimate`, the linearised model along the slew), as the time-varying Kalman filter from
+    a large prior covariance (:data:`PREDICTOR_PRIOR`, :func:`transient_gains`): over the first half second, where
+    the feedforward rings the arm hardest, its estimate follows the measurements instead of leaning on the model,
+    which is what the delay-free law does. The paper's law then runs on the
     measurement that prediction gives for sample k, m_d(k) + C x̂_k: its own reconstruction (eqs. 21-31, E) and its
     reduced gain in force at k, τ_k = sat(τ_ff(k) − K(t_k) E C x̂_k), the loop a Gauss-Seidel master runs with
     the true measurement. (The reduced gain on the filter's whole state, K(t_k) x̂_k, is a different loop: the filter's
