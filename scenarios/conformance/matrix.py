@@ -53,13 +53,13 @@ JACOBI_MASTERS = ("ours_jacobi", "libcosim", "ecos", "simulate_ssp", "hostile_ja
 
 def known_to_differ(lqg: bool) -> tuple[str, ...]:
     """The masters in which an archive is known to miss the tolerance today (issue 31, open): fmpy's
-    ``simulate_ssp`` with either controller (its first millisecond holds no torque: a real impulse on the arm that
-    the loop removes only over hundreds of milliseconds); with the paper's law (no ``loop_delay_samples``: `lqg`
-    False) every Jacobi master, where the law on the measurement predicted over the measured delay gives every
-    payload case, but the payload-free ones' rms velocity error 12-38 % above the Gauss-Seidel figure (the filter's
-    prediction over 2 ms, benchmarks/study_paper_law_delay.py, and a first sample fed through from the measurement
-    of sample 0: docs/control.md). (The LQG's integral cases without payload also miss in the Jacobi masters, by
-    8-10 % of rms velocity error; CI's subset does not run them, the published matrix shows them.)"""
+    ``simulate_ssp`` with either controller (its first millisecond holds no torque: a real impulse on the arm,
+    benchmarks/study_first_step_loss.py); with the paper's law (no ``loop_delay_samples``: `lqg` False) also every
+    Jacobi master, on the noise cases: the law predicting over the measured delay gives the noise-free cases'
+    Gauss-Seidel figures, but with noise the two steppings feed one noise sequence to different torques, two
+    realisations some per cent apart (docs/control.md). (The LQG's integral cases without payload also miss in the
+    Jacobi masters, by 8-10 % of rms velocity error; CI's subset does not run them, the published matrix shows
+    them.)"""
     return ("simulate_ssp",) if lqg else JACOBI_MASTERS
 
 
