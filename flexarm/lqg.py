@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .gain_schedule import as_trajectory, desired_states, sample_time
-from .lqg_design import LqgDesign
+from .lqg_design import LqgDesign, transient_gains
 from .model import N_STATE
 from .trajectory.io import SAMPLE_TIME
 
@@ -147,8 +147,8 @@ class LqgController:
         (τ − τ_ff, correction included), so it predicts the correction's effect.
     initial_covariance : float, optional
         Run the filter as the time-varying Kalman filter over the slew, its prior covariance at sample 0 this
-        factor times the design's steady prior there (:func:`transient_gains`); None: the design's steady gain
-        of each schedule point throughout.
+        factor times the design's steady prior there (:func:`flexarm.lqg_design.transient_gains`); None: the
+        design's steady gain of each schedule point throughout.
     """
 
     def __init__(self, trajectory, design: LqgDesign, gain_set: str = "gamma0.1", loop_delay_samples: int = 0,
@@ -264,37 +264,6 @@ class LqgController:
 PREDICTOR_PRIOR = 1e6
 
 
-def transient_gains(design: LqgDesign, points, initial_covariance: float) -> np.ndarray:
-    """Kalman gains of the time-varying filter, sample by sample, from a prior covariance at sample 0.
-
-    P_0 = `initial_covariance` · P_prior(point of sample 0); then, at sample j with design point i = points[j],
-    M_j = P_j Cᵀ (C P_j Cᵀ + V)⁻¹ and P_{j+1} = Φ_i (I − M_j C) P_j Φ_iᵀ + W_i (the design's W and V).
-
-    Parameters
-    ----------
-    design : LqgDesign
-    points : sequence of int, shape (n,)
-        The design point of each sample.
-    initial_covariance : float
-        The factor, > 0.
-
-    Returns
-    -------
-    ndarray, shape (n, 22, 10)
-    """
-    if not np.isfinite(initial_covariance) or initial_covariance <= 0:
-        raise LqgError(f"initial_covariance: a factor > 0, got {initial_covariance!r}")
-    C, V = design.C, design.V
-    P = initial_covariance * design.P_prior[points[0]]
-    identity = np.eye(len(P))
-    gains = np.empty((len(points), *C.T.shape))
-    for j, i in enumerate(points):
-        gains[j] = np.linalg.solve(C @ P @ C.T + V, C @ P).T  # P Cᵀ S⁻¹, S and P symmetric
-        P = design.Phi[i] @ ((identity - gains[j] @ C) @ P) @ design.Phi[i].T + design.W[i]
-        P = 0.5 * (P + P.T)
-    return gains
-
-
 class PredictedTracking:
     """The paper's tracking law over a loop delay of d ≥ 1 samples (issue 31): predict, then the paper's gains.
 
@@ -303,9 +272,9 @@ class PredictedTracking:
     γ = 0.1 loop goes unstable on it. Here the LQG design's Kalman filter of the same schedule takes the
     measurement of sample k − d and predicts the error state to sample k with the torques actually sent
     (:meth:`LqgController.estimate`, the linearised model along the slew), as the time-varying Kalman filter from
-    a large prior covariance (:data:`PREDICTOR_PRIOR`, :func:`transient_gains`): over the first half second, where
-    the feedforward rings the arm hardest, its estimate follows the measurements instead of leaning on the model,
-    which is what the delay-free law does. The paper's law then runs on the
+    a large prior covariance (:data:`PREDICTOR_PRIOR`, :func:`flexarm.lqg_design.transient_gains`): over the first
+    half second, where the feedforward rings the arm hardest, its estimate follows the measurements instead of
+    leaning on the model, which is what the delay-free law does. The paper's law then runs on the
     measurement that prediction gives for sample k, m_d(k) + C x̂_k: its own reconstruction (eqs. 21-31, E) and its
     reduced gain in force at k, τ_k = sat(τ_ff(k) − K(t_k) E C x̂_k), the loop a Gauss-Seidel master runs with
     the true measurement. (The reduced gain on the filter's whole state, K(t_k) x̂_k, is a different loop: the filter's

@@ -431,3 +431,34 @@ def design_lqg(model: ArmModel, trajectory, schedule: str = "200ms", sensors: Se
                      Phi=stack("Phi"), Gamma=stack("Gamma"), W=stack("W"), M=stack("M"),
                      P_prior=stack("P_prior"), P_post=stack("P_post"), K=stack("K"),
                      K_integral=stack("K_integral"), C=measurement_matrix(), V=V, metadata=meta)
+
+
+def transient_gains(design: LqgDesign, points, initial_covariance: float) -> np.ndarray:
+    """Kalman gains of the time-varying filter, sample by sample, from a prior covariance at sample 0.
+
+    P_0 = `initial_covariance` · P_prior(point of sample 0); then, at sample j with design point i = points[j],
+    M_j = P_j Cᵀ (C P_j Cᵀ + V)⁻¹ and P_{j+1} = Φ_i (I − M_j C) P_j Φ_iᵀ + W_i (the design's W and V).
+
+    Parameters
+    ----------
+    design : LqgDesign
+    points : sequence of int, shape (n,)
+        The design point of each sample.
+    initial_covariance : float
+        The factor, > 0.
+
+    Returns
+    -------
+    ndarray, shape (n, 22, 10)
+    """
+    if not np.isfinite(initial_covariance) or initial_covariance <= 0:
+        raise ValueError(f"initial_covariance: a factor > 0, got {initial_covariance!r}")
+    C, V = design.C, design.V
+    P = initial_covariance * design.P_prior[points[0]]
+    identity = np.eye(len(P))
+    gains = np.empty((len(points), *C.T.shape))
+    for j, i in enumerate(points):
+        gains[j] = np.linalg.solve(C @ P @ C.T + V, C @ P).T  # P Cᵀ S⁻¹, S and P symmetric
+        P = design.Phi[i] @ ((identity - gains[j] @ C) @ P) @ design.Phi[i].T + design.W[i]
+        P = 0.5 * (P + P.T)
+    return gains

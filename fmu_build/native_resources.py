@@ -110,7 +110,7 @@ def write_lqg_resources(directory: Path, bank: bool = True) -> list[Path]:
         write_resource(path, {
             "count": [len(design.times)], "times": design.times, "Phi": design.Phi, "Gamma": design.Gamma,
             "M": design.M, "C": design.C, "K": design.K, "K_integral": design.K_integral,
-            # the noise model of the predicting law's time-varying filter (flexarm.lqg.transient_gains)
+            # the noise model of the predicting law's time-varying filter (flexarm.lqg_design.transient_gains)
             "W": design.W, "V": design.V, "P_prior0": design.P_prior[design.index_at(0.0)],
         }, f"flexarm LQG design {schedule} (IEEE-754 hex bit patterns), fmu_build/native_resources.py\n"
            f"source: lqg_{schedule}.npz sha256 {sha256_file(DEFAULT_LQG_DIR / f'lqg_{schedule}.npz')}\n"

@@ -57,7 +57,7 @@ typedef struct {
 } LqgData;
 
 /* A design's noise model (resources lqg_<schedule>.txt: W, V and the steady prior covariance at its first point):
-   what the time-varying filter's covariance recursion needs (flexarm.lqg.transient_gains). */
+   what the time-varying filter's covariance recursion needs (flexarm.lqg_design.transient_gains). */
 typedef struct {
     double *w;                      /* count x 22 x 22 */
     double v[N_MEAS * N_MEAS];      /* 10 x 10 */
@@ -87,7 +87,7 @@ void lqg_estimate(const LqgData *d, const LqgState *s, long long k, const double
 /* A design resource's noise model (W, V, P_prior0) into `noise`. */
 int lqg_read_noise(Instance *inst, const char *file, const char *text, int count, Noise *noise);
 /* d->gains for samples 0 .. d->n_steps - 1 of d->design (its points d->index) from the prior covariance `factor`
-   times the steady prior at sample 0 (flexarm.lqg.transient_gains); -1 (logged) when out of memory or the
+   times the steady prior at sample 0 (flexarm.lqg_design.transient_gains); -1 (logged) when out of memory or the
    innovation covariance is not positive definite. */
 int lqg_transient_gains(Instance *inst, LqgData *d, const Noise *noise, double factor);
 /* The plant's reports of the torque it held (see lqg_core.c): a few are enough, a switch comes early. */
