@@ -1,6 +1,8 @@
 """CPU time of the minimum-time solve: a cold solve, then a re-plan for a payload warm-started from it.
 
 Run: ``python benchmarks/bench_trajectory.py [--payload KG] [--from-file] [--intervals N]``.
+Each figure is split into making the NLP and IPOPT solvers (``problem._cached_solver``, timed here)
+and the rest per IPOPT iteration (almost all of it MUMPS factorising the KKT systems).
 Goals (issue 32): warm re-plan <= 10 CPU-s, cold solve <= 60 CPU-s. CPU time (os.times, this
 process and its children), not wall time: the machine is shared. Peak memory is the process's
 largest resident set so far (it only grows: each figure covers everything before it).
@@ -17,13 +19,37 @@ import resource
 import numpy as np
 
 from flexarm import load_parameters
-from flexarm.trajectory import load_trajectory, solve_minimum_time
+from flexarm.trajectory import load_trajectory, problem, solve_minimum_time
 from flexarm.trajectory.warm import solution_from_trajectory
 
 
 def _cpu() -> float:
     t = os.times()
     return t.user + t.system + t.children_user + t.children_system
+
+
+_BUILD = [0.0]  # CPU-s spent making NLPs and IPOPT solvers (problem._cached_solver), summed
+
+
+def _timed_solver_maker(make):
+    def timed(*args, **kwargs):
+        c0 = _cpu()
+        try:
+            return make(*args, **kwargs)
+        finally:
+            _BUILD[0] += _cpu() - c0
+
+    return timed
+
+
+problem._cached_solver = _timed_solver_maker(problem._cached_solver)
+
+
+def _split(r, cpu: float, build: float) -> str:
+    """'of which making solvers B CPU-s, the rest I CPU-s per iteration'."""
+    its = r.metadata["solver"]["iterations"]
+    return (f"of which making the NLP and solvers {build:.1f} CPU-s, the rest {(cpu - build) / its:.3f} CPU-s "
+            "per iteration")
 
 
 def _peak_mb() -> float:
@@ -34,10 +60,10 @@ def _stages(r) -> str:
     return ", ".join(f"{s['label']} {s['iterations']}" for s in r.metadata["solver"]["stages"])
 
 
-def _report_warm(label: str, r, cpu: float) -> None:
+def _report_warm(label: str, r, cpu: float, build: float) -> None:
     print(f"warm re-plan, {label}: {cpu:6.1f} CPU-s (goal <= 10), {r.metadata['solver']['iterations']} iterations "
           f"({_stages(r)}), t_f = {r.t_f:.3f} s (continuous {r.metadata['t_f_continuous_s']:.5f} s), "
-          f"peak memory {_peak_mb():.0f} MB", flush=True)
+          f"peak memory {_peak_mb():.0f} MB; {_split(r, cpu, build)}", flush=True)
 
 
 def main(argv=None) -> int:
@@ -52,17 +78,17 @@ def main(argv=None) -> int:
     committed = load_trajectory()
     loaded = params.with_payload(args.payload)
     if args.from_file:
-        c0 = _cpu()
+        c0, b0 = _cpu(), _BUILD[0]
         guess = solution_from_trajectory(committed, params)
         warm = solve_minimum_time(loaded, n_intervals=args.intervals, warm_start=guess, verbose=False)
-        _report_warm(f"payload {args.payload} kg, from the committed file", warm, _cpu() - c0)
+        _report_warm(f"payload {args.payload} kg, from the committed file", warm, _cpu() - c0, _BUILD[0] - b0)
         return 0
-    c0 = _cpu()
+    c0, b0 = _cpu(), _BUILD[0]
     cold = solve_minimum_time(params, n_intervals=args.intervals, verbose=False)
     cold_cpu = _cpu() - c0
     print(f"cold solve: {cold_cpu:6.1f} CPU-s (goal <= 60), {cold.metadata['solver']['iterations']} iterations "
           f"({_stages(cold)}), t_f = {cold.t_f:.3f} s (continuous {cold.metadata['t_f_continuous_s']:.6f} s), "
-          f"peak memory {_peak_mb():.0f} MB", flush=True)
+          f"peak memory {_peak_mb():.0f} MB; {_split(cold, cold_cpu, _BUILD[0] - b0)}", flush=True)
     status = 0
     if len(cold.t) != len(committed.t):
         print(f"against the committed file: t_f {cold.t_f:.3f} s differs from {committed.t_f:.3f} s")
@@ -73,9 +99,9 @@ def main(argv=None) -> int:
         dth = np.abs(cold.theta - committed.theta).max()
         print(f"against the committed file: continuous t_f {dtf:+.2e} s, largest torque difference "
               f"{dtau[0]:.2e} / {dtau[1]:.2e} N·m, angles {dth:.2e} rad", flush=True)
-    c0 = _cpu()
+    c0, b0 = _cpu(), _BUILD[0]
     warm = solve_minimum_time(loaded, n_intervals=args.intervals, warm_start=cold, verbose=False)
-    _report_warm(f"payload {args.payload} kg, from the cold solve", warm, _cpu() - c0)
+    _report_warm(f"payload {args.payload} kg, from the cold solve", warm, _cpu() - c0, _BUILD[0] - b0)
     return status
 
 

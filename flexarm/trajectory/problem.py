@@ -55,9 +55,12 @@ Choices that make the discrete problem well posed and the plant agree:
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import json
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -82,6 +85,13 @@ LINE_TOLERANCE = 1e-4
 #: Largest torque slew rate, in torque limits per second (a full reversal takes 2/rate s).
 TORQUE_RATE_LIMIT = 50.0
 ACCEPTED_STATUS = ("Solve_Succeeded",)
+#: Warm-start options of a re-plan's free-t_f solve (another payload or parameter set from a previous
+#: primal-dual solution; solve_minimum_time with warm_start): the barrier restarts at 1e-4 instead of
+#: 1e-5, fewer iterations (benchmarks/study_replan.py). The committed file's own stages keep 1e-5.
+REPLAN_FREE_TIME_OPTIONS = {"mu_init": 1e-4}
+#: The same for a re-plan's whole-millisecond (fixed t_f) solve. 1e-3 and 1e-7 took a few iterations fewer
+#: than 1e-4, but the same options let both stages share one solver (making one costs about 3 CPU-s).
+REPLAN_FIXED_TIME_OPTIONS = REPLAN_FREE_TIME_OPTIONS
 
 
 
@@ -201,7 +211,7 @@ def solve_collocation(params: ArmParameters, groups, n_intervals: int, degree: i
                       verbose: bool = True, max_iter: int = 1000, print_every: int = 10,
                       line_tolerance: float = LINE_TOLERANCE,
                       torque_rate_limit: float | None = TORQUE_RATE_LIMIT, label: str = "",
-                      ipopt: dict | None = None) -> CollocationSolution:
+                      ipopt: dict | None = None, warm_options: dict | None = None) -> CollocationSolution:
     """One direct-collocation solve of the straight-line minimum-time problem.
 
     Parameters
@@ -228,6 +238,12 @@ def solve_collocation(params: ArmParameters, groups, n_intervals: int, degree: i
         Print IPOPT's iterations (every `print_every`).
     max_iter : int
         IPOPT iteration limit; reaching it raises :class:`TrajectoryError`.
+    ipopt : dict, optional
+        Extra IPOPT options (they win over every default, the warm-start ones included).
+    warm_options : dict, optional
+        IPOPT options that replace the warm-start defaults (``mu_init`` 1e-5, bound pushes 1e-9)
+        when the guess's multipliers are used; ignored otherwise. A re-plan passes
+        :data:`REPLAN_FREE_TIME_OPTIONS` / :data:`REPLAN_FIXED_TIME_OPTIONS`.
 
     Returns
     -------
@@ -251,12 +267,14 @@ def solve_collocation(params: ArmParameters, groups, n_intervals: int, degree: i
     thf = red.reduce(rigid_configuration(*inverse_kinematics(params, params.line_end, elbow)))
     same = (guess is not None and guess.groups == red.groups and guess.n_intervals == N and guess.degree == d
             and guess.lam_g is not None and guess.lam_x is not None and len(guess.x) == n_x)
-    opts = _ipopt_options(verbose, max_iter, print_every, ipopt)
+    opts = _ipopt_options(verbose, max_iter, print_every)
     if same:
         # Same structure: start from the previous primal-dual point (valid for a fixed t_f too:
         # t_f's own multiplier absorbs the objective's dt_f term).
         opts["ipopt"].update(warm_start_init_point="yes", warm_start_bound_push=1e-9,
                              warm_start_mult_bound_push=1e-9, mu_init=1e-5)
+        opts["ipopt"].update(warm_options or {})
+    opts["ipopt"].update(ipopt or {})  # the caller's options win over the warm-start defaults
     solver, n_eq, n_line, n_rate, n_g = _cached_solver(red, N, d, regularisation, torque_rate_limit, opts)
     p = nlp_parameters(params, red, th0, free_time=t_fixed is None)
 
@@ -337,6 +355,34 @@ def solve_collocation(params: ArmParameters, groups, n_intervals: int, degree: i
 
 
 _NLP_CACHE: dict = {}
+
+
+@contextlib.contextmanager
+def blas_threads(n: int):
+    """Run the OpenBLAS bundled with CasADi (MUMPS factorises the KKT systems with it) on n threads.
+
+    The previous count is restored on exit. A no-op when that library is not there (another
+    CasADi build). One thread does the same factorisations in about the same wall time on a
+    shared 2-core machine, but without the second thread's spinning, which OpenBLAS's default
+    (one thread per core) adds to the CPU time (benchmarks/study_replan.py). The cold solve
+    keeps the default: the committed file was computed with it, and one thread changes its last
+    digits (the torques by about 1e-10 N·m), so only re-plans use this.
+    """
+    lib = None
+    with contextlib.suppress(OSError, AttributeError):
+        path = Path(ca.__file__).parent / "libcasadi-tp-openblas.so.0"
+        if path.exists():
+            lib = ctypes.CDLL(str(path))
+            get, put = lib.openblas_get_num_threads, lib.openblas_set_num_threads
+    if lib is None:
+        yield
+        return
+    before = int(get())
+    put(int(n))
+    try:
+        yield
+    finally:
+        put(before)
 
 
 def nlp_parameters(params: ArmParameters, red: ReducedModel, th0: np.ndarray, free_time: bool) -> np.ndarray:

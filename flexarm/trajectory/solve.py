@@ -15,6 +15,7 @@ impulse per step; the torque at t_f (the last sample) is zero.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import shlex
@@ -33,21 +34,25 @@ from .problem import (
     DEFAULT_REGULARISATION,
     FLEX_GROUPS,
     LINE_TOLERANCE,
+    REPLAN_FIXED_TIME_OPTIONS,
+    REPLAN_FREE_TIME_OPTIONS,
     RIGID_GROUPS,
     TORQUE_RATE_LIMIT,
     CollocationSolution,
+    blas_threads,
     solve_collocation,
 )
 
 
 def solve_free_time(params: ArmParameters, n_intervals: int = 200, degree: int = 5,
                     warm_start: TrajectoryResult | CollocationSolution | None = None, rigid_intervals: int = 60,
-                    **common) -> tuple[CollocationSolution, list[dict]]:
+                    warm_options: dict | None = None, **common) -> tuple[CollocationSolution, list[dict]]:
     """The continuous minimum time: the rigid warm-up (unless warm-started) and the free-t_f flexible solve.
 
     What the calibration needs (t_f as a function of the parameters); :func:`solve_minimum_time`
     adds the whole-millisecond re-solve and the 1 ms sampling. ``common`` are the keyword
-    arguments of :func:`flexarm.trajectory.problem.solve_collocation` (elbow, regularisation, ...).
+    arguments of :func:`flexarm.trajectory.problem.solve_collocation` (elbow, regularisation, ...);
+    ``warm_options`` go to the flexible solve's (see there).
 
     Returns
     -------
@@ -63,7 +68,7 @@ def solve_free_time(params: ArmParameters, n_intervals: int = 200, degree: int =
         stages.append(rigid.stats)
         guess = rigid
     free = solve_collocation(params, FLEX_GROUPS, n_intervals, degree, guess=guess, label="flexible, t_f free",
-                             **common)
+                             warm_options=warm_options, **common)
     stages.append(free.stats)
     return free, stages
 
@@ -114,10 +119,16 @@ def solve_minimum_time(params: ArmParameters | None = None, n_intervals: int = 2
     t_start = time.perf_counter()
     common = {"elbow": elbow, "regularisation": regularisation, "verbose": verbose, "max_iter": max_iter,
               "line_tolerance": line_tolerance, "torque_rate_limit": torque_rate_limit}
-    free, stages = solve_free_time(params, n_intervals, degree, warm_start, rigid_intervals=rigid_intervals, **common)
-    t_ms = int(math.ceil(free.t_f / SAMPLE_TIME - 1e-9))
-    fixed = solve_collocation(params, FLEX_GROUPS, n_intervals, degree, t_fixed=t_ms * SAMPLE_TIME, guess=free,
-                              label="flexible, t_f rounded up to whole ms", **common)
+    # A re-plan (warm_start given) uses its own warm-start options and one BLAS thread; the cold
+    # solve keeps exactly the settings that made the committed file (problem.blas_threads).
+    replan = warm_start is not None
+    with blas_threads(1) if replan else contextlib.nullcontext():
+        free, stages = solve_free_time(params, n_intervals, degree, warm_start, rigid_intervals=rigid_intervals,
+                                       warm_options=REPLAN_FREE_TIME_OPTIONS if replan else None, **common)
+        t_ms = int(math.ceil(free.t_f / SAMPLE_TIME - 1e-9))
+        fixed = solve_collocation(params, FLEX_GROUPS, n_intervals, degree, t_fixed=t_ms * SAMPLE_TIME, guess=free,
+                                  label="flexible, t_f rounded up to whole ms",
+                                  warm_options=REPLAN_FIXED_TIME_OPTIONS if replan else None, **common)
     stages.append(fixed.stats)
     total = time.perf_counter() - t_start
     result = sample_solution(params, fixed)
