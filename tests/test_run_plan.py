@@ -118,3 +118,47 @@ def test_a_sweep_point_is_checked_as_a_run_s_case(tmp_path, monkeypatch, fmu_dir
         worker.close_loaded()
     assert rec["status"] == "ok" and checked == [{"plant": {"payload_mass": 0.275}}]
 
+
+
+def test_closing_a_worker_stops_its_running_point_before_freeing_its_fmus(tmp_path, monkeypatch, fmu_dir):
+    """Closing a sweep's workers while a point still steps (a cancelled Dask task runs on in its thread):
+    the point stops at its next progress call and only then are its FMUs freed (freeing them under it
+    corrupted the worker's heap, CI after a Ctrl-C)."""
+    import threading
+
+    from scenarios.sweep import worker
+
+    monkeypatch.setenv("FLEXARM_SWEEP_FMU_CACHE", str(tmp_path / "cache"))
+    scenario = load_scenario(_scenario(tmp_path, "point", '[[cases]]\nkey = "none"\n'))
+    fmus = {inst: built_fmus()[name] for inst, name in scenario.fmus.items()}
+    store = worker.store_fmus(scenario.fmus, {inst: p.read_bytes() for inst, p in fmus.items()})
+    task = {"key": "k", "index": 0, "scenario": scenario, "fmu_names": dict(scenario.fmus), "fmu_sha256": store,
+            "parameters": {}, "isolate": "foreign", "step_timeout": 60.0, "where": {"fmu_dir": fmu_dir},
+            "setup_key": "test-close-while-running"}
+    stepping, closed, steps_seen, after_close = threading.Event(), threading.Event(), [], []
+    check = worker._stop_requested
+
+    def progress(k, n):
+        steps_seen.append((k, n))
+        if closed.is_set():
+            after_close.append(k)
+        stepping.set()
+        check(k, n)
+
+    monkeypatch.setattr(worker, "_stop_requested", progress)
+    records = []
+    point = threading.Thread(target=lambda: records.append(worker.run_point(task)))
+    point.start()
+    try:
+        assert stepping.wait(120)
+        assert worker.close_loaded() == 0  # waited for the point, which freed its own FMUs as it stopped
+        closed.set()
+        assert not worker._LOADED and not worker._STOP.is_set()
+    finally:
+        point.join(120)
+        worker.close_loaded()
+    rec, = records
+    assert rec["status"] == "error" and "PointStopped" in rec["message"]
+    k, n = steps_seen[-1]
+    assert k < n and not after_close  # stopped part-way, and no step after close_loaded returned
+

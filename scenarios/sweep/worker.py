@@ -14,6 +14,7 @@ import logging
 import os
 import socket
 import tempfile
+import threading
 import time
 from collections import OrderedDict
 from collections.abc import Iterator
@@ -24,6 +25,7 @@ from distributed import WorkerPlugin
 from flexarm.provenance import sha256_bytes, sha256_file, write_atomic
 from scenarios.analysis.stability import loop_stability
 from scenarios.master.cosim import CoSimulationError
+from scenarios.master.interrupts import DeferSignals
 from scenarios.run.plan import plan_case
 from scenarios.run.runner import simulate
 from scenarios.run.setup import prepare
@@ -35,6 +37,20 @@ _LOADED: OrderedDict[str, tuple] = OrderedDict()
 #: How many FMU sets a process keeps loaded.
 CACHE_SIZE = 4
 _TRAJECTORY_SHA: list[str] = []
+#: Held by the point running in this process. The loaded FMUs are one instance each and not reentrant: a
+#: worker with several threads runs its points one at a time, and :func:`close_loaded` never frees FMUs that a
+#: point is still stepping (a cancelled Dask task runs on in its thread; freeing its FMUs under it corrupted
+#: the worker's heap: "malloc(): unaligned tcache chunk detected" after a Ctrl-C in CI).
+_BUSY = threading.Lock()
+#: Set by :func:`close_loaded`: the running point stops at its next progress call (every 1 % of its steps).
+_STOP = threading.Event()
+#: Seconds :func:`close_loaded` waits for the running point to stop (it does within 1 % of its steps; longer
+#: only when an FMU call hangs: its FMUs are then left to the process's exit).
+STOP_WAIT_S = 10.0
+
+
+class PointStopped(Exception):
+    """The sweep is closing: the running point stopped part-way (its record is never used)."""
 
 
 def _fmu_cache_dir() -> Path:
@@ -114,13 +130,29 @@ def _loaded(task: dict):
     return setup, m
 
 
-def close_loaded() -> int:
-    """Close every FMU set this process keeps loaded; returns how many."""
-    n = len(_LOADED)
-    while _LOADED:
-        _, (_, m) = _LOADED.popitem(last=False)
-        m.close()
-    return n
+def close_loaded(wait: float = STOP_WAIT_S) -> int:
+    """Close every FMU set this process keeps loaded, after stopping the point that runs on them, if any.
+
+    Returns how many were closed; -1 when a point did not stop within `wait` seconds (an FMU call that hangs):
+    its FMUs are then left open, to be freed with the process.
+    """
+    _STOP.set()
+    if not _BUSY.acquire(timeout=wait):
+        return -1
+    try:
+        n = len(_LOADED)
+        while _LOADED:
+            _, (_, m) = _LOADED.popitem(last=False)
+            m.close()
+        return n
+    finally:
+        _STOP.clear()
+        _BUSY.release()
+
+
+def _stop_requested(k: int, n: int) -> None:
+    if _STOP.is_set():
+        raise PointStopped(f"stopped at step {k} of {n}: the sweep is closing")
 
 
 def run_point(task: dict) -> dict:
@@ -146,6 +178,11 @@ def run_point(task: dict) -> dict:
     rec = {"key": task["key"], "index": task["index"], "status": "error", "message": "", "metrics": None,
            "wall_time_s": 0.0, "setup_time_s": 0.0, "steps_done": 0, "worker": f"{socket.gethostname()}:{os.getpid()}",
            "fmu_sha256": task["fmu_sha256"]}
+    with _BUSY:
+        return _run_point(task, rec, t0)
+
+
+def _run_point(task: dict, rec: dict, t0: float) -> dict:
     try:
         fresh = task["setup_key"] not in _LOADED
         setup, m = _loaded(task)
@@ -156,7 +193,7 @@ def run_point(task: dict) -> dict:
 
             _TRAJECTORY_SHA.append(sha256_file(DEFAULT_TRAJECTORY_FILE))
         case = plan_case(setup, task["key"], task["key"], task["parameters"])  # checked once, as a run's case
-        out, metrics = simulate(setup, m, case.parameters)
+        out, metrics = simulate(setup, m, case.parameters, progress=_stop_requested)
         rec["wall_time_s"] = time.perf_counter() - t1
         outcome = out["outcome"]
         rec.update(status=outcome.status, message=outcome.message, outcome=outcome.as_dict(), metrics=metrics,
@@ -181,6 +218,31 @@ def iter_serial(plan: Plan, points: list[Point]) -> Iterator[dict]:
         store_fmus(plan.fmu_sets[k].names, plan.fmu_sets[k].blobs)
     for p in points:
         yield run_point(plan.task(p))
+
+
+#: Seconds between two looks at the finished points (and at a deferred Ctrl-C) while waiting for them.
+POLL_S = 0.05
+
+
+def _completed(futures) -> Iterator:
+    """The futures of a :class:`distributed.as_completed` as they finish, with Ctrl-C and SIGTERM deferred to
+    the waits between them (:class:`~scenarios.master.interrupts.DeferSignals`).
+
+    A KeyboardInterrupt raised inside Dask's ``sync`` before its coroutine started makes Dask's own cancel
+    callback fail (a NameError that tornado logs with a traceback, seen in CI after a Ctrl-C): here the signal
+    is acted on only in this loop, outside every Dask call.
+    """
+    with DeferSignals() as interrupted:
+        while True:
+            batch = futures.next_batch(block=False)
+            if not batch and futures.is_empty():
+                return
+            for fut in batch:
+                interrupted.raise_pending("while the sweep's points ran")
+                yield fut
+            interrupted.raise_pending("while the sweep's points ran")
+            if not batch:
+                time.sleep(POLL_S)
 
 
 def local_cluster(n_workers: int | None = None, allowed_failures: int = 1):
@@ -284,8 +346,9 @@ def iter_dask(client, plan: Plan, points: list[Point]) -> Iterator[dict]:
     futures = client.map(run_point, [plan.task(p) for p in order], pure=False,
                          key=[f"sweep-point-{p.key}-{stamp}" for p in order])
     point_of = {fut.key: p for fut, p in zip(futures, order)}
+    completed = _completed(as_completed(futures))
     try:
-        for fut in as_completed(futures):
+        for fut in completed:
             p = point_of[fut.key]
             if fut.status == "finished":
                 rec = fut.result()
@@ -301,6 +364,7 @@ def iter_dask(client, plan: Plan, points: list[Point]) -> Iterator[dict]:
             fut.release()
             yield rec
     finally:
+        completed.close()  # the signal handlers as they were before the wait
         pending = [f for f in futures if not f.done()]
         if pending:
             client.cancel(pending, force=True)
