@@ -91,3 +91,25 @@ def test_native_controller_refuses_off_grid_steps_and_bad_schedules(tmp_path):
     s.set(schedule_period=0.02)
     s.fmu.exitInitializationMode()
     s.fmu.freeInstance()
+
+
+def test_the_paper_s_law_reads_its_predictor_only_when_it_measures_a_delay(tmp_path):
+    """The predictor's design (lqg_200ms.txt) is read and checked when the loop delay is first measured: a
+    changed file leaves a Gauss-Seidel run untouched, and the first fmi2DoStep that measures a delay refuses it
+    by name (fmi2Error, never a run on another build's numbers)."""
+    native = native_fmus()["controller"]
+    unz = unpack_alone(native, tmp_path / "c")
+    path = unz / "resources" / "lqg_200ms.txt"
+    path.write_bytes(path.read_bytes() + b"\n")
+    for name, lag in (("gauss_seidel", 0), ("jacobi", 1)):
+        s = Slave(native, unz, name)
+        for k in range(5):
+            s.set(sample_index_m=float(k - lag + 1))  # the index of plant sample j is j + 1 (0: none yet)
+            if lag and k == 1:
+                with pytest.raises(FMICallException):
+                    s.fmu.doStep(k * 1e-3, 1e-3)
+                break
+            s.fmu.doStep(k * 1e-3, 1e-3)
+        changed = [m for _, m in s.messages if "lqg_200ms.txt" in m and "SHA-256" in m]
+        assert bool(changed) == bool(lag), s.messages
+        s.fmu.freeInstance()

@@ -230,22 +230,30 @@ def test_native_lqg_interface_and_resources():
     assert "bank_200ms.npz sha256 " in bank_text.splitlines()[1]
 
 
-def test_native_lqg_refuses_a_changed_resource(tmp_path):
-    """fmi2Instantiate checks every resource against its SHA-256 and names the file."""
-    from scenarios.master.fmi_callbacks import logging_callbacks
-
+def test_native_lqg_refuses_a_changed_resource_when_it_reads_it(tmp_path):
+    """Each design is read (and checked against its SHA-256) when its schedule is first in force: a changed
+    lqg_20ms.txt is refused by name at initialisation with schedule_period = 0.02, and a run of another schedule
+    never reads it. A resource read at instantiation (the trajectory) is refused there."""
     native = native_fmus()["controller_lqg"]
     unz = unpack_alone(native, tmp_path / "changed")
     path = unz / "resources" / "lqg_20ms.txt"
     path.write_bytes(path.read_bytes() + b"\n")
-    md = read_model_description(str(native))
-    messages = []
-    callbacks = logging_callbacks(lambda c, i, status, cat, msg: messages.append(msg.decode()))
-    s = FMU2Slave(guid=md.guid, unzipDirectory=str(unz), modelIdentifier=md.coSimulation.modelIdentifier,
-                  instanceName="changed")
+    s = Slave(native, unz, "other_schedule", schedule_period=0.2)  # reads lqg_200ms.txt only
+    s.fmu.doStep(0.0, 1e-3)
+    s.fmu.freeInstance()
+    s = Slave(native, unz, "changed", start=False)
+    s.fmu.setupExperiment(startTime=0.0)
+    s.fmu.enterInitializationMode()
+    s.set(schedule_period=0.02)
+    with pytest.raises(FMICallException):
+        s.fmu.exitInitializationMode()
+    assert any("lqg_20ms.txt" in m and "SHA-256" in m and "schedule_period = 0.02" in m for _, m in s.messages), \
+        s.messages
+    s.fmu.freeInstance()
+    trajectory = unz / "resources" / "lqg_trajectory.txt"
+    trajectory.write_bytes(trajectory.read_bytes() + b"\n")
     with pytest.raises(Exception, match="instantiate"):
-        s.instantiate(callbacks=callbacks, loggingOn=True)
-    assert any("lqg_20ms.txt" in m and "SHA-256" in m for m in messages), messages
+        Slave(native, unz, "changed_trajectory", start=False)
 
 
 @pytest.mark.parametrize("estimator", [1, 2])

@@ -61,6 +61,10 @@ typedef struct {
     /* Advance from t to t + h (inputs held: those present at fmi2DoStep); the outputs at t + h. Must leave the
        state unchanged on error. Sampled models count whole samples with glue_whole_samples. */
     fmi2Status (*do_step)(struct Instance *inst, double t, double h);
+    /* Resources read when first needed (glue_read_resource), NULL-terminated; load gets NULL for them. NULL: every
+       resource is read and checked at fmi2Instantiate. (A resource a run never needs is neither read nor hashed:
+       the paper's law reads the predictor's designs only when it measures a loop delay.) */
+    const char *const *on_demand;
 } ModelInfo;
 
 typedef struct Instance {
@@ -103,6 +107,11 @@ char *glue_resource_dir(const char *uri);
 int glue_read_doubles(const Instance *inst, const char *file, const char *text, const char *name, double *out,
                       size_t n);
 
+/* The resource `file` of MODEL_INFO, read whole from the resources folder and checked against the SHA-256 recorded at
+   build time, NUL-terminated (*size bytes before the NUL); NULL after logging why, naming the FMI call `when`. The
+   caller frees it. */
+char *glue_read_resource(const Instance *inst, const char *file, const char *when, size_t *size);
+
 /* The whole file at `path`, NUL-terminated, in a malloc'ed buffer (*size bytes before the NUL); NULL if it
    cannot be read. The caller frees it. */
 char *glue_read_file(const char *path, size_t *size);
@@ -120,7 +129,8 @@ char *glue_read_file(const char *path, size_t *size);
    by rounding) means no sample instant lies in the step: a sampled model does nothing. */
 int glue_whole_samples(double h, double period, double *n);
 
-/* Read and check every resource of MODEL_INFO, then MODEL_INFO.load; 0 on success (after logging why not). */
+/* Read and check every resource of MODEL_INFO but those read on demand, then MODEL_INFO.load; 0 on success (after
+   logging why not). */
 int glue_load_resources(Instance *inst, const char *uri);
 
 /* A case's start values, if resources/flexarm_start_values.txt exists (written by the SSP export of

@@ -118,11 +118,50 @@ int glue_read_doubles(const Instance *inst, const char *file, const char *text, 
     return 0;
 }
 
+char *glue_read_resource(const Instance *inst, const char *file, const char *when, size_t *size)
+{
+    const ResourceInfo *res = NULL;
+    for (size_t r = 0; r < MODEL_INFO.n_resources; r++)
+        if (strcmp(MODEL_INFO.resources[r].file, file) == 0) res = &MODEL_INFO.resources[r];
+    if (res == NULL) {
+        glue_log(inst, fmi2Error, "%s: %s is not a resource of this build", when, file);
+        return NULL;
+    }
+    char *path = glue_resource_file(inst, file);
+    if (path == NULL) {
+        glue_log(inst, fmi2Error, "%s: no resources folder to read %s from (fmuResourceLocation is no file:// URI)",
+                 when, file);
+        return NULL;
+    }
+    char *text = glue_read_file(path, size);
+    if (text == NULL) {
+        glue_log(inst, fmi2Error, "%s: cannot read the resource %s (it ships inside the FMU in resources/; unpack the "
+                 "whole FMU and keep it until the instance is freed)", when, path);
+    } else {
+        char digest[65];
+        sha256_hex((const unsigned char *)text, *size, digest);
+        if (strcmp(digest, res->sha256) != 0) {
+            glue_log(inst, fmi2Error, "%s: resource %s has SHA-256 %s, but this FMU was built with %s (the file was "
+                     "changed or belongs to another build: rebuild the FMU)", when, path, digest, res->sha256);
+            free(text);
+            text = NULL;
+        }
+    }
+    free(path);
+    return text;
+}
+
+static int on_demand(const char *file)
+{
+    for (const char *const *p = MODEL_INFO.on_demand; p != NULL && *p != NULL; p++)
+        if (strcmp(*p, file) == 0) return 1;
+    return 0;
+}
+
 int glue_load_resources(Instance *inst, const char *uri)
 {
     if (MODEL_INFO.n_resources == 0) return 0;
-    char *dir = uri != NULL ? uri_to_path(uri) : NULL;
-    if (dir == NULL) {
+    if (inst->resource_dir == NULL) {
         glue_log(inst, fmi2Error, "fmi2Instantiate: fmuResourceLocation '%s' is not a file:// URI of the FMU's "
                  "resources folder (unpack the whole FMU and pass its resources/ folder)", uri ? uri : "(null)");
         return -1;
@@ -130,31 +169,13 @@ int glue_load_resources(Instance *inst, const char *uri)
     char *contents[8] = {0};
     size_t sizes[8] = {0};
     int rc = 0;
-    for (size_t r = 0; r < MODEL_INFO.n_resources && r < 8 && rc == 0; r++) {
-        const ResourceInfo *res = &MODEL_INFO.resources[r];
-        size_t n = strlen(dir) + strlen(res->file) + 2;
-        char *path = malloc(n);
-        snprintf(path, n, "%s%s%s", dir, dir[strlen(dir) - 1] == '/' ? "" : "/", res->file);
-        contents[r] = glue_read_file(path, &sizes[r]);
-        if (contents[r] == NULL) {
-            glue_log(inst, fmi2Error, "fmi2Instantiate: cannot read the resource %s (it ships inside the FMU in "
-                     "resources/; unpack the whole FMU)", path);
-            rc = -1;
-        } else {
-            char digest[65];
-            sha256_hex((const unsigned char *)contents[r], sizes[r], digest);
-            if (strcmp(digest, res->sha256) != 0) {
-                glue_log(inst, fmi2Error, "fmi2Instantiate: resource %s has SHA-256 %s, but this FMU was built with "
-                         "%s (the file was changed or belongs to another build: rebuild the FMU)", path, digest,
-                         res->sha256);
-                rc = -1;
-            }
+    for (size_t r = 0; r < MODEL_INFO.n_resources && r < 8 && rc == 0; r++)
+        if (!on_demand(MODEL_INFO.resources[r].file)) {
+            contents[r] = glue_read_resource(inst, MODEL_INFO.resources[r].file, "fmi2Instantiate", &sizes[r]);
+            if (contents[r] == NULL) rc = -1;
         }
-        free(path);
-    }
     if (rc == 0) rc = MODEL_INFO.load(inst, contents, sizes);
     for (size_t r = 0; r < 8; r++) free(contents[r]);
-    free(dir);
     return rc;
 }
 

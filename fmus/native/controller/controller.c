@@ -72,6 +72,7 @@ typedef struct {
     LqgData lqg;          /* the predictor over a measured delay: trajectory, designs (feedback variants) */
     Noise noise[3];       /* each design's noise model: the predictor's time-varying filter */
     double predictor_prior; /* its prior covariance at sample 0, times the steady one (flexarm.lqg.PREDICTOR_PRIOR) */
+    int predictor_schedule; /* the schedule in force: the predictor's design */
 } ControllerData;
 
 static int read_schedule(Instance *inst, const char *file, const char *text, int set, int s, Schedule *out)
@@ -90,39 +91,50 @@ static int read_schedule(Instance *inst, const char *file, const char *text, int
     return glue_read_doubles(inst, file, text, label, out->gains, (size_t)out->count * 2 * N_STATE);
 }
 
-/* The predictor's trajectory and designs (resources of the feedback variants, fmu_build/native_resources.py). */
-static int load_predictor(Instance *inst, char *const *contents, LqgData *p, Noise *noise, double *prior)
+/* The predictor's trajectory and the design of schedule s (resources of the feedback variants,
+   fmu_build/native_resources.py), read at the first delay measured (MODEL_INFO.on_demand: a run with none reads
+   and hashes none of them); 0, or -1 after logging why. */
+static int load_predictor(Instance *inst, LqgData *p, Noise *noise, double *prior, int s)
 {
-    p->designs = calloc(3, sizeof *p->designs);
-    if (p->designs == NULL) return -1;
-    for (size_t r = 0; r < MODEL_INFO.n_resources; r++) {
-        const char *file = MODEL_INFO.resources[r].file, *text = contents[r];
-        if (strcmp(file, "lqg_trajectory.txt") == 0) {
-            double n;
-            if (glue_read_doubles(inst, file, text, "n_steps", &n, 1) ||
-                glue_read_doubles(inst, file, text, "dt", &p->dt, 1))
-                return -1;
+    const char *const when = "fmi2DoStep (the predictor over the measured loop delay)";
+    size_t size;
+    if (p->index == NULL) {
+        const char *file = "lqg_trajectory.txt";
+        char *text = glue_read_resource(inst, file, when, &size);
+        double n;
+        int rc = text == NULL || glue_read_doubles(inst, file, text, "n_steps", &n, 1) ||
+                 glue_read_doubles(inst, file, text, "dt", &p->dt, 1);
+        if (rc == 0) {
             p->n_steps = (int)n;
             p->feedforward = lqg_read_array(inst, file, text, "feedforward_torque", (size_t)(p->n_steps + 1) * 2);
             p->desired = lqg_read_array(inst, file, text, "desired_measurements", (size_t)(p->n_steps + 1) * N_MEAS);
-            p->index = calloc((size_t)p->n_steps + 1, sizeof *p->index);
-            if (!p->feedforward || !p->desired || !p->index ||
-                glue_read_doubles(inst, file, text, "predictor_prior", prior, 1))
-                return -1;
+            rc = !p->feedforward || !p->desired || glue_read_doubles(inst, file, text, "predictor_prior", prior, 1);
+            if (rc == 0) p->index = calloc((size_t)p->n_steps + 1, sizeof *p->index);
+            rc = rc || p->index == NULL;
         }
-        for (int s = 0; s < 3; s++)
-            if (strcmp(file, LQG_FILES[s]) == 0 && (lqg_read_design(inst, file, text, &p->designs[s], p->c) ||
-                                                    lqg_read_noise(inst, file, text, p->designs[s].count, &noise[s])))
-                return -1;
-    }
-    for (int s = 0; s < 3; s++)
-        if (p->designs[s].times == NULL || p->index == NULL) {
-            glue_log(inst, fmi2Error, "fmi2Instantiate: resources %s or lqg_trajectory.txt missing from the build",
-                     LQG_FILES[s]);
+        free(text);
+        if (rc) {
+            free(p->feedforward), free(p->desired), free(p->index);
+            p->feedforward = p->desired = NULL, p->index = NULL;
             return -1;
         }
+    }
+    if (p->designs[s].times == NULL) {
+        char *text = glue_read_resource(inst, LQG_FILES[s], when, &size);
+        int rc = text == NULL || lqg_read_design(inst, LQG_FILES[s], text, &p->designs[s], p->c) ||
+                 lqg_read_noise(inst, LQG_FILES[s], text, p->designs[s].count, &noise[s]);
+        free(text);
+        if (rc) { /* read again (and refused again) at the next switch */
+            lqg_free_design(&p->designs[s]), free(noise[s].w), noise[s].w = NULL;
+            return -1;
+        }
+    }
     return 0;
 }
+
+/* Read by load_predictor when first needed, not at fmi2Instantiate. */
+static const char *const ON_DEMAND[] = {"lqg_trajectory.txt", "lqg_200ms.txt", "lqg_20ms.txt", "lqg_single.txt",
+                                        NULL};
 
 static void controller_unload(Instance *inst)
 {
@@ -133,11 +145,7 @@ static void controller_unload(Instance *inst)
     for (int i = 0; i < N_SETS; i++)
         for (int s = 0; s < 3; s++) free(d->schedules[i][s].times), free(d->schedules[i][s].gains);
     free(d->lqg.feedforward), free(d->lqg.desired), free(d->lqg.index);
-    for (int s = 0; d->lqg.designs != NULL && s < 3; s++) {
-        Design *g = &d->lqg.designs[s];
-        free(g->times), free(g->phi), free(g->gamma), free(g->m), free(g->k), free(g->k_integral);
-        free(d->noise[s].w);
-    }
+    for (int s = 0; d->lqg.designs != NULL && s < 3; s++) lqg_free_design(&d->lqg.designs[s]), free(d->noise[s].w);
     free(d->lqg.designs), free(d->lqg.gains);
     free(d);
     inst->data = NULL;
@@ -175,7 +183,8 @@ static int controller_load(Instance *inst, char *const *contents, const size_t *
         for (int s = 0; s < 3; s++)
             if (read_schedule(inst, MODEL_INFO.resources[gains].file, contents[gains], i + 1, s, &d->schedules[i][s]))
                 goto fail;
-    if (load_predictor(inst, contents, &d->lqg, d->noise, &d->predictor_prior)) goto fail;
+    d->lqg.designs = calloc(3, sizeof *d->lqg.designs); /* each read by load_predictor when first needed */
+    if (d->lqg.designs == NULL) goto fail;
 #else
     (void)read_schedule;
 #endif
@@ -223,9 +232,8 @@ static fmi2Status configure(Instance *inst)
 #if CONTROLLER_FEEDBACK
     const Schedule *sch = &d->schedules[(int)key[0] - 1][s];
     d->schedule = sch;
-    d->lqg.design = &d->lqg.designs[s]; /* the predictor's filter, of the same schedule */
-    free(d->lqg.gains), d->lqg.gains = NULL, d->lqg.n_gains = 0; /* its time-varying gains: made at the switch */
-    lqg_schedule_index(d->lqg.design->times, d->lqg.design->count, d->lqg.n_steps, d->lqg.dt, d->lqg.index);
+    d->predictor_schedule = s; /* the predictor's filter, of the same schedule: read and made at the switch */
+    free(d->lqg.gains), d->lqg.gains = NULL, d->lqg.n_gains = 0;
     const double *est = d->estimator[(int)key[2] - 1];
     free(d->gain_per_meas);
     d->gain_per_meas = malloc((size_t)sch->count * 2 * N_MEAS * sizeof(double));
@@ -387,6 +395,18 @@ static void switch_delay(Instance *inst, double t, long long k, int delay, doubl
     }
     for (double i = 0; i < n; i++) delayed_sample(inst, m, index);
 }
+
+/* The predictor of the schedule in force: its design (read on first use), schedule index and time-varying gains;
+   0, or -1 after logging why. */
+static int predictor_ready(Instance *inst)
+{
+    ControllerData *d = inst->data;
+    const int s = d->predictor_schedule;
+    if (load_predictor(inst, &d->lqg, d->noise, &d->predictor_prior, s)) return -1;
+    d->lqg.design = &d->lqg.designs[s];
+    lqg_schedule_index(d->lqg.design->times, d->lqg.design->count, d->lqg.n_steps, d->lqg.dt, d->lqg.index);
+    return lqg_transient_gains(inst, &d->lqg, &d->noise[s], d->predictor_prior);
+}
 #endif
 
 static fmi2Status controller_initialize(Instance *inst)
@@ -417,8 +437,8 @@ static fmi2Status controller_do_step(Instance *inst, double t, double h)
     ControllerState *st = inst->state;
     const double k = nearbyint(t / d->dt), index = VALUE(inst, IDX_sample_index_m);
     if ((st->delay > 0 || loop_measured_delay(k, index) >= 1.0) && d->lqg.gains == NULL &&
-        lqg_transient_gains(inst, &d->lqg, &d->noise[d->lqg.design - d->lqg.designs], d->predictor_prior))
-        return fmi2Error; /* the predictor's time-varying filter, once per configuration */
+        predictor_ready(inst))
+        return fmi2Error; /* the predictor's design and time-varying filter, once per configuration */
     double m[N_MEAS], applied[2];
     for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]); /* present at fmi2DoStep, held in the step */
     const int foreign = lqg_plant_applied(inst, (long long)k, st->delay == 0 || k <= (double)st->switch_end, applied);
@@ -454,4 +474,9 @@ const ModelInfo MODEL_INFO = {
     MODEL_IDENTIFIER_STRING, MODEL_GUID_STRING, MODEL_VARS, MODEL_N_VARS, MODEL_RESOURCES, MODEL_N_RESOURCES,
     sizeof(ControllerState), controller_load, controller_unload, controller_initialize, controller_sample,
     controller_do_step,
+#if CONTROLLER_FEEDBACK
+    ON_DEMAND,
+#else
+    NULL,
+#endif
 };

@@ -29,6 +29,7 @@
  */
 #include <math.h>
 #include <stdlib.h>
+#include <stdio.h>
 #include <string.h>
 
 #include "fmi2_glue.h"
@@ -67,10 +68,7 @@ static void lqg_unload(Instance *inst)
     LqgData *d = inst->data;
     if (d == NULL) return;
     free(d->feedforward), free(d->desired), free(d->index), free(d->correction);
-    for (int s = 0; d->designs != NULL && s < N_SCHEDULES; s++) {
-        Design *g = &d->designs[s];
-        free(g->times), free(g->phi), free(g->gamma), free(g->m), free(g->k), free(g->k_integral);
-    }
+    for (int s = 0; d->designs != NULL && s < N_SCHEDULES; s++) lqg_free_design(&d->designs[s]);
     free(d->designs);
     bank_free(&d->bank);
     free(d);
@@ -83,7 +81,7 @@ static int lqg_load(Instance *inst, char *const *contents, const size_t *sizes)
     LqgData *d = calloc(1, sizeof *d);
     if (d == NULL) return -1;
     inst->data = d;
-    d->designs = calloc(N_SCHEDULES, sizeof *d->designs);
+    d->designs = calloc(N_SCHEDULES, sizeof *d->designs); /* each read by configure when first in force */
     if (d->designs == NULL) goto fail;
     for (size_t r = 0; r < MODEL_INFO.n_resources; r++) {
         const char *file = MODEL_INFO.resources[r].file, *text = contents[r];
@@ -98,21 +96,9 @@ static int lqg_load(Instance *inst, char *const *contents, const size_t *sizes)
             d->index = calloc((size_t)d->n_steps + 1, sizeof *d->index);
             if (!d->feedforward || !d->desired || !d->index) goto fail;
         }
-        for (int s = 0; s < N_SCHEDULES; s++)
-            if (strcmp(file, SCHEDULE_FILES[s]) == 0 && lqg_read_design(inst, file, text, &d->designs[s], d->c)) goto fail;
     }
-    for (size_t r = 0; r < MODEL_INFO.n_resources; r++) /* after the trajectory: the drift needs n_steps, dt */
-        if (strcmp(MODEL_INFO.resources[r].file, BANK_FILE) == 0 &&
-            bank_load(inst, MODEL_INFO.resources[r].file, contents[r], d))
-            goto fail;
-    for (int s = 0; s < N_SCHEDULES; s++)
-        if (d->designs[s].times == NULL || d->index == NULL) {
-            glue_log(inst, fmi2Error, "fmi2Instantiate: resources %s or lqg_trajectory.txt missing from the build",
-                     SCHEDULE_FILES[s]);
-            goto fail;
-        }
-    if (d->bank.times == NULL) {
-        glue_log(inst, fmi2Error, "fmi2Instantiate: resource %s missing from the build", BANK_FILE);
+    if (d->index == NULL) {
+        glue_log(inst, fmi2Error, "fmi2Instantiate: resource lqg_trajectory.txt missing from the build");
         goto fail;
     }
     d->key[0] = -1;
@@ -120,6 +106,38 @@ static int lqg_load(Instance *inst, char *const *contents, const size_t *sizes)
 fail:
     lqg_unload(inst);
     return -1;
+}
+
+/* Read by configure when first in force (a run reads and hashes only the design and bank it uses). */
+static const char *const ON_DEMAND[] = {"lqg_200ms.txt", "lqg_20ms.txt", "lqg_single.txt", BANK_FILE, NULL};
+
+/* The design of schedule s and, with `bank`, the payload bank: read on first use; 0, or -1 after logging why. */
+static int load_in_force(Instance *inst, int s, int bank)
+{
+    LqgData *d = inst->data;
+    char when[96];
+    size_t size;
+    snprintf(when, sizeof when, "schedule_period = %g s%s", SCHEDULE_PERIODS[s],
+             bank ? ", estimator = 2 (payload_bank)" : "");
+    if (d->designs[s].times == NULL) {
+        char *text = glue_read_resource(inst, SCHEDULE_FILES[s], when, &size);
+        int rc = text == NULL || lqg_read_design(inst, SCHEDULE_FILES[s], text, &d->designs[s], d->c);
+        free(text);
+        if (rc) {
+            lqg_free_design(&d->designs[s]); /* read again (and refused again) at the next configuration */
+            return -1;
+        }
+    }
+    if (bank && d->bank.times == NULL) {
+        char *text = glue_read_resource(inst, BANK_FILE, when, &size);
+        int rc = text == NULL || bank_load(inst, BANK_FILE, text, d);
+        free(text);
+        if (rc) {
+            bank_free(&d->bank);
+            return -1;
+        }
+    }
+    return 0;
 }
 
 /* Torques of sample k from measurements m and the state s after k - 1; `next` the state after k. */
@@ -180,6 +198,7 @@ static fmi2Status configure(Instance *inst)
         glue_log(inst, fmi2Error, "estimator = %g: not one of 1 (kalman), 2 (payload_bank)", key[4]);
         return fmi2Error;
     }
+    if (load_in_force(inst, s, key[4] == ESTIMATOR_PAYLOAD_BANK)) return fmi2Error;
     if (key[4] == ESTIMATOR_PAYLOAD_BANK && fabs(key[1] - d->bank.schedule_period) > 1e-12) {
         glue_log(inst, fmi2Error, "estimator = 2 (payload_bank), schedule_period = %.17g s: the payload bank exists "
                  "for schedule_period = %g s only (set schedule_period = %g, or estimator = 1 (kalman))", key[1],
@@ -408,5 +427,5 @@ static fmi2Status lqg_do_step(Instance *inst, double t, double h)
 
 const ModelInfo MODEL_INFO = {
     MODEL_IDENTIFIER_STRING, MODEL_GUID_STRING, MODEL_VARS, MODEL_N_VARS, MODEL_RESOURCES, MODEL_N_RESOURCES,
-    sizeof(FmuState), lqg_load, lqg_unload, lqg_initialize, lqg_sample, lqg_do_step,
+    sizeof(FmuState), lqg_load, lqg_unload, lqg_initialize, lqg_sample, lqg_do_step, ON_DEMAND,
 };

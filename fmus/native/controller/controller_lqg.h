@@ -81,6 +81,8 @@ typedef struct {  /* flexarm.lqg.LqgState and flexarm.lqg_bank.BankState */
 static inline long long lqg_clamp(const LqgData *d, long long k) { return k < d->n_steps ? k : d->n_steps; }
 /* A design resource's arrays into g (count, times, Phi, Gamma, M, K, K_integral) and the sensor map into c. */
 int lqg_read_design(Instance *inst, const char *file, const char *text, Design *g, double *c);
+/* Free a design's arrays and zero it (an unread design: times == NULL). */
+void lqg_free_design(Design *g);
 /* Steps 1-3: the posterior at j = max(k - d, 0) and the error predicted to sample k (d->design, d->delay). */
 void lqg_estimate(const LqgData *d, const LqgState *s, long long k, const double m[N_MEAS], double x_post[N_STATE],
                   double x_now[N_STATE]);

@@ -18,6 +18,12 @@ double *lqg_read_array(Instance *inst, const char *file, const char *text, const
     return out;
 }
 
+void lqg_free_design(Design *g)
+{
+    free(g->times), free(g->phi), free(g->gamma), free(g->m), free(g->k), free(g->k_integral);
+    memset(g, 0, sizeof *g);
+}
+
 int lqg_read_design(Instance *inst, const char *file, const char *text, Design *g, double *c)
 {
     double count;
