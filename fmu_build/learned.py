@@ -16,9 +16,16 @@ from pathlib import Path
 from flexarm.learned_feedforward import LEARNED_RESOURCE, read_learned_feedforward
 
 from .package import ZIP_DATE
+from .registry import NATIVE_SUFFIX
 
-#: Model identifiers of our controllers that add a learned correction to a feedforward (controller_fb has none).
+#: Model identifiers of our controllers that add a learned correction to a feedforward (controller_fb has none);
+#: their native twins (the same with :data:`fmu_build.registry.NATIVE_SUFFIX`) do too.
 LEARNING_CONTROLLERS = ("FlexarmController", "FlexarmControllerFF", "FlexarmControllerDLQR", "FlexarmControllerLQG")
+
+
+def reads_learned_feedforward(model_identifier: str) -> bool:
+    """Whether the FMU of this model identifier (either kind) adds a learned correction to its feedforward."""
+    return model_identifier.removesuffix(NATIVE_SUFFIX) in LEARNING_CONTROLLERS
 
 
 def with_learned_feedforward(fmu: Path, correction: Path | None, out: Path) -> Path:

@@ -47,7 +47,7 @@ from .native_description import (
     interface_description,
 )
 from .progress import heartbeat, say
-from .registry import SOURCES
+from .registry import NATIVE_SUFFIX, SOURCES
 
 #: The native FMUs' C sources (the installed ``fmus/native`` folder; the code that builds them lives here).
 NATIVE_DIR = SOURCES / "native"
@@ -252,7 +252,7 @@ def _stage_sources(name: str, staging: Path, python_fmu: Path) -> tuple[str, str
     resources = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(res.iterdir())}
     python_xml = interface_description(_read_description(python_fmu))
     root = ET.fromstring(python_xml)
-    model_identifier = root.find("CoSimulation").get("modelIdentifier") + "Native"
+    model_identifier = root.find("CoSimulation").get("modelIdentifier") + NATIVE_SUFFIX
     digest = hashlib.sha256(python_xml)
     for p in sorted(src.iterdir()):
         digest.update(p.name.encode() + p.read_bytes())

@@ -25,6 +25,8 @@ NATIVE_COMMON_DIR = SOURCES / "native" / "common"
 SHIM_SOURCES = (*sorted(COMMON_DIR.glob("fmi2_shim*.c")), NATIVE_COMMON_DIR / "live_table.c")
 #: Its sources and headers: what its build depends on (the up-to-date check, the FMU's recorded SHA-256).
 SHIM_FILES = (*SHIM_SOURCES, *sorted(COMMON_DIR.glob("fmi2_shim*.h")), NATIVE_COMMON_DIR / "live_table.h")
+#: A native FMU's model identifier: its Python twin's with this suffix (FlexarmController -> FlexarmControllerNative).
+NATIVE_SUFFIX = "Native"
 #: Environment variable naming the default output folder.
 OUT_DIR_ENV = "FLEXARM_FMU_DIR"
 #: The interface document shipped in each FMU's documentation/ (when the checkout has it).

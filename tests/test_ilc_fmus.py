@@ -322,3 +322,37 @@ def test_an_ilc_scenario_refuses_a_controller_that_reads_no_learned_feedforward(
                                              r"FlexarmControllerLQG"):
         run_ilc(scen, tmp_path / "out", plots=False, progress=lambda s: None)
     assert not (tmp_path / "out" / "ilc_payload" / "journal.jsonl").exists()
+
+
+def test_the_learned_controller_gives_its_figure_in_other_masters(tmp_path):
+    """The learned controller FMU carries the learning into any master (issue 32): a short Jacobi ILC run with the
+    native controller_lqg, its evaluation case as an SSP with learned_controller.fmu inside, nothing set, gives the
+    run's learned figures in our master, libcosim and Ecos, and `fmpy validate` finds nothing."""
+    from native_fmus import native_fmus
+
+    from scenarios.ilc.masters import MASTERS, learned_in_masters, reproduces
+    from scenarios.ilc.trials import run_ilc
+    from scenarios.reports.ilc_report import _render_masters
+
+    native_fmus()  # built once per test process
+    jacobi = SCENARIO.with_name("ilc_lqg_jacobi.toml").read_text()
+    text = (jacobi.replace("samples = 3058", "samples = 400")
+            .replace("evaluate_samples = 7058", "evaluate_samples = 600")
+            .replace('evaluate_cases = ["learn", "payload_0p2", "payload_0p35"]', 'evaluate_cases = ["learn"]'))
+    scen = tmp_path / "ilc_lqg_jacobi.toml"
+    scen.write_text(text)
+    summary = run_ilc(scen, tmp_path / "out", kind="native", plots=False, progress=lambda s: None, trials=2)
+    ev = summary["evaluation"]["learn"]
+    assert ev["parameters"]["sensors"]["noise_seed"] == 3  # seed_base + trials: the evaluation's own noise
+    res = learned_in_masters(scen, summary, tmp_path / "out" / "ilc_lqg_jacobi")
+    assert res["fmpy_validate"] == [] and res["within"] == list(MASTERS), res
+    row = res["cases"]["learn"]
+    unlearned = {f"slew_{k}": ev["unlearned"]["metrics"][f"slew_{k}"]
+                 for k in ("rms_position_error", "rms_velocity_error")}
+    for master in MASTERS:  # the correction travelled inside the FMU: each master gives the learned run, not the
+        assert not reproduces(row[master], unlearned), (master, row[master], unlearned)  # unlearned one
+    assert "| ilc_lqg_jacobi | learn |" in "\n".join(_render_masters({"ilc_lqg_jacobi": res}))
+    from scenarios.ilc.masters import main
+
+    assert main([str(scen), "--out", str(tmp_path / "out")]) == 0  # the users' command on their run
+    assert main(["ilc_lqg_jacobi", "--out", str(tmp_path / "out")]) == 2  # not the file the run was made from

@@ -110,7 +110,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
     """
     from flexarm import ilc
     from flexarm.control import PEAK_TORQUE
-    from fmu_build.learned import LEARNING_CONTROLLERS, with_learned_feedforward
+    from fmu_build.learned import LEARNING_CONTROLLERS, reads_learned_feedforward, with_learned_feedforward
 
     scenario, settings = load_ilc(name)
     if trials is not None:
@@ -130,9 +130,10 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         if not sensors:
             raise ScenarioError(f"{scenario.path.name}: no FMU outputs the measurements {list(MEASURED)}")
         md = setup.descriptions[ctrl]
-        if fmu_kind(md) == "other" or md.coSimulation.modelIdentifier not in LEARNING_CONTROLLERS:
+        if fmu_kind(md) == "other" or not reads_learned_feedforward(md.coSimulation.modelIdentifier):
             raise ScenarioError(f"fmus.{ctrl}: {setup.paths[ctrl].name} does not read a learned feedforward; ILC "
-                                f"runs need one of our controllers that does ({', '.join(LEARNING_CONTROLLERS)})")
+                                "runs need one of our controllers that does "
+                                f"({', '.join(LEARNING_CONTROLLERS)}, either kind)")
         record = setup.record + [(sensors[0], m) for m in MEASURED if (sensors[0], m) not in setup.record]
         n = setup.n_steps
         n_slew = min(traj.n_samples, n)
@@ -235,9 +236,9 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                 des_eval = desired_states(traj, np.arange(n_eval + 1) * scenario.step_size)
                 for key in settings.evaluate_cases:
                     case = cases[key]
-                    evaluation[key] = {}
+                    params = _with(case.parameters, sensors[0], {"noise_seed": settings.seed_base + len(rows)})
+                    evaluation[key] = {"parameters": params}  # as run: scenarios.ilc.masters runs them again
                     for label, file in (("unlearned", ""), ("learned", str(final))):
-                        params = _with(case.parameters, sensors[0], {"noise_seed": settings.seed_base + len(rows)})
                         m = open_master(file)
                         res = m.run(setup.case_parameters(params), record, n_eval, scenario.step_size)
                         m.close()
@@ -257,7 +258,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                    "samples": n, "slew_samples": n_slew, "trials": rows, "stopped": stopped,
                    "evaluation": evaluation}
         if evaluation:
-            summary["learned_controller"] = {"file": LEARNED_CONTROLLER,
+            summary["learned_controller"] = {"file": LEARNED_CONTROLLER, "instance": ctrl,
                                              "sha256": sha256_file(folder / LEARNED_CONTROLLER)}
         write_json(folder / "evaluation.json", portable(summary, folder))
         write_trials_csv(folder / "trials.csv", rows)

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from flexarm.provenance import refuse_outside_checkout, sha256_file, write_atomic
+from scenarios.ilc.masters import learned_in_masters
 from scenarios.ilc.scenario import load_ilc
 from scenarios.ilc.trials import run_ilc
 
@@ -71,7 +72,8 @@ def _fmt(v, f="{:.3f}") -> str:
     return "—" if v is None else f.format(v)
 
 
-def render(summary: dict, studies: list[tuple[str, dict]], floor: dict | None, lqg: dict | None = None) -> str:
+def render(summary: dict, studies: list[tuple[str, dict]], floor: dict | None, lqg: dict | None = None,
+           masters: dict | None = None) -> str:
     rows = summary["trials"]
     ok = [r for r in rows if r.get("metrics")]
     met = lambda r, k: r["metrics"][k]  # noqa: E731
@@ -174,8 +176,45 @@ def render(summary: dict, studies: list[tuple[str, dict]], floor: dict | None, l
                    + ", ".join(_fmt(met(r, "tip_within_1mm_after_tf_s"), "{:.2f}") for r in okk[-5:])
                    + f" | {held_text} | {s['stopped'] or 'no'} |")
     out += _render_lqg(lqg) if lqg else []
+    out += _render_masters(masters) if masters else []
     out.append("")
     return "\n".join(out) + "\n"
+
+
+def _render_masters(masters: dict) -> list[str]:
+    """The section on each run's learned controller in other masters (:mod:`scenarios.ilc.masters`)."""
+    from scenarios.ilc.masters import FIGURES, MASTERS, TOLERANCE, reproduces
+
+    names = {"ours": "our master", "libcosim": "libcosim", "ecos": "Ecos"}
+    out = ["", "### The learned controller in other masters", "",
+           "Each evaluation case as an SSP archive with the run's `learned_controller.fmu` in the controller's place "
+           "and the case's parameters (noise seed included) as the evaluation ran them, run with nothing set in "
+           "our master (the scenario's stepping), libcosim and Ecos (both Jacobi); rms position ° / rms velocity °/s "
+           f"over the slew, ✗ where a figure is more than {100 * TOLERANCE:g} % from the run's own "
+           "(`scenarios/ilc/masters.py`).", "",
+           "| scenario | case | the run (learned) | " + " | ".join(names[m] for m in MASTERS) + " |",
+           "|---|---|---|" + "---|" * len(MASTERS)]
+    for scenario, res in masters.items():
+        for key, row in res["cases"].items():
+            cells = []
+            for m in MASTERS:
+                got = row.get(m, {"error": "not run"})
+                cells.append(f"error: {got['error'][:60]}" if "error" in got else
+                             " / ".join(f"{got[k]:.4f}" for k in FIGURES) + ("" if reproduces(got, row["learned"])
+                                                                              else " ✗"))
+            out.append(f"| {scenario} | {key} | " + " / ".join(f"{row['learned'][k]:.4f}" for k in FIGURES)
+                       + " | " + " | ".join(cells) + " |")
+    out += ["", "| item | target | measured | verdict |", "|---|---|---|---|"]
+    for scenario, res in masters.items():
+        missing = [names[m] for m in MASTERS if m not in res["within"]]
+        validate = res["fmpy_validate"]
+        out.append(f"| {scenario}: the learned controller FMU in our master, libcosim and Ecos (issue 32) | the "
+                   f"learned figures within {100 * TOLERANCE:g} %, `fmpy validate` passes | "
+                   + ("every master within" if not missing else "outside in " + ", ".join(missing))
+                   + "; fmpy validate: " + (f"{len(validate)} problem(s): {'; '.join(validate)[:120]}" if validate
+                                            else "no problems")
+                   + f" | {'met' if not missing and not validate else 'missed'} |")
+    return out
 
 
 def _held(summary: dict):
@@ -246,7 +285,8 @@ def _lean(summary: dict) -> dict:
 
 def _render_from(record: dict) -> str:
     floor = json.loads(FLOOR.read_text()) if FLOOR.exists() else None
-    return render(record["summary"], [(label, s) for label, s in record["studies"]], floor, record.get("lqg"))
+    return render(record["summary"], [(label, s) for label, s in record["studies"]], floor, record.get("lqg"),
+                  record.get("masters"))
 
 
 def main(argv=None) -> int:
@@ -305,9 +345,13 @@ def main(argv=None) -> int:
     lqg = run_ilc(LQG_SCENARIO, args.out, plots=False, progress=lambda s: print(s, flush=True))
     lqg["controller"] = {k: v for k, v in lqg_scenario.parameters.get("controller", {}).items()
                          if k in ("loop_delay_samples", "integral_action", "estimator")}
+    print("== the learned controllers in other masters", flush=True)
+    masters = {name: learned_in_masters(name, run, args.out / name)
+               for name, run in ((SCENARIO, summary), (LQG_SCENARIO, lqg)) if run.get("learned_controller")}
     record = {"command": "python -m scenarios.reports.ilc_report",
               "scenario_sha256": {SCENARIO: summary["scenario_sha256"], LQG_SCENARIO: lqg["scenario_sha256"]},
-              "summary": _lean(summary), "studies": [[label, _lean(s)] for label, s in studies], "lqg": _lean(lqg)}
+              "summary": _lean(summary), "studies": [[label, _lean(s)] for label, s in studies], "lqg": _lean(lqg),
+              "masters": masters}
     write_atomic(RESULTS, (json.dumps(record, indent=1) + "\n").encode())
     head = DOC.read_text().split(MARKER)[0] if DOC.exists() else "# Iterative learning control\n\n"
     write_atomic(DOC, head + _render_from(record))
