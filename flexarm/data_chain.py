@@ -21,7 +21,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .parameters import DATA_DIR, DEFAULT_PARAMETER_FILE
-from .provenance import DataFileError, sha256_file
+from .provenance import DataFileError, sha256_file, sha256_memo
 
 __all__ = ["DATA_SUFFIXES", "DataChainError", "data_files", "verify_data_files"]
 
@@ -59,6 +59,11 @@ def verify_data_files(root: Path | None = None) -> dict[str, str]:
     DataChainError
         The loader's message, which names the file (and what regenerates it).
     """
+    with sha256_memo():  # each record names the trajectory and parameter file: hashed once, not once per record
+        return _verify(Path(root) if root is not None else DATA_DIR.parent.parent)
+
+
+def _verify(root: Path) -> dict[str, str]:
     from .gain_schedule import read_design_metadata
     from .gain_sets import GainError
     from .lqg_bank import BANK_SCHEDULES
@@ -71,7 +76,6 @@ def verify_data_files(root: Path | None = None) -> dict[str, str]:
     from .trajectory.io import DEFAULT_TRAJECTORY_FILE
     from .trajectory.io import REGENERATE_COMMAND as CHAIN_COMMAND
 
-    root = Path(root) if root is not None else DATA_DIR.parent.parent
     files = data_files(DATA_DIR)
     reading = DEFAULT_PARAMETER_FILE
     try:

@@ -7,6 +7,8 @@ and the :func:`sha256_file` of what it was made from.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import hashlib
 import json
 import os
@@ -96,13 +98,44 @@ def sha256_bytes(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+#: Inside :func:`sha256_memo`: (path, device, inode, size, mtime_ns) -> digest; None outside.
+_SHA256_MEMO: contextvars.ContextVar[dict | None] = contextvars.ContextVar("flexarm_sha256_memo", default=None)
+
+
 def sha256_file(path: str | Path) -> str:
-    """Hex SHA-256 of the file at ``path``, read in 1 MiB chunks."""
+    """Hex SHA-256 of the file at ``path``, read in 1 MiB chunks (once per file inside :func:`sha256_memo`)."""
+    memo = _SHA256_MEMO.get()
+    if memo is not None:
+        st = os.stat(path)
+        key = (os.fspath(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+        if key not in memo:
+            memo[key] = _sha256_of(path)
+        return memo[key]
+    return _sha256_of(path)
+
+
+def _sha256_of(path: str | Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
+
+
+@contextlib.contextmanager
+def sha256_memo():
+    """Within the block, :func:`sha256_file` hashes each file once (a file replaced meanwhile, by its stat: again).
+
+    For one verification that meets the same inputs many times: every design file's record names the trajectory
+    and the parameter file it was made from, so checking the data chain hashed them once per record (24 MB for
+    6 MB of data, :func:`flexarm.data_chain.verify_data_files`). Scoped, never process-wide: a file rewritten
+    with the same size within the file system's timestamp granularity could otherwise keep an old digest.
+    """
+    token = _SHA256_MEMO.set({})
+    try:
+        yield
+    finally:
+        _SHA256_MEMO.reset(token)
 
 
 def _current_umask() -> int:

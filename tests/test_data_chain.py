@@ -92,3 +92,26 @@ def test_regenerate_runs_the_chain_in_order_and_stops_at_a_failure(monkeypatch, 
     ran.clear()
     assert regenerate.main(["--from", "fmus"]) == 0
     assert ran == [[ran[0][0], "build_fmus.py", "--force"], [ran[0][0], "-m", "scenarios", "results-page"]]
+
+
+def test_the_chain_hashes_each_file_once_and_nothing_is_remembered_after_it(tmp_path, monkeypatch):
+    """Every design record names the trajectory and the parameter file: one verification hashes each file once
+    (it hashed the trajectory 30 times); the memo lives only inside the verification, so a file rewritten with the
+    same size and time stamp afterwards is hashed again, never taken from an old digest."""
+    import os
+
+    from flexarm import data_chain, provenance
+
+    hashed = []
+    plain = provenance._sha256_of
+    monkeypatch.setattr(provenance, "_sha256_of", lambda p: hashed.append(os.fspath(p)) or plain(p))
+    digests = data_chain.verify_data_files()
+    assert len(hashed) == len(set(hashed)) and len(digests) <= len(hashed)
+    assert all(digests[k] == plain(data_chain.DATA_DIR.parent.parent / k) for k in digests)
+    f = tmp_path / "same_size.bin"
+    f.write_bytes(b"a" * 64)
+    stamp = os.stat(f).st_mtime_ns
+    first = provenance.sha256_file(f)
+    f.write_bytes(b"b" * 64)
+    os.utime(f, ns=(stamp, stamp))
+    assert provenance.sha256_file(f) != first
