@@ -22,8 +22,15 @@ from scenarios.ilc.scenario import load_ilc
 from scenarios.metrics import table_metrics
 from scenarios.run.setup import desired_states
 
-#: The masters an ILC result is checked in: ours steps as the scenario says; libcosim and Ecos step Jacobi.
+#: The masters an ILC result must be reproduced in (issue 32): ours steps as the scenario says; libcosim and Ecos
+#: step Jacobi.
 MASTERS = ("ours", "libcosim", "ecos")
+#: Further masters of the conformance suite a report shows beside them: OMSimulator (Gauss-Seidel, when installed:
+#: :func:`scenarios.conformance.hosts.omsimulator`) and fmpy's ``simulate_ssp`` (its first step without torque).
+MORE_MASTERS = ("omsimulator", "simulate_ssp")
+#: Column names.
+MASTER_NAMES = {"ours": "our master", "libcosim": "libcosim", "ecos": "Ecos", "omsimulator": "OMSimulator",
+                "simulate_ssp": "fmpy simulate_ssp"}
 #: Relative difference from the learned figure within which a master reproduces it (issue 32).
 TOLERANCE = 0.01
 #: The figures compared: rms position (deg) and velocity (deg/s) error over the slew, as the ILC's table.
@@ -97,8 +104,11 @@ def learned_in_masters(name, summary: dict, folder: Path, masters=MASTERS) -> di
                     if master == "ours":
                         trace = hosts.run_ours(ssp, scenario, summary["fmu_kind"], scenario.algorithm,
                                                Path(tmp) / f"{key}-ours")
+                    elif master == "omsimulator":
+                        trace = hosts.run_omsimulator(ssp, Path(tmp) / f"{key}-omsimulator")
                     else:
-                        trace = {"libcosim": hosts.run_libcosim, "ecos": hosts.run_ecos}[master](ssp)
+                        trace = {"libcosim": hosts.run_libcosim, "ecos": hosts.run_ecos,
+                                 "simulate_ssp": hosts.run_simulate_ssp}[master](ssp)
                     row[master] = slew_figures(trace, summary["slew_samples"])
                 except Exception as exc:  # noqa: BLE001 - a master that fails is an entry, not a crash
                     row[master] = {"error": f"{type(exc).__name__}: {exc}"[:300]}
@@ -114,8 +124,8 @@ def reproduces(figures: dict, learned: dict) -> bool:
                                           for k in FIGURES)
 
 
-__all__ = ["FIGURES", "MASTERS", "TOLERANCE", "learned_archives", "learned_in_masters", "reproduces",
-           "slew_figures"]
+__all__ = ["FIGURES", "MASTERS", "MASTER_NAMES", "MORE_MASTERS", "TOLERANCE", "learned_archives",
+           "learned_in_masters", "reproduces", "slew_figures"]
 
 
 def main(argv=None) -> int:
