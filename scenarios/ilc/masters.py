@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 
 from flexarm.provenance import sha256_file
-from scenarios.config import Case, ScenarioError
+from scenarios.config import Case, Scenario, ScenarioError
 from scenarios.conformance import hosts
 from scenarios.conformance.ssp import export_ssp
 from scenarios.ilc.scenario import load_ilc
@@ -37,13 +37,14 @@ TOLERANCE = 0.01
 FIGURES = ("slew_rms_position_error", "slew_rms_velocity_error")
 
 
-def learned_archives(name, summary: dict, folder: Path, out_dir: Path) -> dict[str, Path]:
+def learned_archives(scenario: Scenario, summary: dict, folder: Path, out_dir: Path) -> dict[str, Path]:
     """One SSP archive per evaluation case of an ILC run, with the run's learned controller in it.
 
     Parameters
     ----------
-    name : str or Path
-        The ILC scenario (a shipped name or a file), as the run was given it.
+    scenario : Scenario
+        The ILC scenario the run was made from (:func:`scenarios.ilc.scenario.load_ilc`; its file is checked
+        against the run's SHA-256).
     summary : dict
         The run's summary (``evaluation.json``, :func:`scenarios.ilc.trials.run_ilc`'s return value), with its
         ``learned_controller`` and each evaluation case's ``parameters``.
@@ -57,7 +58,6 @@ def learned_archives(name, summary: dict, folder: Path, out_dir: Path) -> dict[s
     dict
         case key -> archive.
     """
-    scenario, _ = load_ilc(name)
     if sha256_file(scenario.path) != summary["scenario_sha256"]:
         raise ScenarioError(f"{scenario.path}: not the scenario file the run in {folder} was made from (SHA-256 "
                             f"{sha256_file(scenario.path)[:12]}..., the run's {summary['scenario_sha256'][:12]}...)")
@@ -96,7 +96,7 @@ def learned_in_masters(name, summary: dict, folder: Path, masters=MASTERS) -> di
     out = {"masters": list(masters), "tolerance": TOLERANCE, "cases": {},
            "fmpy_validate": validate_fmu(str(Path(folder) / summary["learned_controller"]["file"]))}
     with tempfile.TemporaryDirectory(prefix="flexarm-ilc-masters-") as tmp:
-        archives = learned_archives(name, summary, folder, Path(tmp) / "ssp")
+        archives = learned_archives(scenario, summary, folder, Path(tmp) / "ssp")
         for key, ssp in archives.items():
             row = {"learned": {k: summary["evaluation"][key]["learned"]["metrics"][k] for k in FIGURES}}
             for master in masters:
