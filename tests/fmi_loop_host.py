@@ -17,7 +17,8 @@ The spec (JSON) says:
   this one process, each loading its FMUs afresh.
 
 It writes, per run, the plant's ``theta1..11``, ``omega1..11`` and the torques at every communication
-point (sample 0 after initialisation) into OUT.npz (``run<i>_theta``, ...), atomically.
+point (sample 0 after initialisation), and the status each ``fmi2DoStep`` returned (``run<i>_step_status``,
+one row per step, the FMUs in the order stepped: extra, then ``order``) into OUT.npz, atomically.
 """
 
 from __future__ import annotations
@@ -119,7 +120,7 @@ def run_loop(spec: dict) -> dict:
     for name in order:
         units[name].exitInitializationMode()
     plant, ctrl = order[0], order[-1]
-    rows, taus = [], []
+    rows, taus, statuses = [], [], []
     others = {f"{name}_{v}": [] for name in extra for v in outputs[name]}
     t = 0.0
     for k in range(n + 1):
@@ -131,8 +132,10 @@ def run_loop(spec: dict) -> dict:
                 others[f"{name}_{v}"].append(x)
         if k == n:
             break
-        for name in [*extra, *order]:
-            units[name].doStep(currentCommunicationPoint=t, communicationStepSize=h)
+        step_status = []
+        for name in [*extra, *order]:  # the status itself (fmpy's doStep drops it; it raises above fmi2Warning)
+            step_status.append(units[name].fmi2DoStep(units[name].component, t, h, 1))
+        statuses.append(step_status)
         t = (k + 1) * h
     for name in units:
         units[name].terminate()
@@ -141,7 +144,8 @@ def run_loop(spec: dict) -> dict:
 
     for d in dirs.values():
         shutil.rmtree(d, ignore_errors=True)
-    return {"theta": [r[:11] for r in rows], "omega": [r[11:] for r in rows], "tau": taus, **others}
+    return {"theta": [r[:11] for r in rows], "omega": [r[11:] for r in rows], "tau": taus,
+            "step_status": statuses, **others}
 
 
 def main(argv: list[str]) -> int:

@@ -354,3 +354,43 @@ def test_a_closed_standard_output_is_reported_as_such_not_as_a_results_error():
     assert proc.returncode == 141, proc.stderr
     assert "broken pipe" in proc.stderr and "cannot write results" not in proc.stderr
     assert "Traceback" not in proc.stderr and "Exception ignored" not in proc.stderr
+
+
+def test_a_heartbeat_cut_by_the_workers_own_close_is_not_logged_but_a_lost_scheduler_is():
+    """What a SIGTERM sweep printed under load in CI (exit 143 as it should, and a Dask traceback): Dask's
+    Worker.close cuts a heartbeat already on the wire, and the worker logs that as an ERROR."""
+    import io
+    import logging
+
+    from distributed.comm.core import CommClosedError
+    from distributed.core import Status
+
+    from scenarios.sweep import worker
+
+    stream = io.StringIO()
+    handler = logging.StreamHandler(stream)
+    dask_log = logging.getLogger("distributed")
+    dask_log.addHandler(handler)
+    class FakeWorker:  # weak-referenceable, as a Worker is
+        status = Status.running
+
+    fake = FakeWorker()
+    try:
+        worker.QuietClose().setup(fake)
+        log = logging.getLogger("distributed.worker")
+        for status in (Status.running, Status.closing, Status.closed):
+            fake.status = status
+            try:
+                raise CommClosedError(f"heartbeat while {status.name}")
+            except OSError:
+                log.exception("Failed to communicate with scheduler during heartbeat.")
+        try:
+            raise RuntimeError("unexpected while closing")
+        except RuntimeError:
+            log.exception("Unexpected exception during heartbeat. Closing worker.")
+    finally:
+        dask_log.removeHandler(handler)
+    text = stream.getvalue()
+    assert text.count("Traceback") == 2, text
+    assert "heartbeat while running" in text and "unexpected while closing" in text
+    assert "heartbeat while closing" not in text and "heartbeat while closed" not in text

@@ -198,3 +198,27 @@ def test_the_papers_predicting_law_restores_bit_for_bit_and_the_kinds_agree(tmp_
         np.testing.assert_array_equal(twice[:150], whole[250:])
         runs[kind] = whole
     np.testing.assert_allclose(runs["native"][:, :2], runs["python"][:, :2], rtol=0, atol=1e-9)
+
+
+def test_a_logged_warning_leaves_the_step_ok_in_both_kinds(kind_fmus, tmp_path):
+    """The contradiction warning reaches the host's logger and fmi2DoStep still returns fmi2OK, in both kinds.
+    The Python kind returned fmi2Warning from the step that logged it, and OMSimulator takes fmi2Warning from
+    fmi2DoStep for a failed step: the Python set stopped at the second step there, the native one ran on."""
+    import json
+    import subprocess
+    import sys
+
+    _, fmus = kind_fmus
+    host = Path(__file__).resolve().parent / "fmi_loop_host.py"
+    spec = {"fmus": {"plant": str(fmus["plant"]), "sensors": str(fmus["sensors"]),
+                     "controller": str(fmus["controller_lqg"])},
+            "stepping": "gauss-seidel", "n_steps": 30, "parameters": {"controller": {"loop_delay_samples": 2}}}
+    (tmp_path / "spec.json").write_text(json.dumps(spec))
+    proc = subprocess.run([sys.executable, str(host), str(tmp_path / "spec.json"), str(tmp_path / "out.npz")],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    warned = [line for line in proc.stderr.splitlines()
+              if line.startswith("[controller] status 1:") and "loop delay contradiction" in line]
+    assert len(warned) == 1, proc.stderr[-4000:]
+    with np.load(tmp_path / "out.npz") as z:
+        assert z["run0_step_status"].shape == (30, 3) and not z["run0_step_status"].any()

@@ -17,10 +17,11 @@
  *    logs every failure at status fmi2Error; pythonfmu delivers the slave's
  *    log through the logger callback *during* the call, and the shim passes
  *    pythonfmu its own logger. The status of a call is the worst of
- *    pythonfmu's return value and the statuses logged during the call
- *    (warning or error): a rejected value, a refused step or a failed
- *    initialisation returns fmi2Error; fmi2Discard remains only for a step
- *    the glue discards without an error (a smaller step may succeed).
+ *    pythonfmu's return value and an error logged during the call (a
+ *    logged warning is passed on, the status stays): a rejected value, a
+ *    refused step or a failed initialisation returns fmi2Error;
+ *    fmi2Discard remains only for a step the glue discards without an
+ *    error (a smaller step may succeed).
  *  - fmi2Error leaves the instance in the state it was in: our FMUs reject a
  *    value or refuse a step before changing anything, so the master may fix
  *    the value and go on (or reset, or free, as FMI 2.0 prescribes).
@@ -185,12 +186,13 @@ Instance *admit(fmi2Component c, const char *fn, unsigned allowed, fmi2Status *r
     return s;
 }
 
-/* Status of a forwarded call: pythonfmu's, raised by what the Python slave logged during it. */
+/* Status of a forwarded call: pythonfmu's, raised to fmi2Error when the Python slave logged an error during
+ * it. A logged warning leaves the status as it was, as in the native kind: the master sees the message, and
+ * the step goes on in masters that take fmi2Warning for a failed step (OMSimulator stops there). */
 fmi2Status outcome(Instance *s, const char *fn, fmi2Status inner)
 {
     fmi2Status r = inner;
     if (s->worst >= fmi2Error && r < fmi2Error) r = fmi2Error;
-    else if (s->worst == fmi2Warning && r < fmi2Warning) r = fmi2Warning;
     if (r == fmi2Fatal && s->state != S_FATAL) {
         s->state = S_FATAL;
         shim_log(s, fmi2Fatal, "%s: pythonfmu returned fmi2Fatal; the instance cannot be used any more", fn);

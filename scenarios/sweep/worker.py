@@ -16,6 +16,7 @@ import socket
 import tempfile
 import threading
 import time
+import weakref
 from collections import OrderedDict
 from collections.abc import Iterator
 from pathlib import Path
@@ -297,14 +298,58 @@ class _DropCancellations(logging.Filter):
 _DROP_CANCELLATIONS = _DropCancellations()
 
 
+class _DropOwnCloseHeartbeat(logging.Filter):
+    """Drop a worker's "Failed to communicate with scheduler during heartbeat" while that worker is closing.
+
+    Dask's ``Worker.close`` stops the heartbeat's timer and then closes its connections, but a heartbeat
+    already on the wire is cut by that close, and the worker logs it as an ERROR with a traceback (CI under
+    load, a SIGTERM sweep: the sweep exited 143 as it should, with a Dask traceback on stderr). A heartbeat
+    that fails while the worker is running (the scheduler lost) is still logged.
+    """
+
+    def __init__(self, worker):
+        super().__init__()
+        self._worker = weakref.ref(worker)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if not (record.name == "distributed.worker" and record.msg == _HEARTBEAT_FAILED and record.exc_info
+                and isinstance(record.exc_info[1], OSError)):
+            return True
+        worker = self._worker()
+        return worker is None or worker.status.name not in _CLOSING
+
+
+_HEARTBEAT_FAILED = "Failed to communicate with scheduler during heartbeat."
+_CLOSING = frozenset({"closing", "closing_gracefully", "closed"})
+
+
+class QuietClose(WorkerPlugin):
+    """Dask worker plugin: a worker's own closing is not reported as an error (:class:`_DropOwnCloseHeartbeat`,
+    :class:`_DropCancellations`), on the handlers of the worker's process."""
+
+    idempotent = True
+
+    def setup(self, worker=None) -> None:
+        filters = [_DROP_CANCELLATIONS] + ([_DropOwnCloseHeartbeat(worker)] if worker is not None else [])
+        _add_to_dask_handlers(filters)
+
+    def teardown(self, worker=None) -> None:
+        pass  # the filters stay: the worker's close, which they are for, comes after the sweep unregisters us
+
+
 def _quiet_cancellations() -> None:
+    _add_to_dask_handlers([_DROP_CANCELLATIONS])
+
+
+def _add_to_dask_handlers(filters: list[logging.Filter]) -> None:
     # On the handlers that Dask's records reach (its own, or the root's when a host configured logging first):
     # a logger's own filters do not see the records its children propagate to it.
     log: logging.Logger | None = logging.getLogger("distributed")
     while log is not None:
         for handler in log.handlers:
-            if _DROP_CANCELLATIONS not in handler.filters:
-                handler.addFilter(_DROP_CANCELLATIONS)
+            for f in filters:
+                if f not in handler.filters:
+                    handler.addFilter(f)
         log = log.parent if log.propagate else None
 
 
@@ -334,7 +379,8 @@ def iter_dask(client, plan: Plan, points: list[Point]) -> Iterator[dict]:
     from distributed import as_completed
 
     needed = sorted({plan.point_set[p.key] for p in points})
-    plugins = []
+    client.register_plugin(QuietClose(), name="flexarm-sweep-quiet-close")
+    plugins = ["flexarm-sweep-quiet-close"]
     for k in needed:
         name = f"flexarm-sweep-fmus-{k}"
         client.register_plugin(ShipFmus(plan.fmu_sets[k].names, plan.fmu_sets[k].blobs), name=name)
