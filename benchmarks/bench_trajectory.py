@@ -1,6 +1,8 @@
 """CPU time of the minimum-time solve: a cold solve, then a re-plan for a payload warm-started from it.
 
-Run: ``python benchmarks/bench_trajectory.py [--payload KG] [--from-file] [--intervals N]``.
+Run: ``python benchmarks/bench_trajectory.py [--payload KG] [--from-file] [--intervals N] [--fatrop-only]``.
+After IPOPT's two solves, FATROP's re-plan (:func:`flexarm.trajectory.replan_minimum_time`) from the committed
+file, its solver's making and its solve apart, and its result against IPOPT's re-plan.
 Each figure is split into making the NLP and IPOPT solvers (``problem._cached_solver``, timed here)
 and the rest per IPOPT iteration (almost all of it MUMPS factorising the KKT systems).
 Goals (issue 32): warm re-plan <= 10 CPU-s, cold solve <= 60 CPU-s. CPU time (os.times, this
@@ -66,6 +68,33 @@ def _report_warm(label: str, r, cpu: float, build: float) -> None:
           f"peak memory {_peak_mb():.0f} MB; {_split(r, cpu, build)}", flush=True)
 
 
+def _replan_fatrop(loaded, committed, payload: float):
+    """FATROP's re-plan from the committed file (primal point only); prints making and solving apart."""
+    from flexarm.trajectory import replan_minimum_time, stage_form
+
+    c0 = _cpu()
+    stage_form.stage_form(loaded)  # made once per process; every later re-plan of the structure reuses it
+    made = _cpu() - c0
+    c0 = _cpu()
+    r = replan_minimum_time(loaded, committed)
+    cpu = _cpu() - c0
+    print(f"FATROP re-plan, payload {payload} kg, from the committed file: {cpu:6.1f} CPU-s solving (goal <= 10), "
+          f"after {made:.1f} CPU-s making its solver (once per process); {r.metadata['solver']['iterations']} "
+          f"iterations ({_stages(r)}), t_f = {r.t_f:.3f} s (continuous {r.metadata['t_f_continuous_s']:.7f} s), "
+          f"peak memory {_peak_mb():.0f} MB", flush=True)
+    return r
+
+
+def _compare(label: str, a, b) -> None:
+    if len(a.t) != len(b.t):
+        print(f"{label}: t_f {a.t_f:.3f} s against {b.t_f:.3f} s", flush=True)
+        return
+    dtau = np.abs(a.tau - b.tau).max(axis=0)
+    print(f"{label}: continuous t_f {a.metadata['t_f_continuous_s'] - b.metadata['t_f_continuous_s']:+.2e} s, "
+          f"largest torque difference {dtau[0]:.2e} / {dtau[1]:.2e} N·m, angles "
+          f"{np.abs(a.theta - b.theta).max():.2e} rad", flush=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--intervals", type=int, default=200)
@@ -73,10 +102,15 @@ def main(argv=None) -> int:
     ap.add_argument("--from-file", action="store_true",
                     help="warm-start from the committed file (primal point only: the file holds no multipliers) "
                          "instead of the cold solve's primal-dual solution, and skip the cold solve")
+    ap.add_argument("--fatrop-only", action="store_true",
+                    help="only FATROP's re-plan from the committed file (no IPOPT solve)")
     args = ap.parse_args(argv)
     params = load_parameters()
     committed = load_trajectory()
     loaded = params.with_payload(args.payload)
+    if args.fatrop_only:
+        _replan_fatrop(loaded, committed, args.payload)
+        return 0
     if args.from_file:
         c0, b0 = _cpu(), _BUILD[0]
         guess = solution_from_trajectory(committed, params)
@@ -102,6 +136,9 @@ def main(argv=None) -> int:
     c0, b0 = _cpu(), _BUILD[0]
     warm = solve_minimum_time(loaded, n_intervals=args.intervals, warm_start=cold, verbose=False)
     _report_warm(f"payload {args.payload} kg, from the cold solve", warm, _cpu() - c0, _BUILD[0] - b0)
+    if args.intervals == committed.metadata["discretisation"]["intervals"]:
+        fatrop = _replan_fatrop(loaded, committed, args.payload)
+        _compare("FATROP's re-plan against IPOPT's", fatrop, warm)
     return status
 
 

@@ -23,10 +23,8 @@ import casadi as ca
 import numpy as np
 
 from flexarm import load_parameters
-from flexarm.model import rigid_configuration
 from flexarm.trajectory import problem as P
-from flexarm.trajectory.geometry import inverse_kinematics
-from flexarm.trajectory.reduced_model import _radau, _residual_function
+from flexarm.trajectory import stage_form as sf
 
 
 def cpu() -> float:
@@ -34,103 +32,45 @@ def cpu() -> float:
     return t.user + t.system
 
 
-def build(red, N: int, d: int, reg: float = P.DEFAULT_REGULARISATION, rate: float = P.TORQUE_RATE_LIMIT,
-          line_tol: float = P.LINE_TOLERANCE):
-    """The condensed stage-ordered NLP: (nlp, FATROP's dims, lbg, ubg); parameters as params_vector."""
+def build(red, N: int, d: int):
+    """The condensed stage-ordered NLP written out in one SX graph: (nlp, FATROP's dims, lbg, ubg).
+
+    The intervals' equations are :mod:`flexarm.trajectory.stage_form`'s, inlined (what its module docstring
+    calls the written-out layout).
+    """
+    base = load_parameters()
+    nlp_mx, dims, lbg, ubg = sf.stage_nlp(base, N, d)
     n = red.n
-    tau_c, D = _radau(d)
-    pattern = red.stiffness_pattern()
-    n_k = int(pattern.sum())
-    n_c = n * n + n_k + 2 * n
-    p = ca.SX.sym("p", 1 + n_c + 2 + n + 4)
-    w_tf, coeff, lim = p[0], p[1:1 + n_c], p[1 + n_c:3 + n_c]
-    lg, p0, normal = p[3 + n_c:3 + n_c + n], p[3 + n_c + n:5 + n_c + n], p[5 + n_c + n:7 + n_c + n]
-    dyn = _residual_function(n, pattern)
     nx, nu = 2 * n + 3, n * d + 2
-    X = [ca.SX.sym(f"x{k}", nx) for k in range(N + 1)]
-    U = [ca.SX.sym(f"u{k}", nu) for k in range(N)]
-    w, g, lbg, ubg, ng = [], [], [], [], []
-    f = w_tf * X[0][2 * n + 2]
-    for k in range(N):
-        x, u = X[k], U[k]
-        th, v, u_node, t_f = x[:n], x[n:2 * n], x[2 * n:2 * n + 2], x[2 * n + 2]
-        TH, du = ca.reshape(u[:n * d], n, d), u[n * d:]
-        t2 = t_f ** 2
-        coeff2 = ca.vertcat(coeff[:n * n], t2 * coeff[n * n:n * n + n_k], coeff[n * n + n_k:])
-        pts = [th] + [TH[:, r] for r in range(d)]
-        dth = [N * sum(D[r, j] * pts[r] for r in range(d + 1)) for j in range(d)]
-        rates = [v] + dth
-        ddth = [N * sum(D[r, j] * rates[r] for r in range(d + 1)) for j in range(d)]
-        w += [x, u]
-        g.append(X[k + 1] - ca.vertcat(TH[:, d - 1], dth[d - 1], u_node + du, t_f))
-        lbg += [0.0] * nx
-        ubg += [0.0] * nx
-        path, lo, hi = [], [], []
-        for j in range(d):
-            torque = t2 * lim * (u_node * (1 - tau_c[j + 1]) + (u_node + du) * tau_c[j + 1])
-            path.append(dyn(TH[:, j], dth[j], ddth[j], torque, coeff2))
-            lo += [0.0] * n
-            hi += [0.0] * n
-        for j in range(d if k < N - 1 else d - 1):
-            tip_x, tip_y = ca.dot(lg, ca.cos(TH[:, j])), ca.dot(lg, ca.sin(TH[:, j]))
-            path.append(normal[0] * (tip_x - p0[0]) + normal[1] * (tip_y - p0[1]))
-            lo.append(-line_tol)
-            hi.append(line_tol)
-        h = t_f / N
-        path += [du - rate * h, -du - rate * h]
-        lo += [-np.inf] * 4
-        hi += [0.0] * 4
-        if k == N - 1:
-            path.append(ca.DM(red.joint_rows) @ ddth[d - 1])
-            lo += [0.0] * 2
-            hi += [0.0] * 2
-        g += path
-        lbg += lo
-        ubg += hi
-        ng.append(len(lo))
-        f += reg * ca.sumsqr(du)
-    w.append(X[N])
-    nlp = {"x": ca.vertcat(*w), "f": f, "g": ca.vertcat(*g), "p": p}
-    dims = {"N": N, "nx": [nx] * (N + 1), "nu": [nu] * N + [0], "ng": ng + [0]}
-    return nlp, dims, np.array(lbg), np.array(ubg)
+    n_p = nlp_mx["p"].shape[0]
+    common = (P.DEFAULT_REGULARISATION, P.TORQUE_RATE_LIMIT, P.LINE_TOLERANCE)
+    interval, _, _ = sf._interval_function(red, N, d, n_p, False, *common)
+    last, _, _ = sf._interval_function(red, N, d, n_p, True, *common)
+    w, p = ca.SX.sym("w", N * (nx + nu) + nx), ca.SX.sym("p", n_p)
+    XU = ca.reshape(w[:N * (nx + nu)], nx + nu, N)
+    X_next = ca.horzcat(XU[:nx, 1:], w[N * (nx + nu):])
+    calls = [(last if k == N - 1 else interval).call([XU[:nx, k], XU[nx:, k], X_next[:, k], p], True, False)
+             for k in range(N)]
+    nlp = {"x": w, "p": p, "f": p[0] * w[2 * n + 2] + sum(c for _, c in calls),
+           "g": ca.vertcat(*(g for g, _ in calls))}
+    return nlp, dims, lbg, ubg
+
+
+def _form(N: int, d: int) -> sf.StageForm:
+    return sf.StageForm(None, N, d, P.ReducedModel.build(load_parameters(), P.FLEX_GROUPS).n, np.zeros(0),
+                        np.zeros(0))
 
 
 def params_vector(params, red) -> np.ndarray:
-    dvec = (params.line_end - params.line_start) / np.linalg.norm(params.line_end - params.line_start)
-    return np.concatenate([[1.0], red.coefficient_vector(), params.torque_limit, red.T.T @ red.length,
-                           params.line_start, [-dvec[1], dvec[0]]])
+    return _form(1, 1).parameters(params)
 
 
 def stage_vector(sol, red, N: int, d: int) -> np.ndarray:
-    th, om = red.reduce(sol.theta), red.reduce(sol.omega)
-    w = []
-    for k in range(N):
-        node, rows = k * d, slice(1 + k * d, 1 + (k + 1) * d)
-        w += [th[node], sol.t_f * om[node], sol.u[k], [sol.t_f], th[rows].T.ravel("F"), sol.u[k + 1] - sol.u[k]]
-    w += [th[N * d], sol.t_f * om[N * d], sol.u[N], [sol.t_f]]
-    return np.concatenate(w)
+    return _form(N, d).point(sol, load_parameters())
 
 
 def bounds(params, red, N: int, d: int, elbow: int = 1):
-    n = red.n
-    nx, nu = 2 * n + 3, n * d + 2
-    th0 = red.reduce(rigid_configuration(*inverse_kinematics(params, params.line_start, elbow)))
-    thf = red.reduce(rigid_configuration(*inverse_kinematics(params, params.line_end, elbow)))
-    lb, ub = [], []
-    for k in range(N + 1):
-        lo, hi = np.full(nx, -np.inf), np.full(nx, np.inf)
-        lo[2 * n:2 * n + 2], hi[2 * n:2 * n + 2] = -1.0, 1.0
-        lo[-1], hi[-1] = 0.05, 60.0
-        for node, angles in ((0, th0), (N, thf)):
-            if k == node:
-                lo[:n] = hi[:n] = angles
-                lo[n:2 * n] = hi[n:2 * n] = 0.0
-        lb.append(lo)
-        ub.append(hi)
-        if k < N:
-            lb.append(np.full(nu, -np.inf))
-            ub.append(np.full(nu, np.inf))
-    return np.concatenate(lb), np.concatenate(ub)
+    return _form(N, d).bounds(params, elbow)
 
 
 def main(argv=None) -> int:

@@ -11,7 +11,9 @@ Modules, by concern:
               :func:`save_trajectory`); imports no CasADi.
 ``geometry``  inverse kinematics and the distance from the line.
 ``problem``   reduced models, Radau collocation and the NLP (CasADi/IPOPT).
-``solve``     the staged solve (:func:`solve_minimum_time`), 1 ms sampling, sensitivity.
+``solve``     the staged solve (:func:`solve_minimum_time`), FATROP's re-plan (:func:`replan_minimum_time`),
+              1 ms sampling, sensitivity.
+``stage_form`` the NLP in stage form for FATROP (the re-plan).
 ``report``    replay in the plant, constraint checks, plot, command line.
 
 Reading a trajectory (``from flexarm.trajectory import load_trajectory``)
@@ -39,7 +41,8 @@ from .io import (
 
 #: Names loaded from a submodule on first access (they import CasADi or the plant).
 _LAZY = {
-    "solve_minimum_time": "solve", "solve_free_time": "solve", "sample_solution": "solve", "sensitivity": "solve",
+    "solve_minimum_time": "solve", "replan_minimum_time": "solve",
+    "solve_free_time": "solve", "sample_solution": "solve", "sensitivity": "solve",
     "solve_collocation": "problem", "CollocationSolution": "problem", "ReducedModel": "problem",
     "RIGID_GROUPS": "problem", "FLEX_GROUPS": "problem", "DEFAULT_REGULARISATION": "problem",
     "LINE_TOLERANCE": "problem", "TORQUE_RATE_LIMIT": "problem",

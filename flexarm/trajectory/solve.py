@@ -130,17 +130,83 @@ def solve_minimum_time(params: ArmParameters | None = None, n_intervals: int = 2
                                   label="flexible, t_f rounded up to whole ms",
                                   warm_options=REPLAN_FIXED_TIME_OPTIONS if replan else None, **common)
     stages.append(fixed.stats)
-    total = time.perf_counter() - t_start
+    return _result(params, free, fixed, stages, time.perf_counter() - t_start,
+                   "IPOPT (CasADi nlpsol, exact Hessian, MUMPS)",
+                   "Radau IIA direct collocation, implicit dynamics M(θ)a = rhs at every collocation point",
+                   regularisation, elbow, line_tolerance, torque_rate_limit)
+
+
+def replan_minimum_time(params: ArmParameters, warm_start: TrajectoryResult | CollocationSolution,
+                        verbose: bool = False, elbow: int = 1, regularisation: float = DEFAULT_REGULARISATION,
+                        max_iter: int = 300, line_tolerance: float = LINE_TOLERANCE,
+                        torque_rate_limit: float = TORQUE_RATE_LIMIT) -> TrajectoryResult:
+    """Re-plan the slew for changed parameters (a payload) with FATROP, from a solution's primal point alone.
+
+    The same NLP as :func:`solve_minimum_time` in stage form (:mod:`flexarm.trajectory.stage_form`): the
+    free-t_f solve, then t_f rounded up to a whole ms and solved again. It needs no multipliers, so a
+    trajectory read from a file (the committed one) is a start; the solver is made once per process
+    (about 11 CPU-s) and every later re-plan of the same structure only solves.
+
+    Parameters
+    ----------
+    params : ArmParameters
+        The parameters to plan for (e.g. ``load_parameters().with_payload(0.275)``).
+    warm_start : TrajectoryResult or CollocationSolution
+        A flexible solution, or a trajectory file whose metadata name its grid (``discretisation``); the
+        re-plan uses its grid (N intervals, Radau degree d).
+    verbose : bool
+        Print a line per stage.
+
+    Returns
+    -------
+    TrajectoryResult
+
+    Raises
+    ------
+    TrajectoryError
+        FATROP did not converge, or the start is not a flexible solution with its grid.
+    """
+    from .stage_form import solve_stage_form, stage_form
+    from .warm import solution_from_trajectory
+
+    t_start = time.perf_counter()
+    guess = warm_start
+    if isinstance(warm_start, TrajectoryResult):
+        guess = warm_start.solution if warm_start.solution is not None else solution_from_trajectory(warm_start,
+                                                                                                     params)
+    form = stage_form(params, guess.n_intervals, guess.degree, regularisation, torque_rate_limit, line_tolerance,
+                      max_iter)
+    with blas_threads(1):
+        free = solve_stage_form(form, params, form.point(guess, params), elbow, label="flexible, t_f free")
+        if verbose:
+            print(f"[trajectory] re-plan, t_f free: {free.stats['iterations']} FATROP iterations, "
+                  f"t_f = {free.t_f:.5f} s", flush=True)
+        t_ms = int(math.ceil(free.t_f / SAMPLE_TIME - 1e-9))
+        fixed = solve_stage_form(form, params, free.x, elbow, t_ms * SAMPLE_TIME,
+                                 label="flexible, t_f rounded up to whole ms")
+        if verbose:
+            print(f"[trajectory] re-plan, t_f = {t_ms} ms: {fixed.stats['iterations']} FATROP iterations",
+                  flush=True)
+    return _result(params, free, fixed, [free.stats, fixed.stats], time.perf_counter() - t_start,
+                   "FATROP (CasADi nlpsol, stage form, exact Hessian)",
+                   "Radau IIA direct collocation in stage form: θ' and θ'' eliminated by the collocation's linear "
+                   "maps in normalised time, dynamics M(θ)θ'' = t_f² rhs at every collocation point",
+                   regularisation, elbow, line_tolerance, torque_rate_limit)
+
+
+def _result(params, free: CollocationSolution, fixed: CollocationSolution, stages: list[dict], total: float,
+            solver: str, method: str, regularisation: float, elbow: int, line_tolerance: float,
+            torque_rate_limit) -> TrajectoryResult:
+    """The 1 ms trajectory of the whole-ms solution, with the solve's metadata."""
     result = sample_solution(params, fixed)
     result.metadata.update({
         "t_f_continuous_s": free.t_f,
-        "solver": {"name": "IPOPT (CasADi nlpsol, exact Hessian, MUMPS)", "casadi": ca.__version__,
-                   "status": fixed.stats["status"],
+        "solver": {"name": solver, "casadi": ca.__version__, "status": fixed.stats["status"],
                    "iterations": sum(s["iterations"] for s in stages),
                    "solve_time_s": total, "stages": stages},
         "discretisation": {
-            "method": "Radau IIA direct collocation, implicit dynamics M(θ)a = rhs at every collocation point",
-            "intervals": n_intervals, "degree": degree, "interval_s": fixed.t_f / n_intervals,
+            "method": method,
+            "intervals": fixed.n_intervals, "degree": fixed.degree, "interval_s": fixed.t_f / fixed.n_intervals,
             "model": "11 elements with rigid brackets (θ2=θ1, θ6=θ5, θ8=θ7): 8 angles",
             "torque": "piecewise linear, continuous; file holds its mean over each 1 ms step",
             "t_f_rounding": "free-t_f optimum rounded up to a whole ms, then re-solved with t_f fixed",
