@@ -70,3 +70,11 @@ def test_a_start_on_another_grid_is_refused(committed):
     form = StageForm(None, 100, 5, 8, np.zeros(0), np.zeros(0))
     with pytest.raises(TrajectoryError, match="N = 100, d = 5"):
         form.point(sol, params)
+
+
+def test_the_command_line_replan_never_writes_over_the_committed_file(capsys):
+    from flexarm.trajectory.report import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--replan", "--payload", "0.275"])
+    assert exc.value.code == 2 and "--replan: give --out FILE" in capsys.readouterr().err

@@ -25,6 +25,7 @@ from .io import (
     SAMPLE_TIME,
     TrajectoryError,
     TrajectoryResult,
+    load_trajectory,
     save_trajectory,
 )
 
@@ -194,12 +195,21 @@ def main(argv=None) -> int:
     ap.add_argument("--sensitivity", action="store_true",
                     help="also solve with stator mass and rotor-2 inertia at ±20 %% (stored in the metadata)")
     ap.add_argument("--quiet", action="store_true", help="no IPOPT output")
+    ap.add_argument("--replan", action="store_true",
+                    help="re-plan with FATROP from the committed file (its grid) instead of a cold IPOPT solve: "
+                         "about half a minute; needs --out (the committed file stays the unloaded slew)")
     args = ap.parse_args(argv)
-    from .solve import sensitivity, solve_minimum_time  # CasADi: only when solving
+    if args.replan and Path(args.out).resolve() == Path(DEFAULT_TRAJECTORY_FILE).resolve():
+        ap.error("--replan: give --out FILE; the committed file is the start of every re-plan and stays as it is")
+    from .solve import replan_minimum_time, sensitivity, solve_minimum_time  # CasADi: only when solving
 
     try:
         params = load_parameters(args.params, payload_mass=args.payload)
-        result = solve_minimum_time(params, n_intervals=args.intervals, degree=args.degree, verbose=not args.quiet)
+        if args.replan:
+            result = replan_minimum_time(params, load_trajectory(), verbose=not args.quiet)
+        else:
+            result = solve_minimum_time(params, n_intervals=args.intervals, degree=args.degree,
+                                        verbose=not args.quiet)
         replay = verify_against_plant(result, params)
         result.metadata["plant_replay"] = {k: v for k, v in replay.items() if k != "states"}
         result.metadata["constraints"] = check_constraints(result, params)
