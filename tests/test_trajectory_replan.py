@@ -78,3 +78,15 @@ def test_the_command_line_replan_never_writes_over_the_committed_file(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["--replan", "--payload", "0.275"])
     assert exc.value.code == 2 and "--replan: give --out FILE" in capsys.readouterr().err
+
+
+def test_the_command_line_replan_refuses_another_grid_instead_of_ignoring_it(capsys, tmp_path):
+    """--intervals / --degree with --replan: the re-plan keeps the committed file's grid, so another one is an
+    error (exit 1, nothing written), before any solver is made."""
+    from flexarm.trajectory.report import main
+
+    out = tmp_path / "slew.npz"
+    assert main(["--replan", "--intervals", "100", "--out", str(out)]) == 1
+    assert "keeps its start's grid (N = 200, d = 5); asked for N = 100, d = 5" in capsys.readouterr().err
+    assert not out.exists()
+

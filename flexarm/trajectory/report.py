@@ -206,7 +206,8 @@ def main(argv=None) -> int:
     try:
         params = load_parameters(args.params, payload_mass=args.payload)
         if args.replan:
-            result = replan_minimum_time(params, load_trajectory(), verbose=not args.quiet)
+            result = replan_minimum_time(params, load_trajectory(), args.intervals, args.degree,
+                                         verbose=not args.quiet)
         else:
             result = solve_minimum_time(params, n_intervals=args.intervals, degree=args.degree,
                                         verbose=not args.quiet)

@@ -137,7 +137,8 @@ def solve_minimum_time(params: ArmParameters | None = None, n_intervals: int = 2
 
 
 def replan_minimum_time(params: ArmParameters, warm_start: TrajectoryResult | CollocationSolution,
-                        verbose: bool = False, elbow: int = 1, regularisation: float = DEFAULT_REGULARISATION,
+                        n_intervals: int | None = None, degree: int | None = None, verbose: bool = False,
+                        elbow: int = 1, regularisation: float = DEFAULT_REGULARISATION,
                         max_iter: int = 300, line_tolerance: float = LINE_TOLERANCE,
                         torque_rate_limit: float = TORQUE_RATE_LIMIT) -> TrajectoryResult:
     """Re-plan the slew for changed parameters (a payload) with FATROP, from a solution's primal point alone.
@@ -154,6 +155,8 @@ def replan_minimum_time(params: ArmParameters, warm_start: TrajectoryResult | Co
     warm_start : TrajectoryResult or CollocationSolution
         A flexible solution, or a trajectory file whose metadata name its grid (``discretisation``); the
         re-plan uses its grid (N intervals, Radau degree d).
+    n_intervals, degree : int, optional
+        The grid asked for; refused unless it is the start's (the re-plan does not regrid).
     verbose : bool
         Print a line per stage.
 
@@ -174,6 +177,10 @@ def replan_minimum_time(params: ArmParameters, warm_start: TrajectoryResult | Co
     if isinstance(warm_start, TrajectoryResult):
         guess = warm_start.solution if warm_start.solution is not None else solution_from_trajectory(warm_start,
                                                                                                      params)
+    asked = (n_intervals or guess.n_intervals, degree or guess.degree)
+    if asked != (guess.n_intervals, guess.degree):
+        raise TrajectoryError(f"a re-plan keeps its start's grid (N = {guess.n_intervals}, d = {guess.degree}); "
+                              f"asked for N = {asked[0]}, d = {asked[1]}: solve cold for another grid")
     form = stage_form(params, guess.n_intervals, guess.degree, regularisation, torque_rate_limit, line_tolerance,
                       max_iter)
     with blas_threads(1):

@@ -23,6 +23,7 @@ Hessian 0.49 s, against 0.08 s here). ``benchmarks/study_fatrop_mapped.py`` prin
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import casadi as ca
@@ -262,8 +263,6 @@ def solve_stage_form(form: StageForm, params: ArmParameters, start: np.ndarray, 
     TrajectoryError
         FATROP did not converge.
     """
-    import time
-
     lbx, ubx = form.bounds(params, elbow, t_fixed)
     t0 = time.perf_counter()
     sol = form.solver(x0=np.clip(start, lbx, ubx), lbx=lbx, ubx=ubx, lbg=form.lbg, ubg=form.ubg,
