@@ -248,7 +248,8 @@ class GainSchedule:
         if schedule not in SCHEDULES:
             raise GainError(f"schedule: {schedule!r} is not one of {tuple(SCHEDULES)}")
         directory = Path(directory) if directory is not None else DEFAULT_GAIN_DIR
-        meta, arrays = read_design_files(directory / f"{name}_{schedule}", "gain file")
+        # a folder's gains belong to the data folder around it (its trajectory.npz, when it holds the recorded one)
+        meta, arrays = read_design_files(directory / f"{name}_{schedule}", "gain file", data_dir=directory.parent)
         return cls(name=name, schedule=schedule, metadata=meta, **arrays)
 
 
@@ -334,14 +335,26 @@ def relative_path(path) -> str:
         return str(p)
 
 
-def _resolve(recorded: str) -> Path:
+def _resolve(recorded: str, data_dir=None, sha256: str = "") -> Path:
     """A recorded path (:func:`relative_path`) as a file: ``flexarm/...`` is this package's own folder, whatever
-    the package is called (inside an FMU it is bundled under a private name, see fmu_build/isolate.py)."""
+    the package is called (inside an FMU it is bundled under a private name, see fmu_build/isolate.py).
+
+    `data_dir`: the data folder the design belongs to (a data set written elsewhere, e.g. a slew re-planned for a
+    payload with its gains, :mod:`flexarm.payload_data`). ``flexarm/data/X`` is then that folder's X when it has
+    one whose SHA-256 is the recorded `sha256`, else the package's: the checksum decides which file a design was
+    made from, never the folder alone.
+    """
     p = Path(recorded)
     if p.is_absolute():
         return p
     if p.parts[:1] == ("flexarm",):
-        return Path(__file__).resolve().parent.joinpath(*p.parts[1:])
+        own = Path(__file__).resolve().parent.joinpath(*p.parts[1:])
+        if data_dir is not None and p.parts[1:2] == ("data",):
+            local = Path(data_dir).joinpath(*p.parts[2:])
+            if local.exists() and (not sha256 or sha256_file(local) == sha256 or not own.exists()
+                                   or sha256_file(own) != sha256):
+                return local
+        return own
     return SOURCE_ROOT / p
 
 
@@ -367,7 +380,7 @@ def write_design_files(stem, arrays: dict, metadata: dict, compressed: bool = Tr
     return npz_path
 
 
-def read_design_files(stem, what: str, regenerate: str | None = None) -> tuple[dict, dict]:
+def read_design_files(stem, what: str, regenerate: str | None = None, data_dir=None) -> tuple[dict, dict]:
     """Read a design file pair written by :func:`write_design_files`: (metadata, arrays by name).
 
     Parameters
@@ -379,6 +392,8 @@ def read_design_files(stem, what: str, regenerate: str | None = None) -> tuple[d
 
     regenerate : str, optional
         The command that writes this file, named in the errors (default :data:`REGENERATE_COMMAND`, the gains').
+    data_dir : path-like, optional
+        The data folder the design belongs to (see :func:`read_design_metadata`).
 
     Raises
     ------
@@ -390,7 +405,7 @@ def read_design_files(stem, what: str, regenerate: str | None = None) -> tuple[d
     npz_path = Path(f"{stem}.npz")
     if not npz_path.exists():
         raise GainError(f"{what} {npz_path} does not exist; run `{regenerate or REGENERATE_COMMAND}`")
-    meta = read_design_metadata(Path(f"{stem}.json"), npz_path, regenerate)
+    meta = read_design_metadata(Path(f"{stem}.json"), npz_path, regenerate, data_dir)
     try:
         with np.load(npz_path, allow_pickle=False) as d:
             return meta, {k: d[k] for k in d.files}
@@ -399,7 +414,7 @@ def read_design_files(stem, what: str, regenerate: str | None = None) -> tuple[d
                              f"with `{regenerate or REGENERATE_COMMAND}`") from exc
 
 
-def read_design_metadata(json_path, data_path, regenerate: str | None = None) -> dict:
+def read_design_metadata(json_path, data_path, regenerate: str | None = None, data_dir=None) -> dict:
     """Read a design file's JSON side file and verify the data chain behind it.
 
     Checks, against the files as they are now: the SHA-256 of ``data_path``
@@ -415,6 +430,9 @@ def read_design_metadata(json_path, data_path, regenerate: str | None = None) ->
     regenerate : str, optional
         The command that writes this file (default :data:`REGENERATE_COMMAND`, the gains', with the whole chain's
         :data:`CHAIN_COMMAND` for a changed parameter file).
+    data_dir : path-like, optional
+        The data folder the design belongs to: a recorded ``flexarm/data/X`` is that folder's X when its SHA-256 is
+        the recorded one (a data set outside the package, :mod:`flexarm.payload_data`), else the package's.
 
     Returns
     -------
@@ -446,15 +464,17 @@ def read_design_metadata(json_path, data_path, regenerate: str | None = None) ->
         recorded, sha = meta.get(f"{kind}_file", ""), meta.get(f"{kind}_sha256", "")
         if not recorded or not sha:
             continue
-        path = _resolve(recorded)
+        path = _resolve(recorded, data_dir, sha)
         if not path.exists():
             problems.append(f"the {kind} file {path} it was made from does not exist")
         elif sha256_file(path) != sha:
             problems.append(f"the {kind} file {path} has changed since (SHA-256 {sha256_file(path)[:12]}..., "
                             f"recorded {sha[:12]}...)")
     if problems:
-        traj = _resolve(meta.get("trajectory_file", "")) if meta.get("trajectory_file") else "(in memory)"
-        par = _resolve(meta.get("parameter_file", "")) if meta.get("parameter_file") else "(in memory)"
+        traj = (_resolve(meta["trajectory_file"], data_dir, meta.get("trajectory_sha256", ""))
+                if meta.get("trajectory_file") else "(in memory)")
+        par = (_resolve(meta["parameter_file"], data_dir, meta.get("parameter_sha256", ""))
+               if meta.get("parameter_file") else "(in memory)")
         raise StaleDataError(f"design file {data_path} is stale: " + "; ".join(problems)
                              + f". It was made from trajectory file {traj} and parameter file {par}; "
                              f"regenerate it with `{command}`"

@@ -134,7 +134,8 @@ class LtvModel:
 
 
 def closed_loop_model(n_samples: int, gain_set: str = "gamma0.1", schedule: str = "200ms",
-                      payload_mass: float = 0.0, model_schedule: str = MODEL_SCHEDULE, trajectory=None) -> LtvModel:
+                      payload_mass: float = 0.0, model_schedule: str = MODEL_SCHEDULE, trajectory=None,
+                      gains=None) -> LtvModel:
     """The lifted model's per-sample matrices (module docstring).
 
     Parameters
@@ -150,6 +151,9 @@ def closed_loop_model(n_samples: int, gain_set: str = "gamma0.1", schedule: str 
         Spacing of the linearisation points (:data:`flexarm.gain_schedule.SCHEDULES`; ``20ms``: every 20 ms).
     trajectory : TrajectoryResult or path-like, optional
         Default the committed trajectory.
+    gains : GainSchedule, optional
+        The controller's schedule when it is not the committed `gain_set`/`schedule` (gains designed along a
+        re-planned slew, :mod:`flexarm.payload_data`).
     """
     from .gain_schedule import operating_times
     from .model import ArmModel
@@ -161,7 +165,7 @@ def closed_loop_model(n_samples: int, gain_set: str = "gamma0.1", schedule: str 
         raise IlcError(f"n_samples: at least 1 sample, got {n_samples}")
     traj = as_trajectory(DEFAULT_TRAJECTORY_FILE if trajectory is None else trajectory)
     dt = sample_time(traj)
-    gains = GainSchedule.load(gain_set, schedule)
+    gains = GainSchedule.load(gain_set, schedule) if gains is None else gains
     arm = ArmModel(load_parameters(payload_mass=payload_mass))
     times = operating_times(traj.t_f, model_schedule, dt)
     z = desired_states(traj)

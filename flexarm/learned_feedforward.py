@@ -68,8 +68,11 @@ def write_learned_feedforward(stem, correction, dt: float, metadata: dict) -> Pa
     return write_design_files(stem, {"correction": u, "dt": np.array(float(dt))}, meta, compressed=False)
 
 
-def read_learned_feedforward(path) -> LearnedFeedforward:
+def read_learned_feedforward(path, data_dir=None) -> LearnedFeedforward:
     """Read a learned-feedforward file (``.npz`` path, or its stem), checking its data chain.
+
+    `data_dir`: the data folder of the slew it was learnt on, when that is not the package's (a slew re-planned
+    for a payload, :mod:`flexarm.payload_data`; see :func:`flexarm.gain_schedule.read_design_metadata`).
 
     Raises
     ------
@@ -81,7 +84,7 @@ def read_learned_feedforward(path) -> LearnedFeedforward:
     p = Path(path)
     stem = p.with_suffix("") if p.suffix == ".npz" else p
     try:
-        meta, arrays = read_design_files(stem, "learned-feedforward file", RELEARN_COMMAND)
+        meta, arrays = read_design_files(stem, "learned-feedforward file", RELEARN_COMMAND, data_dir)
     except GainError:
         raise
     except (OSError, ValueError, KeyError) as exc:

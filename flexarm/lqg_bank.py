@@ -194,7 +194,7 @@ class PayloadBank:
         if schedule not in BANK_SCHEDULES:
             raise GainError(f"schedule: the payload bank exists for {BANK_SCHEDULES}, not {schedule!r}")
         directory = Path(directory) if directory is not None else DEFAULT_LQG_DIR
-        meta, a = read_design_files(directory / f"bank_{schedule}", "LQG bank file")
+        meta, a = read_design_files(directory / f"bank_{schedule}", "LQG bank file", data_dir=directory.parent)
         if meta.get("format") != BANK_FILE_FORMAT:
             raise GainError(f"{directory / f'bank_{schedule}.npz'}: format {meta.get('format')!r}, expected "
                             f"{BANK_FILE_FORMAT!r}")

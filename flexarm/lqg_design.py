@@ -356,7 +356,7 @@ class LqgDesign:
         if schedule not in SCHEDULES:
             raise GainError(f"schedule: {schedule!r} is not one of {tuple(SCHEDULES)}")
         directory = Path(directory) if directory is not None else DEFAULT_LQG_DIR
-        meta, arrays = read_design_files(directory / f"lqg_{schedule}", "LQG design file")
+        meta, arrays = read_design_files(directory / f"lqg_{schedule}", "LQG design file", data_dir=directory.parent)
         return cls(schedule=schedule, metadata=meta, **{k: arrays[k] for k in cls.ARRAYS})
 
 

@@ -183,6 +183,15 @@ def _report(result: TrajectoryResult, replay: dict, sens: list[dict] | None) -> 
     return "\n".join(lines)
 
 
+def annotate_with_replay(result: TrajectoryResult, params: ArmParameters) -> dict:
+    """Replay `result` in the plant (:func:`verify_against_plant`) and record the replay and the constraint checks
+    (:func:`check_constraints`) in its metadata, as every written slew carries them; returns the replay."""
+    replay = verify_against_plant(result, params)
+    result.metadata["plant_replay"] = {k: v for k, v in replay.items() if k != "states"}
+    result.metadata["constraints"] = check_constraints(result, params)
+    return replay
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m flexarm.trajectory",
                                  description="Solve the minimum-time straight-line slew and write the 1 ms file.")
@@ -211,9 +220,7 @@ def main(argv=None) -> int:
         else:
             result = solve_minimum_time(params, n_intervals=args.intervals, degree=args.degree,
                                         verbose=not args.quiet)
-        replay = verify_against_plant(result, params)
-        result.metadata["plant_replay"] = {k: v for k, v in replay.items() if k != "states"}
-        result.metadata["constraints"] = check_constraints(result, params)
+        replay = annotate_with_replay(result, params)
         sens = None
         if args.sensitivity:
             sens = sensitivity(result, params, verbose=not args.quiet)

@@ -70,12 +70,29 @@ def learned_archives(scenario: Scenario, summary: dict, folder: Path, out_dir: P
     return export_ssp(dataclasses.replace(scenario, samples=n, cases=cases), out_dir, kind=summary["fmu_kind"])
 
 
-def slew_figures(trace: hosts.Trace, slew_samples: int) -> dict[str, float]:
-    """:data:`FIGURES` of a master's run: the table metrics over samples 0 .. `slew_samples`."""
+def reference_trajectory(summary: dict, folder: Path):
+    """The slew the run tracked and compared with: the paper's, or the one re-planned for its payload (the run's
+    ``payload_data/``, checked against the SHA-256 the run recorded)."""
+    from flexarm.trajectory import load_trajectory
+
+    ref = summary.get("reference", {})
+    if ref.get("slew") != "re-planned":
+        return load_trajectory()
+    from flexarm.payload_data import read_payload_data
+
+    data = read_payload_data(Path(folder) / "payload_data")
+    if data.manifest["files"]["trajectory.npz"] != ref["trajectory_sha256"]:
+        raise ScenarioError(f"{Path(folder) / 'payload_data'}: not the re-planned slew the run recorded")
+    return data.trajectory()
+
+
+def slew_figures(trace: hosts.Trace, slew_samples: int, trajectory=None) -> dict[str, float]:
+    """:data:`FIGURES` of a master's run: the table metrics over samples 0 .. `slew_samples`, against `trajectory`
+    (default the paper's slew)."""
     from flexarm.trajectory import load_trajectory
 
     n = slew_samples
-    desired = desired_states(load_trajectory(), trace.time[:n + 1])
+    desired = desired_states(load_trajectory() if trajectory is None else trajectory, trace.time[:n + 1])
     m = table_metrics(trace.tau[:n], trace.theta[:n + 1], trace.omega[:n + 1], desired["theta"], desired["omega"])
     return {f"slew_{k}": float(m[k]) for k in ("rms_position_error", "rms_velocity_error")}
 
@@ -95,6 +112,7 @@ def learned_in_masters(name, summary: dict, folder: Path, masters=MASTERS) -> di
     scenario, _ = load_ilc(name)
     out = {"masters": list(masters), "tolerance": TOLERANCE, "cases": {},
            "fmpy_validate": validate_fmu(str(Path(folder) / summary["learned_controller"]["file"]))}
+    traj = reference_trajectory(summary, folder)
     with tempfile.TemporaryDirectory(prefix="flexarm-ilc-masters-") as tmp:
         archives = learned_archives(scenario, summary, folder, Path(tmp) / "ssp")
         for key, ssp in archives.items():
@@ -109,7 +127,7 @@ def learned_in_masters(name, summary: dict, folder: Path, masters=MASTERS) -> di
                     else:
                         trace = {"libcosim": hosts.run_libcosim, "ecos": hosts.run_ecos,
                                  "simulate_ssp": hosts.run_simulate_ssp}[master](ssp)
-                    row[master] = slew_figures(trace, summary["slew_samples"])
+                    row[master] = slew_figures(trace, summary["slew_samples"], traj)
                 except Exception as exc:  # noqa: BLE001 - a master that fails is an entry, not a crash
                     row[master] = {"error": f"{type(exc).__name__}: {exc}"[:300]}
             out["cases"][key] = row
@@ -125,7 +143,7 @@ def reproduces(figures: dict, learned: dict) -> bool:
 
 
 __all__ = ["FIGURES", "MASTERS", "MASTER_NAMES", "MORE_MASTERS", "TOLERANCE", "learned_archives",
-           "learned_in_masters", "reproduces", "slew_figures"]
+           "learned_in_masters", "reference_trajectory", "reproduces", "slew_figures"]
 
 
 def main(argv=None) -> int:

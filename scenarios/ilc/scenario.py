@@ -32,6 +32,8 @@ ILC_KEYS = {
     "evaluate_cases": "a list of case keys",
     "evaluate_samples": "an integer in [scenario.samples, 100000]: the length of the evaluate_cases runs, 1 ms "
                         "samples (the correction is zero past its own samples; default scenario.samples)",
+    "replan_payload_mass": "a payload in [0, 10] kg: the slew re-planned and the gains designed for the arm carrying "
+                           "it, the reference the learning tracks (flexarm.payload_data; absent: the paper's slew)",
 }
 
 
@@ -53,6 +55,7 @@ class IlcSettings:
     settling_q_filter_cutoff_hz: float
     evaluate_cases: list[str]
     evaluate_samples: int
+    replan_payload_mass: float | None = None
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -120,6 +123,8 @@ def load_ilc(name) -> tuple[Scenario, IlcSettings]:
                                               lambda v: number(0.0, 499.999)(v))),
         evaluate_cases=list(get("evaluate_cases", [], lambda v: isinstance(v, list) and all(x in keys for x in v))),
         evaluate_samples=0,
+        replan_payload_mass=(None if "replan_payload_mass" not in raw else
+                             float(get("replan_payload_mass", None, number(0.0, 10.0)))),
     )
     if scenario.samples == "trajectory":
         raise ScenarioError(f"{scenario.path.name}: scenario.samples: an integer number of samples for an ILC "

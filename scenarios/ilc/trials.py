@@ -93,10 +93,21 @@ def trial_metrics(out: dict, setup, traj, n_slew: int, measured_error_norm: floa
 
 
 # -- running ----------------------------------------------------------------------------
-def _config_record(scenario, settings, setup, chain) -> dict:
+def _config_record(scenario, settings, setup, chain, data) -> dict:
     return {"key": "config", "scenario_sha256": sha256_file(scenario.path), "settings": settings.as_dict(),
             "fmu_sha256": {i: sha256_file(p) for i, p in setup.paths.items()}, "data_sha256": chain,
+            "payload_data_sha256": data.manifest["files"] if data else None,
             "samples": setup.n_steps, "fmu_kind": setup.kind}
+
+
+def _reference(traj, data) -> dict:
+    """Which slew the learning tracks and the metrics compare with: the paper's, or one re-planned for a payload."""
+    if data is None:
+        return {"slew": "committed", "description": "the paper's minimum-time slew of the unloaded arm "
+                "(flexarm/data/trajectory.npz)", "t_f_s": float(traj.t_f)}
+    return {"slew": "re-planned", "description": f"the minimum-time slew re-planned for {data.payload_mass:g} kg, "
+            "with the gains designed along it (payload_data/)", "payload_mass_kg": data.payload_mass,
+            "t_f_s": float(traj.t_f), "trajectory_sha256": data.manifest["files"]["trajectory.npz"]}
 
 
 def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | None = None,
@@ -110,7 +121,12 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
     """
     from flexarm import ilc
     from flexarm.control import PEAK_TORQUE
-    from fmu_build.learned import LEARNING_CONTROLLERS, reads_learned_feedforward, with_learned_feedforward
+    from fmu_build.learned import (
+        LEARNING_CONTROLLERS,
+        reads_learned_feedforward,
+        with_learned_feedforward,
+        with_payload_data,
+    )
 
     scenario, settings = load_ilc(name)
     if trials is not None:
@@ -123,6 +139,16 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         remove_stale(out, scenario.name, folder)
         check_writable(folder, 2_000_000 * (settings.trials + 2))
         cases = {c.key: c for c in scenario.cases}
+        data = None  # the slew re-planned for the payload, with its gains (flexarm.payload_data); None: the paper's
+        if settings.replan_payload_mass is not None:
+            from flexarm.payload_data import write_payload_data
+
+            if (kind or scenario.kind) != "python":
+                raise ScenarioError(f"{scenario.path.name}: ilc.replan_payload_mass: the re-planned slew is packed "
+                                    "into the Python kind of the controller; the native kind cannot carry it yet "
+                                    "(run with --kind python)")
+            data = write_payload_data(settings.replan_payload_mass, folder / "payload_data", progress)
+            traj = data.trajectory()
         setup = prepare(scenario, fmu_dir, kind=kind, native_fmu_dir=native_fmu_dir, trajectory=traj)
         sensors = [inst for inst, md in setup.descriptions.items()
                    if all(any(v.name == m for v in md.modelVariables) for m in MEASURED)]
@@ -137,10 +163,12 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         record = setup.record + [(sensors[0], m) for m in MEASURED if (sensors[0], m) not in setup.record]
         n = setup.n_steps
         n_slew = min(traj.n_samples, n)
-        model = ilc.closed_loop_model(n, payload_mass=settings.model_payload_mass)
+        data_dir = None if data is None else data.folder
+        along = {} if data is None else {"trajectory": traj, "gains": data.gains(*_gain_schedule(scenario))}
+        model = ilc.closed_loop_model(n, payload_mass=settings.model_payload_mass, **along)
         if settings.settling_model_payload_mass != settings.model_payload_mass:
             # the samples at and after t_f (state x_k, k >= n_slew) move by the arm with the other payload
-            after = ilc.closed_loop_model(n, payload_mass=settings.settling_model_payload_mass)
+            after = ilc.closed_loop_model(n, payload_mass=settings.settling_model_payload_mass, **along)
             model = ilc.spliced_model(model, after, n_slew)
         time_weight, output_weight = ilc.settling_weights(traj, n, settings.settling_weight,
                                                           settings.settling_tip_weight)
@@ -154,7 +182,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
             raise ScenarioError(f"{journal.problems() or folder / 'journal.jsonl'}"
                                 f"{'' if journal.tampered else ': its trials are not consecutive'}; "
                                 "remove that folder or choose another --out")
-        config = _config_record(scenario, settings, setup, chain)
+        config = _config_record(scenario, settings, setup, chain, data)
         if records:
             old = records.get("config", {})
             same = {k: old.get(k) for k in config if k != "settings"} == {k: v for k, v in config.items()
@@ -169,7 +197,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         corrections = folder / "corrections"
         corrections.mkdir(exist_ok=True)
         commit = git_commit()
-        base_meta = _learned_metadata(scenario, settings, chain, commit)
+        base_meta = _learned_metadata(scenario, settings, chain, commit, data)
         stopped = None
         rows = [records[k] for k in sorted(k for k in records if k.startswith("trial-"))]
         done = len(rows)
@@ -177,12 +205,15 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
             stopped = f"trial {done - 1}: {rows[-1]['status']} ({rows[-1].get('message', '')})"
         trial_fmus = folder / ".trial_fmus"  # the controller with each trial's correction (removed at the end)
         trial_fmus.mkdir(exist_ok=True)
+        base = setup.paths[ctrl]  # the controller the learning corrects: ours, or ours on the re-planned slew
+        if data is not None:
+            base = with_payload_data(base, data, trial_fmus / f"payload_{base.name}")
 
         def open_master(correction: str):
             """A master whose controller carries `correction` ("" : none; a copy even then, so that a
             controller FMU that already carried one runs without it)."""
-            fmu = with_learned_feedforward(setup.paths[ctrl], Path(correction) if correction else None,
-                                           trial_fmus / setup.paths[ctrl].name)
+            fmu = with_learned_feedforward(base, Path(correction) if correction else None,
+                                           trial_fmus / setup.paths[ctrl].name, data_dir)
             return dataclasses.replace(setup, paths={**setup.paths, ctrl: fmu}).open_master(scenario.algorithm)
 
         m = None
@@ -212,7 +243,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                     meas = np.column_stack([sig[f"{sensors[0]}.{v}"] for v in MEASURED])
                     err = ilc.measured_errors(meas[:, :2], meas[:, 2:], traj)
                     row["metrics"] = trial_metrics(res, setup, traj, n_slew, float(np.linalg.norm(err)))
-                    u = np.zeros((n, 2)) if not j else ilc.read_learned_feedforward(file).correction
+                    u = np.zeros((n, 2)) if not j else ilc.read_learned_feedforward(file, data_dir).correction
                     nxt = law.update(u, err, feedforward, PEAK_TORQUE)
                     meta = dict(base_meta, trials_learned_from=j + 1,
                                 last_trial={"trial": j, "seed": settings.seed_base + j, **row["metrics"]})
@@ -230,8 +261,8 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                 write_atomic(folder / "learned_feedforward.npz", final.read_bytes())
                 write_atomic(folder / "learned_feedforward.json", (corrections / f"trial_{len(rows):03d}.json")
                              .read_bytes())
-                with_learned_feedforward(setup.paths[ctrl], folder / "learned_feedforward.npz",
-                                         folder / LEARNED_CONTROLLER)
+                with_learned_feedforward(base, folder / "learned_feedforward.npz", folder / LEARNED_CONTROLLER,
+                                         data_dir)
                 n_eval = settings.evaluate_samples
                 des_eval = desired_states(traj, np.arange(n_eval + 1) * scenario.step_size)
                 for key in settings.evaluate_cases:
@@ -253,7 +284,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                 m.close()
             shutil.rmtree(trial_fmus, ignore_errors=True)
         summary = {"scenario": scenario.name, "scenario_sha256": sha256_file(scenario.path), "commit": commit,
-                   "settings": settings.as_dict(), "fmu_kind": setup.kind,
+                   "settings": settings.as_dict(), "fmu_kind": setup.kind, "reference": _reference(traj, data),
                    "fmu_sha256": {i: sha256_file(p) for i, p in setup.paths.items()}, "data_sha256": chain,
                    "samples": n, "slew_samples": n_slew, "trials": rows, "stopped": stopped,
                    "evaluation": evaluation}
@@ -284,15 +315,29 @@ def _with(parameters: dict, inst: str, values: dict) -> dict:
     return out
 
 
-def _learned_metadata(scenario, settings, chain, commit) -> dict:
+def _gain_schedule(scenario) -> tuple[str, str]:
+    """The gain set and schedule label the scenario's controller runs with (its defaults: gamma0.1, 200 ms)."""
+    ctrl = scenario.parameters.get("controller", {})
+    period = float(ctrl.get("schedule_period", 0.2))
+    labels = {0.2: "200ms", 0.02: "20ms", 0.0: "single"}  # the controllers' schedule_period values
+    if period not in labels:
+        raise ScenarioError(f"{scenario.path.name}: parameters.controller.schedule_period: one of 0.2, 0.02 or 0 "
+                            f"(s), got {period!r}")
+    return ctrl.get("gain_set", "gamma0.1"), labels[period]
+
+
+def _learned_metadata(scenario, settings, chain, commit, data=None) -> dict:
     from flexarm.gain_schedule import relative_path
     from flexarm.parameters import DEFAULT_PARAMETER_FILE
     from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE
 
     ctrl = scenario.parameters.get("controller", {})
-    # relative to the checkout (flexarm/data/...: resolved against the package when read), no absolute path
+    # relative to the checkout (flexarm/data/...: resolved against the package when read, or against the payload
+    # data folder it was learnt on, which is the FMU's own data folder once packed), no absolute path
+    trajectory = DEFAULT_TRAJECTORY_FILE if data is None else data.trajectory_file
     return {"trajectory_file": relative_path(DEFAULT_TRAJECTORY_FILE),
-            "trajectory_sha256": sha256_file(DEFAULT_TRAJECTORY_FILE),
+            "trajectory_sha256": sha256_file(trajectory),
+            "reference": "committed" if data is None else f"re-planned for {data.payload_mass:g} kg",
             "parameter_file": relative_path(DEFAULT_PARAMETER_FILE),
             "parameter_sha256": sha256_file(DEFAULT_PARAMETER_FILE),
             "gain_set": ctrl.get("gain_set", "gamma0.1"), "schedule_period_s": ctrl.get("schedule_period", 0.2),

@@ -1,0 +1,178 @@
+"""The arm carrying a known payload (issue 32, item 2): a data folder with the slew re-planned for it and the gains
+along it (flexarm.payload_data), how designs name their trajectory there, the Python controller FMU that runs on it
+(fmu_build.learned.with_payload_data), and the ILC scenario that learns on the re-planned slew through the FMUs
+(scenarios/ilc_replan.toml)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flexarm.gain_schedule import StaleDataError, read_design_metadata, write_design_files
+from flexarm.provenance import sha256_file
+from flexarm.trajectory.io import DEFAULT_TRAJECTORY_FILE
+
+SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "ilc_replan.toml"
+PAYLOAD = 0.275
+
+
+def _design(folder: Path, trajectory_sha: str) -> Path:
+    (folder / "gains").mkdir(parents=True, exist_ok=True)
+    return write_design_files(folder / "gains" / "x_200ms", {"a": np.arange(3.0)},
+                              {"trajectory_file": "flexarm/data/trajectory.npz", "trajectory_sha256": trajectory_sha})
+
+
+def test_a_design_names_its_trajectory_by_checksum_in_its_own_data_folder(tmp_path):
+    """``flexarm/data/trajectory.npz`` in a design is the trajectory of the data folder the design belongs to when
+    that one has the recorded SHA-256, else the package's; a checksum that matches neither is stale, naming the
+    folder's file. Without the folder given, the package's file decides (as before)."""
+    committed = sha256_file(DEFAULT_TRAJECTORY_FILE)
+    own = tmp_path / "set"
+    own.mkdir()
+    (own / "trajectory.npz").write_bytes(b"another slew")
+    npz = _design(own, sha256_file(own / "trajectory.npz"))
+    assert read_design_metadata(npz.with_suffix(".json"), npz, data_dir=own)["trajectory_sha256"] != committed
+    with pytest.raises(StaleDataError, match="has changed since"):
+        read_design_metadata(npz.with_suffix(".json"), npz)  # the package's trajectory is not the one it was made on
+    # a design of the committed slew kept beside another trajectory still finds the committed one, by its checksum
+    npz = _design(tmp_path / "other", committed)
+    (tmp_path / "other" / "trajectory.npz").write_bytes(b"not it")
+    read_design_metadata(npz.with_suffix(".json"), npz, data_dir=tmp_path / "other")
+    npz = _design(tmp_path / "stale", "0" * 64)
+    (tmp_path / "stale" / "trajectory.npz").write_bytes(b"not it either")
+    with pytest.raises(StaleDataError, match=str(tmp_path / "stale" / "trajectory.npz")):
+        read_design_metadata(npz.with_suffix(".json"), npz, data_dir=tmp_path / "stale")
+
+
+@pytest.fixture(scope="module")
+def payload_data(tmp_path_factory):
+    """The data folder for 0.275 kg, written once (about a minute of CPU: the FATROP re-plan and 12 + 3 designs)."""
+    from flexarm.payload_data import write_payload_data
+
+    lines = []
+    data = write_payload_data(PAYLOAD, tmp_path_factory.mktemp("payload") / "payload_data", progress=lines.append)
+    return data, lines
+
+
+def test_the_payload_data_folder_holds_a_slew_the_loaded_arm_can_follow(payload_data):
+    """The re-planned slew is slower than the unloaded one (the same torque limits move more inertia), stays within
+    the motors' peak torques, and its replay in the loaded plant follows it; every design in the folder was made on
+    the loaded arm along that slew."""
+    from flexarm.control import PEAK_TORQUE
+    from flexarm.payload_data import read_payload_data
+    from flexarm.trajectory import load_trajectory
+
+    data, lines = payload_data
+    assert any("re-planning the slew for 0.275 kg" in s for s in lines)
+    traj, committed = data.trajectory(), load_trajectory()
+    assert traj.t_f > committed.t_f + 0.01  # measured: 2.092 s against 2.058 s
+    assert np.all(np.abs(traj.tau).max(axis=0) <= np.asarray(PEAK_TORQUE) + 1e-6)
+    # FATROP's tolerance is far below this; 0.05 deg is what the re-plan's replay shows (0.017 deg) with margin
+    assert traj.metadata["plant_replay"]["max_angle_error_deg"] < 0.05
+    again = read_payload_data(data.folder)
+    gains = again.gains("gamma0.1", "200ms")
+    assert gains.metadata["payload_mass_kg"] == PAYLOAD
+    assert gains.metadata["trajectory_sha256"] == sha256_file(data.trajectory_file)
+
+
+def test_a_payload_data_folder_is_reused_only_as_written(payload_data, tmp_path):
+    """The same payload reuses the folder (a resumed learning run gets the data it started with); an edited file is
+    refused by the reader, naming it."""
+    from flexarm.payload_data import PayloadDataError, read_payload_data, write_payload_data
+
+    data, _ = payload_data
+    copy = tmp_path / "payload_data"
+    shutil.copytree(data.folder, copy)
+    lines = []
+    assert write_payload_data(PAYLOAD, copy, progress=lines.append).manifest == data.manifest
+    assert lines == [f"payload data {copy}: reused (0.275 kg, t_f {data.manifest['t_f_s']:.3f} s)"]
+    gains = copy / "gains" / "gamma0.1_200ms.npz"
+    gains.write_bytes(gains.read_bytes()[:-8] + b"\0" * 8)
+    with pytest.raises(PayloadDataError, match="gains/gamma0.1_200ms.npz is missing or differs"):
+        read_payload_data(copy)
+    with pytest.raises(PayloadDataError, match=r"payload_mass: a payload in \[0, 10\] kg"):
+        write_payload_data(-1.0, tmp_path / "nowhere")
+
+
+def _short_scenario(tmp_path) -> Path:
+    text = (SCENARIO.read_text().replace("samples = 3058", "samples = 2300").replace("trials = 50", "trials = 2")
+            .replace('evaluate_cases = ["learn", "payload_0p2", "payload_0p35"]', 'evaluate_cases = ["learn"]')
+            .replace("evaluate_samples = 7058", "evaluate_samples = 2600"))
+    scen = tmp_path / "ilc_replan.toml"
+    scen.write_text(text)
+    return scen
+
+
+def test_ilc_learns_on_the_slew_replanned_for_the_payload_through_the_fmus(payload_data, tmp_path):
+    """Two trials of ilc_replan (shortened) through the Python FMUs: the controller runs on the re-planned slew and
+    its gains (packed into its own data folder), the metrics compare with that slew and say so, and the learned
+    controller FMU carries both the slew and the correction: run alone in a fresh master it gives the evaluation's
+    learned figure exactly (same FMUs, same seed)."""
+    from flexarm.learned_feedforward import read_learned_feedforward
+    from scenarios.ilc.trials import run_ilc
+
+    data, _ = payload_data
+    scen = _short_scenario(tmp_path)
+    out = tmp_path / "out"
+    shutil.copytree(data.folder, out / "ilc_replan" / "payload_data")  # reused: written by the fixture
+    summary = run_ilc(scen, out, plots=False, progress=lambda s: None)
+    assert summary["stopped"] is None
+    ref = summary["reference"]
+    assert ref["slew"] == "re-planned" and ref["payload_mass_kg"] == PAYLOAD and ref["t_f_s"] == data.trajectory().t_f
+    # tracking a slew the loaded arm can follow: well below the 0.1 deg goal from the first trial on (the paper's
+    # slew with this payload starts at 3.5 deg, docs/ilc.md); noise alone gives about 0.01 deg
+    first = summary["trials"][0]["metrics"]
+    assert first["slew_rms_position_error"] < 0.05, first
+    assert first["slew_peak_tau1"] <= 7.0 and first["slew_peak_tau2"] <= 2.25
+    folder = out / "ilc_replan"
+    learned = read_learned_feedforward(folder / "learned_feedforward.npz", folder / "payload_data")
+    assert learned.metadata["trajectory_sha256"] == ref["trajectory_sha256"]
+    assert learned.metadata["reference"] == "re-planned for 0.275 kg"
+    with pytest.raises(StaleDataError):  # against the paper's slew, the correction is refused, not applied
+        read_learned_feedforward(folder / "learned_feedforward.npz")
+    fmu = folder / summary["learned_controller"]["file"]
+    with zipfile.ZipFile(fmu) as z:
+        bundle = json.loads(z.read("resources/flexarm_bundle.json"))
+        package = bundle["package"]
+        assert z.read(f"resources/{package}/data/trajectory.npz") == data.trajectory_file.read_bytes()
+        assert not [n for n in z.namelist() if f"/{package}/data/gains/dlqr-" in n]  # not left stale
+    assert bundle["slew"]["duration"] == pytest.approx(data.trajectory().t_f, abs=1e-9)
+    assert bundle["payload_data"]["trajectory_sha256"] == ref["trajectory_sha256"]
+    # the learned controller alone, in a fresh master: the evaluation's learned run again
+    import dataclasses
+
+    from scenarios.ilc.scenario import load_ilc
+    from scenarios.ilc.trials import trial_metrics
+    from scenarios.run.setup import prepare
+
+    scenario, settings = load_ilc(scen)
+    traj = data.trajectory()
+    setup = prepare(scenario, trajectory=traj)
+    ev = summary["evaluation"]["learn"]
+    m = dataclasses.replace(setup, paths={**setup.paths, setup.driver: fmu}).open_master(scenario.algorithm)
+    record = setup.record + [("sensors", "q1_m")]
+    try:
+        res = m.run(setup.case_parameters(ev["parameters"]), record, settings.evaluate_samples, 1e-3)
+    finally:
+        m.close()
+    from scenarios.run.setup import desired_states
+
+    des = desired_states(traj, np.arange(settings.evaluate_samples + 1) * 1e-3)
+    again = trial_metrics(res, setup, traj, traj.n_samples, float("nan"), des)
+    assert again["slew_rms_position_error"] == ev["learned"]["metrics"]["slew_rms_position_error"]
+
+
+def test_the_replanned_slew_is_refused_for_the_native_kind(tmp_path):
+    """The re-planned slew is packed into the Python kind; asked for the native kind, the run says so (exit 2 from
+    the command line) before anything is planned or run."""
+    from scenarios.config import ScenarioError
+    from scenarios.ilc.trials import run_ilc
+
+    with pytest.raises(ScenarioError, match=r"ilc\.replan_payload_mass: .*--kind python"):
+        run_ilc(_short_scenario(tmp_path), tmp_path / "out", kind="native", plots=False, progress=lambda s: None)
+    assert not (tmp_path / "out" / "ilc_replan" / "payload_data").exists()
