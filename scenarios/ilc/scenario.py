@@ -15,7 +15,8 @@ ILC_KEYS = {
     "trials": "an integer in [1, 1000]",
     "learn_case": "the key of a case in [[cases]]",
     "seed_base": "an integer >= 0 (trial j uses noise seed seed_base + j)",
-    "model_payload_mass": "a payload in [0, 10] kg for the learning's model",
+    "model_payload_mass": "a payload in [0, 10] kg for the learning's model on the paper's slew (on a re-planned "
+                          "slew the model carries the payload it was re-planned for)",
     "settling_model_payload_mass": "a payload in [0, 10] kg for the learning's model at and after t_f "
                                    "(default: model_payload_mass)",
     "error_weight": "a weight > 0, rad^-2",
@@ -34,6 +35,9 @@ ILC_KEYS = {
                         "samples (the correction is zero past its own samples; default scenario.samples)",
     "replan_payload_mass": "a payload in [0, 10] kg: the slew re-planned and the gains designed for the arm carrying "
                            "it, the reference the learning tracks (flexarm.payload_data; absent: the paper's slew)",
+    "identify_payload": "true or false: the payload is unknown; trial 0 runs the paper's slew, the payload is "
+                        "identified from its measurements (flexarm.payload_fit), the slew re-planned for it, and the "
+                        "learning starts on that slew (not with replan_payload_mass)",
 }
 
 
@@ -56,6 +60,7 @@ class IlcSettings:
     evaluate_cases: list[str]
     evaluate_samples: int
     replan_payload_mass: float | None = None
+    identify_payload: bool = False
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -125,7 +130,16 @@ def load_ilc(name) -> tuple[Scenario, IlcSettings]:
         evaluate_samples=0,
         replan_payload_mass=(None if "replan_payload_mass" not in raw else
                              float(get("replan_payload_mass", None, number(0.0, 10.0)))),
+        identify_payload=get("identify_payload", False, lambda v: isinstance(v, bool)),
     )
+    if (s.identify_payload or s.replan_payload_mass is not None) and any(
+            k in raw for k in ("model_payload_mass", "settling_model_payload_mass")):
+        raise ScenarioError(f"{where}: model_payload_mass and settling_model_payload_mass are for the paper's slew; "
+                            "on a re-planned slew the learning's model carries the payload it was re-planned for "
+                            "(remove them)")
+    if s.identify_payload and s.replan_payload_mass is not None:
+        raise ScenarioError(f"{where}.identify_payload: true only without replan_payload_mass (a payload is either "
+                            "known or identified), got both")
     if scenario.samples == "trajectory":
         raise ScenarioError(f"{scenario.path.name}: scenario.samples: an integer number of samples for an ILC "
                             "scenario (the slew and the settling after it), got \"trajectory\"")

@@ -33,7 +33,8 @@ import numpy as np
 
 from flexarm.provenance import git_commit, sha256_file, write_atomic, write_json
 from scenarios.config import ScenarioError
-from scenarios.ilc.scenario import IlcSettings, load_ilc
+from scenarios.ilc.scenario import load_ilc
+from scenarios.ilc.stage import identified_payload, make_stage
 from scenarios.ilc.trial_table import plot_convergence, trial_header, trial_line, write_trials_csv
 from scenarios.metrics import table_metrics
 from scenarios.results import portable
@@ -100,16 +101,6 @@ def _config_record(scenario, settings, setup, chain, data) -> dict:
             "samples": setup.n_steps, "fmu_kind": setup.kind}
 
 
-def _reference(traj, data) -> dict:
-    """Which slew the learning tracks and the metrics compare with: the paper's, or one re-planned for a payload."""
-    if data is None:
-        return {"slew": "committed", "description": "the paper's minimum-time slew of the unloaded arm "
-                "(flexarm/data/trajectory.npz)", "t_f_s": float(traj.t_f)}
-    return {"slew": "re-planned", "description": f"the minimum-time slew re-planned for {data.payload_mass:g} kg, "
-            "with the gains designed along it (payload_data/)", "payload_mass_kg": data.payload_mass,
-            "t_f_s": float(traj.t_f), "trajectory_sha256": data.manifest["files"]["trajectory.npz"]}
-
-
 def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | None = None,
             native_fmu_dir: Path = DEFAULT_NATIVE_FMU_DIR, plots: bool = True, progress=print,
             trials: int | None = None) -> dict:
@@ -121,12 +112,8 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
     """
     from flexarm import ilc
     from flexarm.control import PEAK_TORQUE
-    from fmu_build.learned import (
-        LEARNING_CONTROLLERS,
-        reads_learned_feedforward,
-        with_learned_feedforward,
-        with_payload_data,
-    )
+    from flexarm.payload_data import write_payload_data
+    from fmu_build.learned import LEARNING_CONTROLLERS, reads_learned_feedforward, with_learned_feedforward
 
     scenario, settings = load_ilc(name)
     if trials is not None:
@@ -139,14 +126,13 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         remove_stale(out, scenario.name, folder)
         check_writable(folder, 2_000_000 * (settings.trials + 2))
         cases = {c.key: c for c in scenario.cases}
-        data = None  # the slew re-planned for the payload, with its gains (flexarm.payload_data); None: the paper's
+        replan = settings.replan_payload_mass is not None or settings.identify_payload
+        if replan and (kind or scenario.kind) != "python":
+            key = "replan_payload_mass" if settings.replan_payload_mass is not None else "identify_payload"
+            raise ScenarioError(f"{scenario.path.name}: ilc.{key}: the re-planned slew is packed into the Python kind "
+                                "of the controller; the native kind cannot carry it yet (run with --kind python)")
+        data = None  # the slew re-planned for a known payload (flexarm.payload_data); None: the paper's, at first
         if settings.replan_payload_mass is not None:
-            from flexarm.payload_data import write_payload_data
-
-            if (kind or scenario.kind) != "python":
-                raise ScenarioError(f"{scenario.path.name}: ilc.replan_payload_mass: the re-planned slew is packed "
-                                    "into the Python kind of the controller; the native kind cannot carry it yet "
-                                    "(run with --kind python)")
             data = write_payload_data(settings.replan_payload_mass, folder / "payload_data", progress)
             traj = data.trajectory()
         setup = prepare(scenario, fmu_dir, kind=kind, native_fmu_dir=native_fmu_dir, trajectory=traj)
@@ -162,18 +148,6 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                                 f"({', '.join(LEARNING_CONTROLLERS)}, either kind)")
         record = setup.record + [(sensors[0], m) for m in MEASURED if (sensors[0], m) not in setup.record]
         n = setup.n_steps
-        n_slew = min(traj.n_samples, n)
-        data_dir = None if data is None else data.folder
-        along = {} if data is None else {"trajectory": traj, "gains": data.gains(*_gain_schedule(scenario))}
-        model = ilc.closed_loop_model(n, payload_mass=settings.model_payload_mass, **along)
-        if settings.settling_model_payload_mass != settings.model_payload_mass:
-            # the samples at and after t_f (state x_k, k >= n_slew) move by the arm with the other payload
-            after = ilc.closed_loop_model(n, payload_mass=settings.settling_model_payload_mass, **along)
-            model = ilc.spliced_model(model, after, n_slew)
-        time_weight, output_weight = ilc.settling_weights(traj, n, settings.settling_weight,
-                                                          settings.settling_tip_weight)
-        law = _law(settings, model, n_slew, time_weight, output_weight)
-        feedforward = ilc.feedforward_over(traj, n)
         journal = Journal(folder / "journal.jsonl")
         records = journal.read()
         trial_keys = sorted(k for k in records if k.startswith("trial-"))
@@ -197,7 +171,6 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         corrections = folder / "corrections"
         corrections.mkdir(exist_ok=True)
         commit = git_commit()
-        base_meta = _learned_metadata(scenario, settings, chain, commit, data)
         stopped = None
         rows = [records[k] for k in sorted(k for k in records if k.startswith("trial-"))]
         done = len(rows)
@@ -205,16 +178,20 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
             stopped = f"trial {done - 1}: {rows[-1]['status']} ({rows[-1].get('message', '')})"
         trial_fmus = folder / ".trial_fmus"  # the controller with each trial's correction (removed at the end)
         trial_fmus.mkdir(exist_ok=True)
-        base = setup.paths[ctrl]  # the controller the learning corrects: ours, or ours on the re-planned slew
-        if data is not None:
-            base = with_payload_data(base, data, trial_fmus / f"payload_{base.name}")
+        # identify_payload: trial 0 runs on the paper's slew, the payload is identified from it, the slew re-planned
+        # for it, and the learning starts on that slew with trial 1 (no correction carried across slews)
+        first = 1 if settings.identify_payload else 0  # the first trial the learning learns from
+        if first and done and rows[0].get("identified"):
+            data = write_payload_data(rows[0]["identified"]["planned_for_kg"], folder / "payload_data", progress)
+        stage = make_stage(settings, setup, traj if data is None else data.trajectory(), data, setup.paths[ctrl],
+                           trial_fmus)
 
         def open_master(correction: str):
             """A master whose controller carries `correction` ("" : none; a copy even then, so that a
             controller FMU that already carried one runs without it)."""
-            fmu = with_learned_feedforward(base, Path(correction) if correction else None,
-                                           trial_fmus / setup.paths[ctrl].name, data_dir)
-            return dataclasses.replace(setup, paths={**setup.paths, ctrl: fmu}).open_master(scenario.algorithm)
+            fmu = with_learned_feedforward(stage.base, Path(correction) if correction else None,
+                                           trial_fmus / setup.paths[ctrl].name, stage.data_dir)
+            return dataclasses.replace(stage.setup, paths={**setup.paths, ctrl: fmu}).open_master(scenario.algorithm)
 
         m = None
         try:
@@ -226,28 +203,39 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                 progress(trial_line(row))
             for j in range(done, settings.trials if stopped is None else done):
                 stem = corrections / f"trial_{j:03d}"
-                file = f"{stem}.npz" if j else ""
+                file = f"{stem}.npz" if j > first else ""
                 m = open_master(file)  # checks the correction this trial runs with
                 params = _with(learn.parameters, sensors[0], {"noise_seed": settings.seed_base + j, "noise_enabled":
                                                     learn.parameters.get(sensors[0], {}).get("noise_enabled", True)})
                 t0 = time.perf_counter()
-                res = m.run(setup.case_parameters(params), record, n, scenario.step_size)
+                res = m.run(stage.setup.case_parameters(params), record, n, scenario.step_size)
                 wall = time.perf_counter() - t0
                 m.close()
                 m = None
                 row = {"key": f"trial-{j:03d}", "trial": j, "seed": settings.seed_base + j, "status": res["status"],
                        "message": res["message"], "wall_time_s": wall, "correction_file": checkout_relative(Path(file))
-                       if file else "", "commit": commit}
+                       if file else "", "commit": commit, "reference": stage.reference()}
                 if res["status"] == "ok":
                     sig = res["signals"]
                     meas = np.column_stack([sig[f"{sensors[0]}.{v}"] for v in MEASURED])
-                    err = ilc.measured_errors(meas[:, :2], meas[:, 2:], traj)
-                    row["metrics"] = trial_metrics(res, setup, traj, n_slew, float(np.linalg.norm(err)))
-                    u = np.zeros((n, 2)) if not j else ilc.read_learned_feedforward(file, data_dir).correction
-                    nxt = law.update(u, err, feedforward, PEAK_TORQUE)
-                    meta = dict(base_meta, trials_learned_from=j + 1,
-                                last_trial={"trial": j, "seed": settings.seed_base + j, **row["metrics"]})
-                    ilc.write_learned_feedforward(corrections / f"trial_{j + 1:03d}", nxt, model.dt, meta)
+                    err = ilc.measured_errors(meas[:, :2], meas[:, 2:], stage.traj)
+                    row["metrics"] = trial_metrics(res, stage.setup, stage.traj, stage.n_slew,
+                                                   float(np.linalg.norm(err)))
+                    if j < first:  # identify the payload from this trial, re-plan, and learn on that slew from now on
+                        row["identified"] = identified = identified_payload(res, stage, sensors[0])
+                        progress(f"identified payload {identified['payload_mass_kg']:.4f} kg (rms residual "
+                                 f"{identified['rms_residual_deg']:.4f}°); re-planning the slew for "
+                                 f"{identified['planned_for_kg']:g} kg")
+                        data = write_payload_data(identified["planned_for_kg"], folder / "payload_data", progress)
+                        stage = make_stage(settings, setup, data.trajectory(), data, setup.paths[ctrl], trial_fmus)
+                    else:
+                        u = np.zeros((n, 2)) if j == first else ilc.read_learned_feedforward(file,
+                                                                                             stage.data_dir).correction
+                        nxt = stage.law.update(u, err, stage.feedforward, PEAK_TORQUE)
+                        meta = dict(_learned_metadata(scenario, settings, chain, commit, stage.data),
+                                    trials_learned_from=j + 1 - first,
+                                    last_trial={"trial": j, "seed": settings.seed_base + j, **row["metrics"]})
+                        ilc.write_learned_feedforward(corrections / f"trial_{j + 1:03d}", nxt, stage.model.dt, meta)
                 else:
                     stopped = f"trial {j}: {res['status']} ({res['message']})"
                 journal.append(row)
@@ -261,33 +249,35 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                 write_atomic(folder / "learned_feedforward.npz", final.read_bytes())
                 write_atomic(folder / "learned_feedforward.json", (corrections / f"trial_{len(rows):03d}.json")
                              .read_bytes())
-                with_learned_feedforward(base, folder / "learned_feedforward.npz", folder / LEARNED_CONTROLLER,
-                                         data_dir)
+                with_learned_feedforward(stage.base, folder / "learned_feedforward.npz", folder / LEARNED_CONTROLLER,
+                                         stage.data_dir)
                 n_eval = settings.evaluate_samples
-                des_eval = desired_states(traj, np.arange(n_eval + 1) * scenario.step_size)
+                des_eval = desired_states(stage.traj, np.arange(n_eval + 1) * scenario.step_size)
                 for key in settings.evaluate_cases:
                     case = cases[key]
                     params = _with(case.parameters, sensors[0], {"noise_seed": settings.seed_base + len(rows)})
                     evaluation[key] = {"parameters": params}  # as run: scenarios.ilc.masters runs them again
                     for label, file in (("unlearned", ""), ("learned", str(final))):
                         m = open_master(file)
-                        res = m.run(setup.case_parameters(params), record, n_eval, scenario.step_size)
+                        res = m.run(stage.setup.case_parameters(params), record, n_eval, scenario.step_size)
                         m.close()
                         m = None
                         evaluation[key][label] = {"status": res["status"], "message": res["message"]}
                         if res["status"] == "ok":
-                            evaluation[key][label]["metrics"] = trial_metrics(res, setup, traj, n_slew, float("nan"),
-                                                                              des_eval)
+                            evaluation[key][label]["metrics"] = trial_metrics(res, stage.setup, stage.traj,
+                                                                              stage.n_slew, float("nan"), des_eval)
         finally:
             journal.close()
             if m is not None:
                 m.close()
             shutil.rmtree(trial_fmus, ignore_errors=True)
         summary = {"scenario": scenario.name, "scenario_sha256": sha256_file(scenario.path), "commit": commit,
-                   "settings": settings.as_dict(), "fmu_kind": setup.kind, "reference": _reference(traj, data),
+                   "settings": settings.as_dict(), "fmu_kind": setup.kind, "reference": stage.reference(),
                    "fmu_sha256": {i: sha256_file(p) for i, p in setup.paths.items()}, "data_sha256": chain,
-                   "samples": n, "slew_samples": n_slew, "trials": rows, "stopped": stopped,
+                   "samples": n, "slew_samples": stage.n_slew, "trials": rows, "stopped": stopped,
                    "evaluation": evaluation}
+        if first and rows and rows[0].get("identified"):
+            summary["identified"] = rows[0]["identified"]
         if evaluation:
             summary["learned_controller"] = {"file": LEARNED_CONTROLLER, "instance": ctrl,
                                              "sha256": sha256_file(folder / LEARNED_CONTROLLER)}
@@ -298,32 +288,10 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
     return summary
 
 
-def _law(settings: IlcSettings, model, n_slew: int, time_weight, output_weight):
-    """The learning law of the settings (:class:`flexarm.ilc.NormOptimalIlc`)."""
-    from flexarm import ilc
-
-    q = ({} if settings.settling_q_filter_cutoff_hz == settings.q_filter_cutoff_hz else
-         {"settling_q_cutoff_hz": settings.settling_q_filter_cutoff_hz, "settling_start": n_slew})
-    return ilc.NormOptimalIlc(model, settings.error_weight, settings.input_weight, settings.q_filter_cutoff_hz,
-                              settings.q_filter_order, settings.leak_weight, time_weight=time_weight,
-                              learning_gain=settings.learning_gain, output_weight=output_weight, **q)
-
-
 def _with(parameters: dict, inst: str, values: dict) -> dict:
     out = {k: dict(v) for k, v in parameters.items()}
     out.setdefault(inst, {}).update(values)
     return out
-
-
-def _gain_schedule(scenario) -> tuple[str, str]:
-    """The gain set and schedule label the scenario's controller runs with (its defaults: gamma0.1, 200 ms)."""
-    ctrl = scenario.parameters.get("controller", {})
-    period = float(ctrl.get("schedule_period", 0.2))
-    labels = {0.2: "200ms", 0.02: "20ms", 0.0: "single"}  # the controllers' schedule_period values
-    if period not in labels:
-        raise ScenarioError(f"{scenario.path.name}: parameters.controller.schedule_period: one of 0.2, 0.02 or 0 "
-                            f"(s), got {period!r}")
-    return ctrl.get("gain_set", "gamma0.1"), labels[period]
 
 
 def _learned_metadata(scenario, settings, chain, commit, data=None) -> dict:
