@@ -52,6 +52,11 @@ LINK2_TIP_ELEMENT = 10
 JOINT2_PAIR = (5, 6)
 #: 0-based indices of the link segments (strain gauges) and their proximal neighbours.
 STRAIN_GAUGE_ELEMENTS = (2, 3, 4, 8, 9, 10)
+#: The springs inside the flexible links (0-based element pairs): the six the strain gauges read. The other springs
+#: are the brackets' flexures. ``link_stiffness_scale`` scales these (a model error of the links, not the brackets).
+LINK_SPRING_PAIRS = tuple((e - 1, e) for e in STRAIN_GAUGE_ELEMENTS)
+#: The range of ``link_stiffness_scale``.
+LINK_STIFFNESS_SCALE_RANGE = (0.5, 2.0)
 
 
 class ParameterError(ValueError):
@@ -85,6 +90,9 @@ class ArmParameters:
         Point masses (accelerometers), kg.
     payload_mass : float
         Extra point mass at the tip of link 2, kg (the paper's model error).
+    link_stiffness_scale : float
+        Factor on the stiffness of the flexible links' springs (:data:`LINK_SPRING_PAIRS`), 1 for the design model:
+        a plant whose links are stiffer or softer than the model it was planned and designed on.
     peak_torque : ndarray, shape (2,)
         Motor peak torques.
     torque_limit_fraction : float
@@ -106,6 +114,7 @@ class ArmParameters:
     point_mass_element: np.ndarray
     point_mass: np.ndarray
     payload_mass: float = 0.0
+    link_stiffness_scale: float = 1.0
     peak_torque: np.ndarray = field(default_factory=lambda: np.array([7.0, 2.25]))
     torque_limit_fraction: float = 0.8
     line_start: np.ndarray = field(default_factory=lambda: np.array([0.6, -0.75]))
@@ -122,6 +131,7 @@ class ArmParameters:
                 raise ParameterError(f"{name}: every value must be finite and >= 0, got {arr}")
             object.__setattr__(self, name, arr)
         _check_scalar("payload_mass", self.payload_mass, 0.0, 10.0)
+        _check_scalar("link_stiffness_scale", self.link_stiffness_scale, *LINK_STIFFNESS_SCALE_RANGE)
         if np.any(self.com > self.length + 1e-12):
             raise ParameterError("com: centre of mass must lie between the hinges (0 <= c_i <= l_i)")
         pairs = np.asarray(self.spring_pairs, dtype=np.int64).reshape(-1, 2)
@@ -167,14 +177,25 @@ class ArmParameters:
         return out
 
     def stiffness_matrix(self) -> np.ndarray:
-        """Laplacian stiffness matrix K (N·m/rad), shape (11, 11); off-diagonal −k."""
-        K = np.zeros((N_ELEMENTS, N_ELEMENTS))
+        """Laplacian stiffness matrix K (N·m/rad), shape (11, 11); off-diagonal −k.
+
+        K = K_brackets + ``link_stiffness_scale`` · K_links (:meth:`stiffness_parts`; the native plant forms the same
+        sum, so that both give the same bits).
+        """
+        brackets, links = self.stiffness_parts()
+        return brackets + self.link_stiffness_scale * links
+
+    def stiffness_parts(self) -> tuple[np.ndarray, np.ndarray]:
+        """(K of the brackets' springs, K of the links' springs at scale 1), each (11, 11)."""
+        links = {tuple(p) for p in LINK_SPRING_PAIRS}
+        parts = np.zeros((2, N_ELEMENTS, N_ELEMENTS))
         for (i, j), k in zip(self.spring_pairs, self.spring_stiffness):
+            K = parts[int((int(i), int(j)) in links)]
             K[i, j] -= k
             K[j, i] -= k
             K[i, i] += k
             K[j, j] += k
-        return K
+        return parts[0], parts[1]
 
     @property
     def torque_limit(self) -> np.ndarray:
@@ -185,6 +206,11 @@ class ArmParameters:
         """A copy with another tip payload (kg, 0 to 10)."""
         _check_scalar("payload_mass", payload_mass, 0.0, 10.0)
         return dataclasses.replace(self, payload_mass=float(payload_mass))
+
+    def with_link_stiffness(self, scale: float) -> ArmParameters:
+        """A copy whose flexible links' springs are `scale` times as stiff (:data:`LINK_STIFFNESS_SCALE_RANGE`)."""
+        _check_scalar("link_stiffness_scale", scale, *LINK_STIFFNESS_SCALE_RANGE)
+        return dataclasses.replace(self, link_stiffness_scale=float(scale))
 
     def reach(self) -> float:
         """Fully outstretched reach from the shoulder axis to the tip, m."""

@@ -281,17 +281,22 @@ def write_resource(path: Path, entries: dict[str, np.ndarray], header: str) -> N
 
 
 def write_arm_resource(path: Path, params: ArmParameters | None = None) -> None:
-    """The plant's constants, split so that the payload stays a parameter.
+    """The plant's constants, split so that the payload and the links' stiffness stay parameters.
 
-    M_jk is affine in the tip payload p: M(p) = M(0) + p (M(1) − M(0)).
+    M_jk is affine in the tip payload p: M(p) = M(0) + p (M(1) − M(0)). The stiffness non-zeros are those of the
+    brackets' springs plus ``link_stiffness_scale`` times those of the links' springs, the sum
+    :meth:`flexarm.parameters.ArmParameters.stiffness_matrix` forms (the same bits).
     """
     params = params if params is not None else load_parameters()
     base = ArmModel(params.with_payload(0.0))
     per_kg = ArmModel(params.with_payload(1.0)).mass_coefficients - base.mass_coefficients
+    pattern = _stiffness_pattern(base)
+    brackets, links = params.stiffness_parts()
     write_resource(path, {
         "mass_coefficients_no_payload": base.mass_coefficients,
         "mass_coefficients_per_kg_payload": per_kg,
-        "spring_stiffness": base.stiffness[_stiffness_pattern(base)],
+        "spring_stiffness_brackets": brackets[pattern],
+        "spring_stiffness_links": links[pattern],
         "length": params.length,
     }, f"flexarm arm constants for the native plant FMU (IEEE-754 doubles as hex bit patterns)\n"
        f"source: {Path(params.source).name} sha256 {params.sha256}")

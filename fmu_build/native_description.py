@@ -163,7 +163,7 @@ const ResourceInfo MODEL_RESOURCES[] = {{
 #: The parameters each native model implements. A parameter of the Python FMU not listed here stops the build:
 #: the native FMU would silently ignore it.
 HANDLED_PARAMETERS = {
-    "plant": {"payload_mass", "q1_0", "q2_0", "substeps", "integrator", "damping_ratio"},
+    "plant": {"payload_mass", "q1_0", "q2_0", "substeps", "integrator", "damping_ratio", "link_stiffness_scale"},
     "sensors": {"noise_enabled", "noise_seed", "encoder_noise_deg", "encoder_quantization", "encoder_counts_per_rev",
                 "tachometer_noise_deg_per_s", "tachometer_full_scale_deg_per_s", "strain_gauge_noise_deg",
                 "strain_gauge_filter", "strain_gauge_cutoff_hz", "strain_gauge_filter_order",

@@ -15,7 +15,8 @@ Its inputs and outputs are the plant's rows of the signal catalogue
   controller sample they were computed for (:mod:`flexarm.loop_index`);
 * parameters ``payload_mass`` (kg), ``q1_0``, ``q2_0`` (rad), ``substeps``
   (per millisecond of the step), ``integrator`` (1 ``rodas4``, 2 ``exponential``,
-  3 ``gauss``, 4 ``reference``) and ``damping_ratio``;
+  3 ``gauss``, 4 ``reference``), ``damping_ratio`` and ``link_stiffness_scale`` (a model error: the
+  flexible links' springs that many times as stiff as the design model's);
 * outputs at the communication point: element angles and rates, joint
   angles and rates, strain-gauge angles, tip position, link-tip
   accelerations and accelerometer signals; ``sample_index`` (the index of the sample the outputs belong
@@ -94,7 +95,7 @@ from flexarm.model import (
     N,
     rigid_configuration,
 )
-from flexarm.parameters import load_parameters
+from flexarm.parameters import LINK_STIFFNESS_SCALE_RANGE, load_parameters
 from flexarm.signals import signals
 
 pin_module_namespace(globals())  # pythonfmu 0.7.0 drops a reference per instantiation (see there)
@@ -142,6 +143,10 @@ VARIABLES = variable_table([
      1, (1, len(INTEGRATORS))),
     ("damping_ratio", "parameter", "fixed", "1",
      "Modal structural damping ratio of every flexible mode (0: the paper's undamped model)", 0.0, (0.0, 1.0)),
+    ("link_stiffness_scale", "parameter", "fixed", "1",
+     "Factor on the stiffness of the flexible links' springs (the six the strain gauges read; the brackets keep "
+     "theirs): a model error, e.g. 1.05 for links 5 % stiffer than the model the slew and gains were designed on",
+     1.0, LINK_STIFFNESS_SCALE_RANGE),
     *[_signal(s) for s in signals("plant", "output")],  # = flexarm.model.OBSERVABLE_NAMES
 ])
 
@@ -167,9 +172,10 @@ class FlexarmPlant(FlexarmSlave):
         self.last_error = 0.0
 
     def _build_model(self) -> None:
-        key = (self.value("payload_mass"), self.value("damping_ratio"))
+        key = (self.value("payload_mass"), self.value("damping_ratio"), self.value("link_stiffness_scale"))
         if self.model is None or self._model_key != key:
-            self.model = ArmModel(load_parameters(payload_mass=key[0]), damping_ratio=key[1])
+            self.model = ArmModel(load_parameters(payload_mass=key[0]).with_link_stiffness(key[2]),
+                                  damping_ratio=key[1])
             self._model_key = key
 
     def _integrator(self) -> str:

@@ -92,17 +92,21 @@ static void input_forces(PlantData *d, const double *tau, double *forces)
     flexarm_input_forces(arg, res, d->iw, d->w, 0);
 }
 
-/* The model at (payload, ratio): mass and stiffness coefficients, damping matrix. */
-static int set_model(PlantData *d, double payload, double ratio)
+/* The model at (payload, ratio, scale): mass and stiffness coefficients, damping matrix. The stiffness is the
+   brackets' springs plus `scale` times the links' (flexarm.parameters.ArmParameters.stiffness_matrix). */
+static int set_model(PlantData *d, double payload, double ratio, double scale)
 {
-    if (d->model_ready && d->model_payload == payload && d->model_ratio == ratio) return 0;
+    if (d->model_ready && d->model_payload == payload && d->model_ratio == ratio && d->model_scale == scale)
+        return 0;
     for (int k = 0; k < N * N; k++) d->coeff[k] = d->mass0[k] + payload * d->mass1[k];
-    memcpy(d->coeff + N * N, d->springs, sizeof d->springs);
+    for (int k = 0; k < PLANT_N_SPRING_VALUES; k++)
+        d->coeff[N * N + k] = d->springs_brackets[k] + scale * d->springs_links[k];
     d->cache_valid = 0;
     d->model_ready = 0;
     if (build_damping(d, ratio) != 0) return -1;
     d->model_payload = payload;
     d->model_ratio = ratio;
+    d->model_scale = scale;
     d->model_ready = 1;
     return 0;
 }
@@ -169,7 +173,9 @@ static int plant_load(Instance *inst, char *const *contents, const size_t *sizes
     const char *file = MODEL_INFO.resources[0].file, *text = contents[0];
     if (glue_read_doubles(inst, file, text, "mass_coefficients_no_payload", d->mass0, N * N) ||
         glue_read_doubles(inst, file, text, "mass_coefficients_per_kg_payload", d->mass1, N * N) ||
-        glue_read_doubles(inst, file, text, "spring_stiffness", d->springs, PLANT_N_SPRING_VALUES) ||
+        glue_read_doubles(inst, file, text, "spring_stiffness_brackets", d->springs_brackets,
+                          PLANT_N_SPRING_VALUES) ||
+        glue_read_doubles(inst, file, text, "spring_stiffness_links", d->springs_links, PLANT_N_SPRING_VALUES) ||
         glue_read_doubles(inst, file, text, "length", d->length, N)) {
         free(d);
         return -1;
@@ -191,6 +197,16 @@ static double damping_ratio(const Instance *inst)
 #else
     (void)inst;
     return 0.0;
+#endif
+}
+
+static double link_stiffness_scale(const Instance *inst)
+{
+#ifdef HAS_VAR_link_stiffness_scale
+    return VALUE(inst, IDX_link_stiffness_scale);
+#else
+    (void)inst;
+    return 1.0;
 #endif
 }
 
@@ -216,9 +232,10 @@ static fmi2Status plant_initialize(Instance *inst)
 {
     PlantState *st = inst->state;
     PlantData *d = inst->data;
-    if (set_model(d, VALUE(inst, IDX_payload_mass), damping_ratio(inst)) != 0) {
+    if (set_model(d, VALUE(inst, IDX_payload_mass), damping_ratio(inst), link_stiffness_scale(inst)) != 0) {
         glue_log(inst, fmi2Error, "fmi2ExitInitializationMode: the modal damping matrix could not be built "
-                 "(payload_mass = %g kg, damping_ratio = %g)", VALUE(inst, IDX_payload_mass), damping_ratio(inst));
+                 "(payload_mass = %g kg, damping_ratio = %g, link_stiffness_scale = %g)", VALUE(inst, IDX_payload_mass),
+                 damping_ratio(inst), link_stiffness_scale(inst));
         return fmi2Error;
     }
     double z[NZ] = {0}, tau[2] = {VALUE(inst, IDX_tau1), VALUE(inst, IDX_tau2)};
@@ -256,8 +273,8 @@ static fmi2Status plant_do_step(Instance *inst, double t, double h)
     const long count = substep_count(h, substeps, which);
     double z[NZ], z_new[NZ], forces[N], err = 0.0;
     Eval ev_a, ev_b, *at_z = &ev_a, *work = &ev_b;
-    /* a restored FMU state of another instance may carry another payload or damping */
-    int ok = set_model(d, VALUE(inst, IDX_payload_mass), damping_ratio(inst)) == 0;
+    /* a restored FMU state of another instance may carry another payload, damping or stiffness */
+    int ok = set_model(d, VALUE(inst, IDX_payload_mass), damping_ratio(inst), link_stiffness_scale(inst)) == 0;
     memcpy(z, st->z, sizeof z);
     if (ok && d->cache_valid && memcmp(d->cache_z, z, sizeof z) == 0) at_z = &d->cache;
     else ok = ok && evaluate(d, z, at_z) == 0;

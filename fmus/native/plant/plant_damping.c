@@ -1,6 +1,7 @@
 /*
  * The native plant's modal damping matrix (flexarm.model.modal_damping_matrix): C_d from the flexible modes of the
- * arm at the damping configuration, built once per model (payload, damping ratio) by set_model in plant.c.
+ * arm at the damping configuration, built once per model (payload, damping ratio, link stiffness) by set_model in
+ * plant.c.
  */
 #include <math.h>
 #include <string.h>

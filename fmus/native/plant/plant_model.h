@@ -24,13 +24,13 @@ typedef struct {
 
 typedef struct {
     double mass0[N * N], mass1[N * N]; /* M_jk(payload) = mass0 + payload * mass1, row-major */
-    double springs[PLANT_N_SPRING_VALUES];
+    double springs_brackets[PLANT_N_SPRING_VALUES], springs_links[PLANT_N_SPRING_VALUES]; /* stiffness non-zeros */
     double length[N];
-    /* the model at (model_payload, model_ratio) */
+    /* the model at (model_payload, model_ratio, model_scale) */
     double coeff[N * N + PLANT_N_SPRING_VALUES]; /* (M_jk row-major, stiffness non-zeros) */
     double damping[N * N];                        /* C_d, symmetric */
     int damped, model_ready;
-    double model_payload, model_ratio;
+    double model_payload, model_ratio, model_scale;
     /* the evaluation at the last state whose outputs were computed: the next step starts there */
     Eval cache;
     double cache_z[NZ];
