@@ -102,7 +102,7 @@ def test_a_payload_data_folder_is_reused_only_as_written(payload_data, tmp_path)
 def _short_scenario(tmp_path) -> Path:
     text = (SCENARIO.read_text().replace("samples = 3058", "samples = 2300").replace("trials = 50", "trials = 2")
             .replace('evaluate_cases = ["learn", "payload_0p2", "payload_0p35"]', 'evaluate_cases = ["learn"]')
-            .replace("evaluate_samples = 7058", "evaluate_samples = 2600"))
+            .replace("evaluate_samples = 7200", "evaluate_samples = 2600"))
     scen = tmp_path / "ilc_replan.toml"
     scen.write_text(text)
     return scen
@@ -207,7 +207,7 @@ def test_ilc_identifies_an_unknown_payload_replans_and_learns_through_the_fmus(p
 
     data, _ = payload_data
     text = (SCENARIO.with_name("ilc_identify.toml").read_text().replace("samples = 3058", "samples = 2300")
-            .replace("trials = 20", "trials = 2").replace("evaluate_samples = 7058", "evaluate_samples = 2300"))
+            .replace("trials = 20", "trials = 2").replace("evaluate_samples = 7200", "evaluate_samples = 2300"))
     scen = tmp_path / "ilc_identify.toml"
     scen.write_text(text)
     out = tmp_path / "out"

@@ -1,8 +1,10 @@
 """docs/ilc.md from fresh ILC runs through the FMUs: ``python -m scenarios.reports.ilc_report [--out results]``.
 
 Runs ``scenarios/ilc_payload.toml`` (50 trials, the payload evaluation), for "where it breaks" the same scenario
-with settings changed (:data:`STUDIES`; :data:`STUDY_TRIALS` trials unless a study says) and
-``scenarios/ilc_lqg_jacobi.toml`` (controller_lqg, Jacobi stepping), all through the FMUs; writes ``docs/ilc.md``
+with settings changed (:data:`STUDIES`; :data:`STUDY_TRIALS` trials unless a study says),
+``scenarios/ilc_lqg_jacobi.toml`` (controller_lqg, Jacobi stepping) and the learning along a re-planned slew
+(:mod:`scenarios.reports.ilc_replanned`: ``ilc_replan``, ``ilc_identify`` and its variants), all through the FMUs;
+writes ``docs/ilc.md``
 (the hand-written part is kept above the generated marker), ``docs/ilc_convergence.png`` and
 ``docs/ilc_results.json`` (everything the page shows, with the commit and the SHA-256 of the scenario files, FMUs
 and data); the floor comes from ``docs/ilc_floor.json`` (``python -m scenarios.ilc.floor``). Takes several minutes
@@ -26,6 +28,7 @@ from scenarios.conformance.hosts import omsimulator
 from scenarios.ilc.masters import MASTERS, MORE_MASTERS, learned_in_masters
 from scenarios.ilc.scenario import load_ilc
 from scenarios.ilc.trials import run_ilc
+from scenarios.reports.ilc_replanned import IDENTIFY_SCENARIO, REPLAN_SCENARIO, render_replanned, run_replanned
 
 REPO = Path(__file__).resolve().parents[2]
 DOC = REPO / "docs" / "ilc.md"
@@ -74,7 +77,7 @@ def _fmt(v, f="{:.3f}") -> str:
 
 
 def render(summary: dict, studies: list[tuple[str, dict]], floor: dict | None, lqg: dict | None = None,
-           masters: dict | None = None) -> str:
+           masters: dict | None = None, replanned: dict | None = None) -> str:
     rows = summary["trials"]
     ok = [r for r in rows if r.get("metrics")]
     met = lambda r, k: r["metrics"][k]  # noqa: E731
@@ -177,6 +180,7 @@ def render(summary: dict, studies: list[tuple[str, dict]], floor: dict | None, l
                    + ", ".join(_fmt(met(r, "tip_within_1mm_after_tf_s"), "{:.2f}") for r in okk[-5:])
                    + f" | {held_text} | {s['stopped'] or 'no'} |")
     out += _render_lqg(lqg) if lqg else []
+    out += render_replanned(replanned["replan"], replanned["identify"]) if replanned else []
     out += _render_masters(masters) if masters else []
     out.append("")
     return "\n".join(out) + "\n"
@@ -281,16 +285,18 @@ def _render_lqg(s: dict) -> list[str]:
 def _lean(summary: dict) -> dict:
     """What the page renders from a run's summary (its trials' metrics, evaluation, provenance)."""
     keep = ("scenario", "scenario_sha256", "commit", "settings", "fmu_kind", "fmu_sha256", "data_sha256", "samples",
-            "slew_samples", "stopped", "evaluation", "generated_utc", "controller")
+            "slew_samples", "stopped", "evaluation", "generated_utc", "controller", "reference", "identified")
     return {**{k: summary[k] for k in keep if k in summary},
-            "trials": [{k: r.get(k) for k in ("trial", "seed", "status", "message", "metrics")}
+            "trials": [{k: r.get(k) for k in ("trial", "seed", "status", "message", "metrics", "reference")}
                        for r in summary["trials"]]}
 
 
 def _render_from(record: dict) -> str:
     floor = json.loads(FLOOR.read_text()) if FLOOR.exists() else None
+    replanned = ({"replan": record["replan"], "identify": [(label, s) for label, s in record["identify"]]}
+                 if record.get("replan") else None)
     return render(record["summary"], [(label, s) for label, s in record["studies"]], floor, record.get("lqg"),
-                  record.get("masters"))
+                  record.get("masters"), replanned)
 
 
 def main(argv=None) -> int:
@@ -349,14 +355,19 @@ def main(argv=None) -> int:
     lqg = run_ilc(LQG_SCENARIO, args.out, plots=False, progress=lambda s: print(s, flush=True))
     lqg["controller"] = {k: v for k, v in lqg_scenario.parameters.get("controller", {}).items()
                          if k in ("loop_delay_samples", "integral_action", "estimator")}
+    replanned = run_replanned(args.out, run_ilc, progress=lambda s: print(s, flush=True))
+    replan, identify = replanned["replan"], replanned["identify"]
     print("== the learned controllers in other masters", flush=True)
     shown = (*MASTERS, *(m for m in MORE_MASTERS if m != "omsimulator" or omsimulator() is not None))
     masters = {name: learned_in_masters(name, run, args.out / name, shown)
-               for name, run in ((SCENARIO, summary), (LQG_SCENARIO, lqg)) if run.get("learned_controller")}
+               for name, run in ((SCENARIO, summary), (LQG_SCENARIO, lqg), (REPLAN_SCENARIO, replan))
+               if run.get("learned_controller")}
     record = {"command": "python -m scenarios.reports.ilc_report",
-              "scenario_sha256": {SCENARIO: summary["scenario_sha256"], LQG_SCENARIO: lqg["scenario_sha256"]},
+              "scenario_sha256": {SCENARIO: summary["scenario_sha256"], LQG_SCENARIO: lqg["scenario_sha256"],
+                                  REPLAN_SCENARIO: replan["scenario_sha256"],
+                                  IDENTIFY_SCENARIO: identify[0][1]["scenario_sha256"]},
               "summary": _lean(summary), "studies": [[label, _lean(s)] for label, s in studies], "lqg": _lean(lqg),
-              "masters": masters}
+              "replan": _lean(replan), "identify": [[label, _lean(s)] for label, s in identify], "masters": masters}
     write_atomic(RESULTS, (json.dumps(record, indent=1) + "\n").encode())
     head = DOC.read_text().split(MARKER)[0] if DOC.exists() else "# Iterative learning control\n\n"
     write_atomic(DOC, head + _render_from(record))
