@@ -2,11 +2,14 @@
 
 The errors are formed as the controller forms its own, from the encoders and strain gauges (eqs. 21-31),
 never from the true states; :func:`simulate_trial` runs one slew of the arm, its sensors and a
-controller with a feedforward correction, for the tests and quick studies. The learning law itself is in
+controller with a feedforward correction, for the tests and quick studies; :class:`Safeguard` keeps the learning
+from making the measured error worse on a plant its model mispredicts. The learning law itself is in
 :mod:`flexarm.ilc`, which re-exports these names.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -106,3 +109,50 @@ def simulate_trial(controller, n_steps: int, payload_mass: float = 0.275, noise:
     meas = np.array(meas)
     return {"q": meas[:, ENCODERS], "strain": meas[:, STRAIN_GAUGES], "states": np.array(states),
             "torques": np.array(torques)}
+
+
+# -- the safeguard --------------------------------------------------------------------
+@dataclass(frozen=True)
+class Safeguard:
+    """A trial-wise safeguard on the learning: it keeps only what lowers the measured error.
+
+    The norm-optimal update falls monotonically on its model; on a plant the model mispredicts (a model error it
+    cannot see) its step may raise the error instead, and the iteration then settles at a worse point than no
+    correction. With the safeguard, the next update always starts from the trial with the lowest measured error
+    norm ‖e‖₂ so far (its correction and its errors), and after each trial:
+
+    * a new lowest: that trial becomes the start, and the step grows back (doubles, up to 1);
+    * anything else: the start stays, and the step halves.
+
+    The next correction is ``u_base + step · (update(u_base, e_base) − u_base)``, a convex combination of two
+    corrections within the torque limits, so within them too. Where the learning keeps helping every trial is a new
+    lowest and the law runs unchanged; where it does not, the corrections shrink back to the best one measured.
+    The price: at the noise floor the step shrinks too (the learning stops learning noise, and stops).
+
+    Attributes
+    ----------
+    base_trial : int
+        The trial with the lowest measured error norm: the next update's start.
+    lowest_norm : float
+        Its norm, rad.
+    step : float
+        The fraction of the update taken, in (0, 1].
+    """
+
+    base_trial: int
+    lowest_norm: float
+    step: float = 1.0
+
+    def after(self, trial: int, norm: float) -> tuple[Safeguard, bool]:
+        """The state after `trial` measured error norm `norm` (rad), and whether it is the new lowest."""
+        if norm < self.lowest_norm:
+            return Safeguard(trial, norm, min(1.0, 2.0 * self.step)), True
+        return Safeguard(self.base_trial, self.lowest_norm, 0.5 * self.step), False
+
+    def next_correction(self, base_correction, proposal) -> np.ndarray:
+        """``base + step · (proposal − base)``, shape (N, 2), N·m."""
+        base = np.asarray(base_correction, dtype=float)
+        return base + self.step * (np.asarray(proposal, dtype=float) - base)
+
+    def as_dict(self) -> dict:
+        return {"base_trial": self.base_trial, "lowest_norm_rad": self.lowest_norm, "step": self.step}

@@ -269,3 +269,46 @@ def test_lifted_blocks_equal_the_models_response(small_model):
     assert np.abs(G @ v.ravel() - y.ravel()).max() <= 1e-12 * np.abs(y).max()
 
 
+
+
+def test_the_safeguard_keeps_only_what_lowers_the_measured_error():
+    """flexarm.ilc_trial.Safeguard on a learning whose model has a third of the plant's gain (a model error the
+    update cannot see): unguarded, each step overshoots and the error grows by 1.5x per trial; guarded, each update
+    starts from the best correction, a trial that is no new lowest halves the step and a new lowest doubles it, so
+    the error converges. The correction is a convex combination of two within the limits, so within them too."""
+    from flexarm.ilc_trial import Safeguard
+
+    target, g_plant, g_model = np.array([1.0, -0.5]), 2.5, 1.0
+    error = lambda u: target - g_plant * u  # noqa: E731 - the "plant"
+    update = lambda u, e: u + e / g_model  # noqa: E731 - the model's exact inverse: overshoots on the plant
+
+    u = np.zeros(2)
+    unguarded = []
+    for _ in range(6):
+        unguarded.append(np.linalg.norm(error(u)))
+        u = update(u, error(u))
+    assert all(b > a for a, b in zip(unguarded, unguarded[1:]))  # diverges
+    u, guard, norms, steps = np.zeros(2), None, [], []
+    corrections = {}
+    for j in range(12):
+        e = error(u)
+        n = float(np.linalg.norm(e))
+        norms.append(n)
+        corrections[j] = (u, e)
+        guard, _ = (Safeguard(j, n), True) if guard is None else guard.after(j, n)
+        steps.append(guard.step)
+        ub, eb = corrections[guard.base_trial]
+        u = guard.next_correction(ub, update(ub, eb))
+    # a full step is tried after each new lowest and overshoots once (1.5x the lowest before it); the half step
+    # from the best correction then lowers the error 4x (a step of 0.4 would be exact): it converges where the
+    # unguarded learning diverges, and no trial exceeds the lowest before it by more than that one overshoot
+    lowest = np.minimum.accumulate(norms)
+    assert all(norms[j] <= 1.5 * lowest[j - 1] * (1 + 1e-12) for j in range(1, len(norms)))
+    assert lowest[-1] < 1e-2 * norms[0] and all(b < a for a, b in zip(norms[::2], norms[2::2]))
+    assert steps[:4] == [1.0, 0.5, 1.0, 0.5] and max(steps) <= 1.0
+    s = Safeguard(3, 0.2, 0.25)
+    assert s.after(4, 0.1) == (Safeguard(4, 0.1, 0.5), True) and s.after(4, 0.3) == (Safeguard(3, 0.2, 0.125), False)
+    assert Safeguard(0, 1.0, 1.0).after(1, 0.5)[0].step == 1.0  # capped
+    lo, hi = np.array([[-1.0, -2.0]]), np.array([[1.0, 2.0]])
+    mixed = Safeguard(0, 1.0, 0.3).next_correction(lo, hi)
+    assert np.all(mixed >= lo) and np.all(mixed <= hi)

@@ -222,10 +222,15 @@ def test_ilc_identifies_an_unknown_payload_replans_and_learns_through_the_fmus(p
     assert t0["identified"]["planned_for_kg"] == PAYLOAD and summary["identified"] == t0["identified"]
     assert any("reused (0.275 kg" in s for s in lines)  # re-planned to the gram: the fixture's folder
     assert t1["metrics"]["slew_rms_position_error"] < 0.05 and t1["correction_file"] == ""
+    # the safeguard (safeguard = true): the learning's first trial is the first start of its updates
+    assert t1["safeguard"] == {"new_lowest": True, "base_trial": 1, "step": 1.0,
+                               "lowest_norm_rad": t1["metrics"]["measured_error_2norm_rad"]}
     assert summary["reference"]["slew"] == "re-planned" and summary["evaluation"]["learn"]["learned"]["metrics"]
     again = run_ilc(scen, out, plots=False, progress=lambda s: None, trials=3)
     assert again["trials"][:2] == summary["trials"] and again["trials"][2]["reference"]["slew"] == "re-planned"
     assert again["trials"][2]["correction_file"].endswith("trial_002.npz")
+    guard = again["trials"][2]["safeguard"]  # resumed from the journal's state: a new lowest or a halved step
+    assert (guard["base_trial"], guard["step"]) in ((2, 1.0), (1, 0.5)), guard
 
 
 def test_an_ilc_scenario_refuses_a_model_payload_on_a_replanned_slew(tmp_path):

@@ -38,6 +38,9 @@ ILC_KEYS = {
     "identify_payload": "true or false: the payload is unknown; trial 0 runs the paper's slew, the payload is "
                         "identified from its measurements (flexarm.payload_fit), the slew re-planned for it, and the "
                         "learning starts on that slew (not with replan_payload_mass)",
+    "safeguard": "true or false: each update starts from the trial with the lowest measured error so far, its "
+                 "step doubling after a new lowest and halving otherwise (flexarm.ilc_trial.Safeguard; default "
+                 "false: every update kept)",
 }
 
 
@@ -61,6 +64,7 @@ class IlcSettings:
     evaluate_samples: int
     replan_payload_mass: float | None = None
     identify_payload: bool = False
+    safeguard: bool = False
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -131,6 +135,7 @@ def load_ilc(name) -> tuple[Scenario, IlcSettings]:
         replan_payload_mass=(None if "replan_payload_mass" not in raw else
                              float(get("replan_payload_mass", None, number(0.0, 10.0)))),
         identify_payload=get("identify_payload", False, lambda v: isinstance(v, bool)),
+        safeguard=get("safeguard", False, lambda v: isinstance(v, bool)),
     )
     if (s.identify_payload or s.replan_payload_mass is not None) and any(
             k in raw for k in ("model_payload_mass", "settling_model_payload_mass")):

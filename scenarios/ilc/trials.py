@@ -112,6 +112,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
     """
     from flexarm import ilc
     from flexarm.control import PEAK_TORQUE
+    from flexarm.ilc_trial import Safeguard
     from flexarm.payload_data import write_payload_data
     from fmu_build.learned import LEARNING_CONTROLLERS, reads_learned_feedforward, with_learned_feedforward
 
@@ -193,6 +194,13 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                                            trial_fmus / setup.paths[ctrl].name, stage.data_dir)
             return dataclasses.replace(stage.setup, paths={**setup.paths, ctrl: fmu}).open_master(scenario.algorithm)
 
+        def correction_of(trial: int, file: str) -> np.ndarray:
+            """The correction trial `trial` ran with (none before the learning's first trial)."""
+            return np.zeros((n, 2)) if trial <= first else ilc.read_learned_feedforward(file, stage.data_dir).correction
+
+        guarded = [r["safeguard"] for r in rows if r.get("safeguard")]
+        guard = None if not guarded else Safeguard(guarded[-1]["base_trial"], guarded[-1]["lowest_norm_rad"],
+                                                   guarded[-1]["step"])
         m = None
         try:
             learn = cases[settings.learn_case]
@@ -229,9 +237,19 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                         data = write_payload_data(identified["planned_for_kg"], folder / "payload_data", progress)
                         stage = make_stage(settings, setup, data.trajectory(), data, setup.paths[ctrl], trial_fmus)
                     else:
-                        u = np.zeros((n, 2)) if j == first else ilc.read_learned_feedforward(file,
-                                                                                             stage.data_dir).correction
-                        nxt = stage.law.update(u, err, stage.feedforward, PEAK_TORQUE)
+                        u = correction_of(j, file)
+                        if not settings.safeguard:
+                            nxt = stage.law.update(u, err, stage.feedforward, PEAK_TORQUE)
+                        else:  # flexarm.ilc_trial.Safeguard: no update kept that makes the measured error worse
+                            np.save(corrections / f"errors_{j:03d}.npy", err)  # an update may start here again
+                            norm = row["metrics"]["measured_error_2norm_rad"]
+                            guard, lowest = (Safeguard(j, norm), True) if guard is None else guard.after(j, norm)
+                            row["safeguard"] = {"new_lowest": lowest, **guard.as_dict()}
+                            b = guard.base_trial
+                            u_b = u if b == j else correction_of(b, f"{corrections / f'trial_{b:03d}'}.npz")
+                            e_b = err if b == j else np.load(corrections / f"errors_{b:03d}.npy")
+                            nxt = guard.next_correction(u_b, stage.law.update(u_b, e_b, stage.feedforward,
+                                                                              PEAK_TORQUE))
                         meta = dict(_learned_metadata(scenario, settings, chain, commit, stage.data),
                                     trials_learned_from=j + 1 - first,
                                     last_trial={"trial": j, "seed": settings.seed_base + j, **row["metrics"]})
