@@ -73,8 +73,20 @@ def with_learned_feedforward(fmu: Path, correction: Path | None, out: Path, data
 
 
 #: Our controllers (model identifiers, Python kind) that run on a payload data folder (:mod:`flexarm.payload_data`):
-#: those whose law is the trajectory's feedforward and the continuous-time gains along it.
+#: those whose law is the trajectory's feedforward and the continuous-time gains along it (native kind:
+#: :func:`native_with_payload_data`).
 PAYLOAD_DATA_CONTROLLERS = ("FlexarmController", "FlexarmControllerFF")
+
+
+def native_with_payload_data(name: str, python_fmu: Path, data, out: Path) -> Path:
+    """The native controller `name` (``controller`` or ``controller_ff``) built on the payload data folder `data`
+    (:func:`fmu_build.native_build.build_native_fmu`, every platform; a few seconds): its resources are the
+    folder's slew, gains and LQG designs, and a learned correction must have been learnt on that slew. Written to
+    `out`; `python_fmu` is its Python twin (the interface)."""
+    from .native_build import build_native_fmu
+
+    out = Path(out)
+    return build_native_fmu(name, Path(python_fmu), out.parent, data_dir=data.folder, file_name=out.stem)
 
 
 def with_payload_data(fmu: Path, data, out: Path) -> Path:

@@ -321,19 +321,21 @@ GAIN_SETS = {1: "gamma1", 2: "gamma0.1", 3: "gamma0", 4: "eq32"}
 OMEGA7_ESTIMATES = {1: "tachometer", 2: "rigid"}
 
 
-def write_trajectory_resource(path: Path) -> None:
+def write_trajectory_resource(path: Path, trajectory_file: Path | None = None) -> None:
     """The trajectory as the control law uses it: feedforward torques and the desired measurements.
 
     Desired measurements m_d = (q1, q2, q̇1, q̇2, ε1..ε6) of every sample, from the desired state
     through the sensor map (flexarm.control: "like with like"), and the estimator matrices E
-    (x̂ = E m) of both ``omega7_estimate`` choices.
+    (x̂ = E m) of both ``omega7_estimate`` choices. `trajectory_file`: default the committed one (a payload data
+    folder's, :mod:`flexarm.payload_data`, for a controller on a re-planned slew).
     """
     from flexarm import control
     from flexarm.model import joint_angles, joint_velocities, strain_gauge_angles
     from flexarm.provenance import sha256_file
     from flexarm.trajectory import DEFAULT_TRAJECTORY_FILE, load_trajectory
 
-    traj = load_trajectory(DEFAULT_TRAJECTORY_FILE)
+    source = DEFAULT_TRAJECTORY_FILE if trajectory_file is None else Path(trajectory_file)
+    traj = load_trajectory(source)
     th, om = traj.theta, traj.omega
     m_d = np.column_stack([np.array([joint_angles(t) for t in th]), np.array([joint_velocities(o) for o in om]),
                            np.array([strain_gauge_angles(t) for t in th])])
@@ -342,20 +344,20 @@ def write_trajectory_resource(path: Path) -> None:
     for value, choice in OMEGA7_ESTIMATES.items():
         entries[f"estimator_{value}"] = control._estimator_matrix(choice)
     write_resource(path, entries, f"flexarm trajectory for the native controller FMUs (IEEE-754 hex bit patterns)\n"
-                                  f"source: {DEFAULT_TRAJECTORY_FILE.name} "
-                                  f"sha256 {sha256_file(DEFAULT_TRAJECTORY_FILE)}\n"
+                                  f"source: {source.name} sha256 {sha256_file(source)}\n"
                                   f"estimator_<v>: omega7_estimate = v ({OMEGA7_ESTIMATES})")
 
 
-def write_gains_resource(path: Path, discrete: bool) -> None:
-    """Every gain schedule of the four weight sets (``dlqr-`` designs if `discrete`), reduced gains (2, 22)."""
+def write_gains_resource(path: Path, discrete: bool, gains_dir: Path | None = None) -> None:
+    """Every gain schedule of the four weight sets (``dlqr-`` designs if `discrete`), reduced gains (2, 22), from
+    `gains_dir` (default the committed ``flexarm/data/gains``)."""
     from flexarm.lqr import SCHEDULES, GainSchedule
 
     entries, names = {}, []
     for value, weights in GAIN_SETS.items():
         name = f"dlqr-{weights}" if discrete else weights
         for label in SCHEDULES:
-            sched = GainSchedule.load(name, label)
+            sched = GainSchedule.load(name, label, directory=gains_dir)
             entries[f"set{value}_{label}_count"] = [len(sched.times)]
             entries[f"set{value}_{label}_times"] = sched.times
             entries[f"set{value}_{label}_gains"] = sched.reduced_gains()

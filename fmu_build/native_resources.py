@@ -31,9 +31,10 @@ import numpy as np
 
 from flexarm.gain_schedule import default_trajectory_path
 from flexarm.gain_sets import WEIGHT_NAMES
-from flexarm.lqg import PREDICTOR_PRIOR, lqg_controller
+from flexarm.lqg import PREDICTOR_PRIOR, LqgController, lqg_controller
 from flexarm.lqg_bank import BANK_SCHEDULES, POSTERIOR_FLOOR, QUIET_RESEED_BELOW, PayloadBank, bank_controller
 from flexarm.lqg_design import DEFAULT_LQG_DIR, LqgDesign
+from flexarm.parameters import load_parameters
 from flexarm.provenance import sha256_file
 
 from .native_codegen import GAIN_SETS, write_resource
@@ -90,13 +91,19 @@ def write_bank_resource(path: Path, schedule: str, desired_measurements: np.ndar
                    f"{POSTERIOR_FLOOR:g}, quiet filter re-seeded below p_0 = {QUIET_RESEED_BELOW:g}")
 
 
-def write_lqg_resources(directory: Path, bank: bool = True) -> list[Path]:
+def write_lqg_resources(directory: Path, bank: bool = True, data_dir: Path | None = None) -> list[Path]:
     """Write the trajectory, the three design and (with `bank`) the payload-bank resources into `directory`;
-    returns their paths."""
+    returns their paths. `data_dir`: a payload data folder (:mod:`flexarm.payload_data`: its slew and LQG designs;
+    it has no bank) instead of the committed data."""
     if [GAIN_SETS[v] for v in sorted(GAIN_SETS)] != list(WEIGHT_NAMES):
         raise RuntimeError(f"gain_set values {GAIN_SETS} are not in the order of the LQG weights {WEIGHT_NAMES}")
-    law = lqg_controller()  # the committed trajectory, as the Python FMU's law reads it
-    traj_file = default_trajectory_path()
+    if data_dir is not None and bank:
+        raise RuntimeError(f"{data_dir}: a payload data folder has no payload bank")
+    lqg_dir = DEFAULT_LQG_DIR if data_dir is None else Path(data_dir) / "lqg"
+    traj_file = default_trajectory_path() if data_dir is None else Path(data_dir) / "trajectory.npz"
+    # the law as the Python FMU's reads it: lqg_controller() on the committed data, the same on a folder's
+    law = lqg_controller() if data_dir is None else LqgController(traj_file, LqgDesign.load("200ms", lqg_dir),
+                                                                 "gamma0.1", 0, False, load_parameters().peak_torque)
     out = [directory / TRAJECTORY_RESOURCE]
     write_resource(out[0], {
         "n_steps": [law.n_steps], "dt": [law.dt], "feedforward_torque": law.trajectory.tau,
@@ -105,7 +112,7 @@ def write_lqg_resources(directory: Path, bank: bool = True) -> list[Path]:
     }, "flexarm LQG controller: trajectory (IEEE-754 hex bit patterns), fmu_build/native_resources.py\n"
        f"source: {traj_file.name} sha256 {sha256_file(traj_file)}")
     for schedule in SCHEDULES:
-        design = LqgDesign.load(schedule)
+        design = LqgDesign.load(schedule, lqg_dir)
         path = directory / design_resource(schedule)
         write_resource(path, {
             "count": [len(design.times)], "times": design.times, "Phi": design.Phi, "Gamma": design.Gamma,
@@ -113,7 +120,7 @@ def write_lqg_resources(directory: Path, bank: bool = True) -> list[Path]:
             # the noise model of the predicting law's time-varying filter (flexarm.lqg_design.transient_gains)
             "W": design.W, "V": design.V, "P_prior0": design.P_prior[design.index_at(0.0)],
         }, f"flexarm LQG design {schedule} (IEEE-754 hex bit patterns), fmu_build/native_resources.py\n"
-           f"source: lqg_{schedule}.npz sha256 {sha256_file(DEFAULT_LQG_DIR / f'lqg_{schedule}.npz')}\n"
+           f"source: lqg_{schedule}.npz sha256 {sha256_file(lqg_dir / f'lqg_{schedule}.npz')}\n"
            f"weights (gain_set 1..4): {', '.join(WEIGHT_NAMES)}")
         out.append(path)
     for schedule in BANK_SCHEDULES if bank else ():

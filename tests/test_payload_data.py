@@ -167,15 +167,31 @@ def test_ilc_learns_on_the_slew_replanned_for_the_payload_through_the_fmus(paylo
     assert again["slew_rms_position_error"] == ev["learned"]["metrics"]["slew_rms_position_error"]
 
 
-def test_the_replanned_slew_is_refused_for_the_native_kind(tmp_path):
-    """The re-planned slew is packed into the Python kind; asked for the native kind, the run says so (exit 2 from
-    the command line) before anything is planned or run."""
-    from scenarios.config import ScenarioError
+def test_the_native_kind_learns_on_the_replanned_slew_as_the_python_kind(payload_data, tmp_path):
+    """The native controller is built on the payload data folder (its slew, gains and LQG designs as resources; a
+    few seconds) and gives the Python kind's figures: two trials (the second with the correction learnt from the
+    first, checked against the re-planned slew's SHA-256 inside the FMU) and the learned evaluation, within 1e-6 of
+    each figure (the two kinds agree to about 1e-10 of the torques' peak, docs/native-fmus.md)."""
     from scenarios.ilc.trials import run_ilc
 
-    with pytest.raises(ScenarioError, match=r"ilc\.replan_payload_mass: .*--kind python"):
-        run_ilc(_short_scenario(tmp_path), tmp_path / "out", kind="native", plots=False, progress=lambda s: None)
-    assert not (tmp_path / "out" / "ilc_replan" / "payload_data").exists()
+    data, _ = payload_data
+    scen = _short_scenario(tmp_path)
+    runs = {}
+    for kind in ("python", "native"):
+        out = tmp_path / kind
+        shutil.copytree(data.folder, out / "ilc_replan" / "payload_data")
+        runs[kind] = run_ilc(scen, out, kind=kind, plots=False, progress=lambda s: None)
+        assert runs[kind]["stopped"] is None and runs[kind]["fmu_kind"] == kind
+    for a, b in zip(runs["python"]["trials"], runs["native"]["trials"]):
+        for key in ("slew_rms_position_error", "rms_tip_error_mm", "slew_peak_tau1", "measured_error_2norm_rad"):
+            assert b["metrics"][key] == pytest.approx(a["metrics"][key], rel=1e-6), (a["trial"], key)
+    ev = [runs[k]["evaluation"]["learn"]["learned"]["metrics"]["slew_rms_position_error"] for k in runs]
+    assert ev[1] == pytest.approx(ev[0], rel=1e-6)
+    with zipfile.ZipFile(tmp_path / "native" / "ilc_replan" / "learned_controller.fmu") as z:
+        names = z.namelist()
+        assert "binaries/win64/FlexarmControllerNative.dll" in names and "resources/learned_feedforward.npz" in names
+        slew = z.read("resources/trajectory.txt").decode()
+    assert f"sha256 {data.manifest['files']['trajectory.npz']}" in slew  # built on the re-planned slew
 
 
 def test_the_payload_is_identified_from_a_trials_encoders_and_torques():

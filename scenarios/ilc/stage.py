@@ -76,14 +76,17 @@ def learning_law(settings: IlcSettings, model, n_slew: int, time_weight, output_
                               learning_gain=settings.learning_gain, output_weight=output_weight, **q)
 
 
-def make_stage(settings: IlcSettings, setup, traj, data, controller: Path, fmu_dir: Path) -> Stage:
+def make_stage(settings: IlcSettings, setup, traj, data, controller: Path, fmu_dir: Path,
+               python_twin: Path | None = None) -> Stage:
     """The stage of slew `traj` (re-planned into the payload data `data`, or the paper's with None).
 
     `setup` is the run's plan (its desired states and start are replaced by the slew's), `controller` our controller
-    FMU the run resolved, `fmu_dir` where the stage's own controller FMU (with the payload data) is written.
+    FMU the run resolved, `fmu_dir` where the stage's own controller FMU (with the payload data) is written. A native
+    controller is built anew on the data (`python_twin`: its Python twin, the interface); a Python one gets the data
+    packed into a copy.
     """
     from flexarm import ilc
-    from fmu_build.learned import with_payload_data
+    from fmu_build.learned import native_with_payload_data, with_payload_data
 
     scenario, n = setup.scenario, setup.n_steps
     setup = dataclasses.replace(setup, desired=desired_states(traj, np.arange(n + 1) * scenario.step_size),
@@ -100,7 +103,12 @@ def make_stage(settings: IlcSettings, setup, traj, data, controller: Path, fmu_d
         model = ilc.spliced_model(model, after, n_slew)
     time_weight, output_weight = ilc.settling_weights(traj, n, settings.settling_weight, settings.settling_tip_weight)
     own = Path(fmu_dir) / f"payload_{controller.name}"
-    base = controller if data is None else with_payload_data(controller, data, own)
+    if data is None:
+        base = controller
+    elif setup.kind == "native":
+        base = native_with_payload_data(controller.stem, python_twin, data, own)
+    else:
+        base = with_payload_data(controller, data, own)
     return Stage(traj, data, setup, base, model, learning_law(settings, model, n_slew, time_weight, output_weight),
                  ilc.feedforward_over(traj, n), n_slew)
 

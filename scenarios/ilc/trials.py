@@ -115,6 +115,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
     from flexarm.ilc_trial import Safeguard
     from flexarm.payload_data import write_payload_data
     from fmu_build.learned import LEARNING_CONTROLLERS, reads_learned_feedforward, with_learned_feedforward
+    from fmu_build.native_build import PAYLOAD_DATA_VARIANTS
 
     scenario, settings = load_ilc(name)
     if trials is not None:
@@ -127,15 +128,6 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         remove_stale(out, scenario.name, folder)
         check_writable(folder, 2_000_000 * (settings.trials + 2))
         cases = {c.key: c for c in scenario.cases}
-        replan = settings.replan_payload_mass is not None or settings.identify_payload
-        if replan and (kind or scenario.kind) != "python":
-            key = "replan_payload_mass" if settings.replan_payload_mass is not None else "identify_payload"
-            raise ScenarioError(f"{scenario.path.name}: ilc.{key}: the re-planned slew is packed into the Python kind "
-                                "of the controller; the native kind cannot carry it yet (run with --kind python)")
-        data = None  # the slew re-planned for a known payload (flexarm.payload_data); None: the paper's, at first
-        if settings.replan_payload_mass is not None:
-            data = write_payload_data(settings.replan_payload_mass, folder / "payload_data", progress)
-            traj = data.trajectory()
         setup = prepare(scenario, fmu_dir, kind=kind, native_fmu_dir=native_fmu_dir, trajectory=traj)
         sensors = [inst for inst, md in setup.descriptions.items()
                    if all(any(v.name == m for v in md.modelVariables) for m in MEASURED)]
@@ -147,6 +139,15 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
             raise ScenarioError(f"fmus.{ctrl}: {setup.paths[ctrl].name} does not read a learned feedforward; ILC "
                                 "runs need one of our controllers that does "
                                 f"({', '.join(LEARNING_CONTROLLERS)}, either kind)")
+        twin = Path(fmu_dir) / setup.paths[ctrl].name  # a native controller's Python twin (its interface)
+        if (settings.replan_payload_mass is not None or settings.identify_payload) and setup.kind == "native" and (
+                setup.paths[ctrl].stem not in PAYLOAD_DATA_VARIANTS or not twin.is_file()):
+            raise ScenarioError(f"fmus.{ctrl}: a re-planned slew is built into the native "
+                                f"{' or '.join(PAYLOAD_DATA_VARIANTS)} (from their Python twin in {fmu_dir}), not "
+                                f"{setup.paths[ctrl].name}")
+        data = None  # the slew re-planned for a known payload (flexarm.payload_data); None: the paper's, at first
+        if settings.replan_payload_mass is not None:
+            data = write_payload_data(settings.replan_payload_mass, folder / "payload_data", progress)
         record = setup.record + [(sensors[0], m) for m in MEASURED if (sensors[0], m) not in setup.record]
         n = setup.n_steps
         journal = Journal(folder / "journal.jsonl")
@@ -185,7 +186,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         if first and done and rows[0].get("identified"):
             data = write_payload_data(rows[0]["identified"]["planned_for_kg"], folder / "payload_data", progress)
         stage = make_stage(settings, setup, traj if data is None else data.trajectory(), data, setup.paths[ctrl],
-                           trial_fmus)
+                           trial_fmus, twin)
 
         def open_master(correction: str):
             """A master whose controller carries `correction` ("" : none; a copy even then, so that a
@@ -235,7 +236,8 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
                                  f"{identified['rms_residual_deg']:.4f}°); re-planning the slew for "
                                  f"{identified['planned_for_kg']:g} kg")
                         data = write_payload_data(identified["planned_for_kg"], folder / "payload_data", progress)
-                        stage = make_stage(settings, setup, data.trajectory(), data, setup.paths[ctrl], trial_fmus)
+                        stage = make_stage(settings, setup, data.trajectory(), data, setup.paths[ctrl], trial_fmus,
+                                           twin)
                     else:
                         u = correction_of(j, file)
                         if not settings.safeguard:
