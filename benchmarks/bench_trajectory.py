@@ -73,13 +73,13 @@ def _replan_fatrop(loaded, committed, payload: float):
     from flexarm.trajectory import replan_minimum_time, stage_form
 
     c0 = _cpu()
-    stage_form.stage_form(loaded)  # made once per process; every later re-plan of the structure reuses it
+    form = stage_form.stage_form(loaded)  # each re-plan makes its own (FATROP keeps state between solves)
     made = _cpu() - c0
     c0 = _cpu()
-    r = replan_minimum_time(loaded, committed)
+    r = replan_minimum_time(loaded, committed, form=form)
     cpu = _cpu() - c0
     print(f"FATROP re-plan, payload {payload} kg, from the committed file: {cpu:6.1f} CPU-s solving (goal <= 10), "
-          f"after {made:.1f} CPU-s making its solver (once per process); {r.metadata['solver']['iterations']} "
+          f"after {made:.1f} CPU-s making its solver (each re-plan makes one); {r.metadata['solver']['iterations']} "
           f"iterations ({_stages(r)}), t_f = {r.t_f:.3f} s (continuous {r.metadata['t_f_continuous_s']:.7f} s), "
           f"peak memory {_peak_mb():.0f} MB", flush=True)
     return r

@@ -140,13 +140,14 @@ def replan_minimum_time(params: ArmParameters, warm_start: TrajectoryResult | Co
                         n_intervals: int | None = None, degree: int | None = None, verbose: bool = False,
                         elbow: int = 1, regularisation: float = DEFAULT_REGULARISATION,
                         max_iter: int = 300, line_tolerance: float = LINE_TOLERANCE,
-                        torque_rate_limit: float = TORQUE_RATE_LIMIT) -> TrajectoryResult:
+                        torque_rate_limit: float = TORQUE_RATE_LIMIT, form=None) -> TrajectoryResult:
     """Re-plan the slew for changed parameters (a payload) with FATROP, from a solution's primal point alone.
 
     The same NLP as :func:`solve_minimum_time` in stage form (:mod:`flexarm.trajectory.stage_form`): the
     free-t_f solve, then t_f rounded up to a whole ms and solved again. It needs no multipliers, so a
-    trajectory read from a file (the committed one) is a start; the solver is made once per process
-    (about 11 CPU-s) and every later re-plan of the same structure only solves.
+    trajectory read from a file (the committed one) is a start. Each re-plan makes its own solver (about 12
+    CPU-s; :func:`flexarm.trajectory.stage_form.stage_form` says why none is kept), unless `form` gives one
+    made for it.
 
     Parameters
     ----------
@@ -159,6 +160,9 @@ def replan_minimum_time(params: ArmParameters, warm_start: TrajectoryResult | Co
         The grid asked for; refused unless it is the start's (the re-plan does not regrid).
     verbose : bool
         Print a line per stage.
+    form : StageForm, optional
+        A solver made for this re-plan (:func:`flexarm.trajectory.stage_form.stage_form`, the same structure and
+        options; used for this re-plan only).
 
     Returns
     -------
@@ -181,8 +185,9 @@ def replan_minimum_time(params: ArmParameters, warm_start: TrajectoryResult | Co
     if asked != (guess.n_intervals, guess.degree):
         raise TrajectoryError(f"a re-plan keeps its start's grid (N = {guess.n_intervals}, d = {guess.degree}); "
                               f"asked for N = {asked[0]}, d = {asked[1]}: solve cold for another grid")
-    form = stage_form(params, guess.n_intervals, guess.degree, regularisation, torque_rate_limit, line_tolerance,
-                      max_iter)
+    if form is None:
+        form = stage_form(params, guess.n_intervals, guess.degree, regularisation, torque_rate_limit, line_tolerance,
+                          max_iter)
     with blas_threads(1):
         free = solve_stage_form(form, params, form.point(guess, params), elbow, label="flexible, t_f free")
         if verbose:
