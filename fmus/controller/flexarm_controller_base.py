@@ -145,7 +145,9 @@ def _tracking_controller(data: str | None, mode: str, name: str, schedule: str, 
 
         gains = GainSchedule.load(name, schedule, directory=None if data is None else Path(data) / "gains")
     trajectory = default_trajectory_path() if data is None else Path(data) / "trajectory.npz"
-    learned = read_learned_feedforward(correction[0]).correction if correction[0] else None
+    # checked against this FMU's own slew: the shared package imported first may be another FMU's (its data folder
+    # the paper's slew, where this one carries a slew re-planned for a payload, fmu_build.learned.with_payload_data)
+    learned = read_learned_feedforward(correction[0], data).correction if correction[0] else None
     return TrackingController(trajectory, gains, mode=mode, saturation=(tau1_max, tau2_max), omega7=omega7,
                               feedforward_correction=learned)
 
