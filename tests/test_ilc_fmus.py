@@ -283,6 +283,24 @@ def test_the_ilc_page_is_its_committed_results(capsys):
     assert ilc_report.main(["--check"]) == 0, capsys.readouterr().err
 
 
+def test_the_ilc_report_refuses_to_drop_a_master_silently(tmp_path, capsys, monkeypatch):
+    """Without OMSimulator the report refuses (exit 2, naming the tool and the way out) before any run; with
+    --without-omsimulator its page says the tool was absent. Before, the column just went missing."""
+    from scenarios.reports import ilc_report
+
+    monkeypatch.setattr(ilc_report, "omsimulator", lambda: None)
+    assert ilc_report.main(["--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "OMSimulator is not installed" in err and "--without-omsimulator" in err
+    assert not (tmp_path / "out").exists()
+    record = json.loads(ilc_report.RESULTS.read_text())
+    record["masters_absent"] = ["omsimulator"]
+    page = ilc_report._render_from(record)
+    assert "OMSimulator was not installed on the machine that ran this report" in page
+    assert "was not installed" not in ilc_report._render_from({k: v for k, v in record.items()
+                                                              if k != "masters_absent"})
+
+
 def test_run_all_says_it_leaves_the_ilc_scenarios_out(capsys):
     """`run all` runs the single-run scenarios and says, in one line, which ILC scenarios it does not run (here it
     stops at once, refusing an unknown case, before running anything)."""

@@ -77,7 +77,7 @@ def _fmt(v, f="{:.3f}") -> str:
 
 
 def render(summary: dict, studies: list[tuple[str, dict]], floor: dict | None, lqg: dict | None = None,
-           masters: dict | None = None, replanned: dict | None = None) -> str:
+           masters: dict | None = None, replanned: dict | None = None, absent=()) -> str:
     rows = summary["trials"]
     ok = [r for r in rows if r.get("metrics")]
     met = lambda r, k: r["metrics"][k]  # noqa: E731
@@ -181,12 +181,12 @@ def render(summary: dict, studies: list[tuple[str, dict]], floor: dict | None, l
                    + f" | {held_text} | {s['stopped'] or 'no'} |")
     out += _render_lqg(lqg) if lqg else []
     out += render_replanned(replanned["replan"], replanned["identify"]) if replanned else []
-    out += _render_masters(masters) if masters else []
+    out += _render_masters(masters, absent) if masters else []
     out.append("")
     return "\n".join(out) + "\n"
 
 
-def _render_masters(masters: dict) -> list[str]:
+def _render_masters(masters: dict, absent=()) -> list[str]:
     """The section on each run's learned controller in other masters (:mod:`scenarios.ilc.masters`)."""
     from scenarios.ilc.masters import FIGURES, MASTER_NAMES, MASTERS, TOLERANCE, reproduces
 
@@ -199,7 +199,9 @@ def _render_masters(masters: dict) -> list[str]:
            "and the case's parameters (noise seed included) as the evaluation ran them, run with nothing set in "
            f"our master (the scenario's stepping), libcosim and Ecos (both Jacobi){beside}; rms "
            f"position ° / rms velocity °/s over the slew, ✗ where a figure is more than {100 * TOLERANCE:g} % from "
-           "the run's own (`scenarios/ilc/masters.py`).", "",
+           "the run's own (`scenarios/ilc/masters.py`)."
+           + ("".join(f" {names[m]} was not installed on the machine that ran this report: no column for it."
+                      for m in absent)), "",
            "| scenario | case | the run (learned) | " + " | ".join(names[m] for m in shown) + " |",
            "|---|---|---|" + "---|" * len(shown)]
     for scenario, res in masters.items():
@@ -296,7 +298,7 @@ def _render_from(record: dict) -> str:
     replanned = ({"replan": record["replan"], "identify": [(label, s) for label, s in record["identify"]]}
                  if record.get("replan") else None)
     return render(record["summary"], [(label, s) for label, s in record["studies"]], floor, record.get("lqg"),
-                  record.get("masters"), replanned)
+                  record.get("masters"), replanned, record.get("masters_absent", ()))
 
 
 def main(argv=None) -> int:
@@ -311,6 +313,9 @@ def main(argv=None) -> int:
     ap.add_argument("--render", action="store_true",
                     help="no runs: write the generated part of docs/ilc.md from docs/ilc_results.json and "
                          "docs/ilc_floor.json (after a change to the page's layout)")
+    ap.add_argument("--without-omsimulator", action="store_true",
+                    help="write the page without the OMSimulator column when OMSimulator is not installed (the "
+                         "page then says it was absent); without this the command refuses to run without it")
     args = ap.parse_args(argv)
     if refuse_outside_checkout("python -m scenarios.reports.ilc_report", "docs/ilc.md and docs/ilc_results.json", REPO):
         return 2
@@ -334,6 +339,12 @@ def main(argv=None) -> int:
             return 1
         print("docs/ilc.md: the generated part matches docs/ilc_results.json")
         return 0
+    absent = [] if omsimulator() is not None else ["omsimulator"]
+    if absent and not args.without_omsimulator:  # refused before 25 minutes of runs, not a page quietly narrower
+        print("ilc_report: OMSimulator is not installed (set FLEXARM_OMSIMULATOR to its command-line tool, or put "
+              "OMSimulator on the PATH); the page shows it beside the other masters. Install it, or pass "
+              "--without-omsimulator to write the page without that column (the page then says so)", file=sys.stderr)
+        return 2
     scenario, _ = load_ilc(SCENARIO)
     summary = run_ilc(SCENARIO, args.out, progress=lambda s: print(s, flush=True))
     summary["generated_utc"] = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
@@ -358,7 +369,7 @@ def main(argv=None) -> int:
     replanned = run_replanned(args.out, run_ilc, progress=lambda s: print(s, flush=True))
     replan, identify = replanned["replan"], replanned["identify"]
     print("== the learned controllers in other masters", flush=True)
-    shown = (*MASTERS, *(m for m in MORE_MASTERS if m != "omsimulator" or omsimulator() is not None))
+    shown = (*MASTERS, *(m for m in MORE_MASTERS if m not in absent))
     masters = {name: learned_in_masters(name, run, args.out / name, shown)
                for name, run in ((SCENARIO, summary), (LQG_SCENARIO, lqg), (REPLAN_SCENARIO, replan))
                if run.get("learned_controller")}
@@ -368,6 +379,8 @@ def main(argv=None) -> int:
                                   IDENTIFY_SCENARIO: identify[0][1]["scenario_sha256"]},
               "summary": _lean(summary), "studies": [[label, _lean(s)] for label, s in studies], "lqg": _lean(lqg),
               "replan": _lean(replan), "identify": [[label, _lean(s)] for label, s in identify], "masters": masters}
+    if absent:
+        record["masters_absent"] = absent
     write_atomic(RESULTS, (json.dumps(record, indent=1) + "\n").encode())
     head = DOC.read_text().split(MARKER)[0] if DOC.exists() else "# Iterative learning control\n\n"
     write_atomic(DOC, head + _render_from(record))
