@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
@@ -89,6 +90,18 @@ def native_with_payload_data(name: str, python_fmu: Path, data, out: Path) -> Pa
     return build_native_fmu(name, Path(python_fmu), out.parent, data_dir=data.folder, file_name=out.stem)
 
 
+def _with_stop_time(description: str, stop_time: float) -> str:
+    """modelDescription.xml with its DefaultExperiment's stopTime set to the slew's duration (a tool that runs the
+    FMU by its default experiment runs the re-planned slew, not the paper's). Only that attribute changes: the
+    variables, and so the GUID the binaries check, stay the original's."""
+    head, tag, rest = description.partition("<DefaultExperiment")
+    element, end, tail = rest.partition(">")
+    changed, n = re.subn(r'stopTime="[^"]*"', f'stopTime="{stop_time!r}"', element)
+    if not tag or n != 1:
+        raise ValueError("modelDescription.xml: no DefaultExperiment with one stopTime to set")
+    return head + tag + changed + end + tail
+
+
 def with_payload_data(fmu: Path, data, out: Path) -> Path:
     """Write to `out` a copy of the Python controller FMU `fmu` that runs on the payload data folder `data`.
 
@@ -146,12 +159,15 @@ def with_payload_data(fmu: Path, data, out: Path) -> Path:
         info["slew"] = dict(info["slew"], duration=round(float(data.manifest["t_f_s"]), 9))
         info["payload_data"] = {"payload_mass_kg": data.payload_mass,
                                 "trajectory_sha256": data.manifest["files"]["trajectory.npz"]}
+        description = _with_stop_time(src.read("modelDescription.xml").decode(), info["slew"]["duration"])
         out = Path(out)
         tmp = out.with_name(f".{out.name}.partial")
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as dst:
             for member in src.infolist():
                 if member.filename == "resources/flexarm_bundle.json":
                     dst.writestr(member, json.dumps(info, indent=1) + "\n")
+                elif member.filename == "modelDescription.xml":
+                    dst.writestr(member, description)
                 elif member.filename[len(own):] not in gone or not member.filename.startswith(own):
                     dst.writestr(member, src.read(member))
             for rel, body in sorted(new.items()):

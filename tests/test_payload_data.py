@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
 
@@ -141,6 +142,8 @@ def test_ilc_learns_on_the_slew_replanned_for_the_payload_through_the_fmus(paylo
         package = bundle["package"]
         assert z.read(f"resources/{package}/data/trajectory.npz") == data.trajectory_file.read_bytes()
         assert not [n for n in z.namelist() if f"/{package}/data/gains/dlqr-" in n]  # not left stale
+        experiment = ET.fromstring(z.read("modelDescription.xml")).find("DefaultExperiment")
+    assert float(experiment.get("stopTime")) == pytest.approx(data.trajectory().t_f, abs=1e-9)  # the slew's, not 2.058
     assert bundle["slew"]["duration"] == pytest.approx(data.trajectory().t_f, abs=1e-9)
     assert bundle["payload_data"]["trajectory_sha256"] == ref["trajectory_sha256"]
     # the learned controller alone, in a fresh master: the evaluation's learned run again
