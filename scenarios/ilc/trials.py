@@ -77,7 +77,9 @@ def trial_metrics(out: dict, setup, traj, n_slew: int, measured_error_norm: floa
     to_end = np.linalg.norm(tip - traj.tip[-1], axis=1)
     far = np.flatnonzero(to_end >= TIP_TOLERANCE_M)
     t_in = out["time"][far[-1] + 1] if len(far) and far[-1] + 1 < len(tip) else (0.0 if not len(far) else None)
-    limits = np.array([7.0, 2.25])
+    from flexarm.control import PEAK_TORQUE
+
+    limits = np.array(PEAK_TORQUE)
     return {
         **{f"slew_{k}": v for k, v in slew.items()},
         **{f"run_{k}": v for k, v in whole.items()},
@@ -110,12 +112,7 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
     refused input, :class:`scenarios.run.outdir.OutputError` for an unusable folder; a trial that ends unbounded
     or with an FMU error stops the learning (the journal keeps it) and is reported in the summary's ``stopped``.
     """
-    from flexarm import ilc
-    from flexarm.control import PEAK_TORQUE
-    from flexarm.ilc_trial import Safeguard
     from flexarm.payload_data import write_payload_data
-    from fmu_build.learned import LEARNING_CONTROLLERS, reads_learned_feedforward, with_learned_feedforward
-    from fmu_build.native_build import PAYLOAD_DATA_VARIANTS
 
     scenario, settings = load_ilc(name)
     if trials is not None:
@@ -127,174 +124,30 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
     with folder_lock(out, scenario.name):
         remove_stale(out, scenario.name, folder)
         check_writable(folder, 2_000_000 * (settings.trials + 2))
-        cases = {c.key: c for c in scenario.cases}
         setup = prepare(scenario, fmu_dir, kind=kind, native_fmu_dir=native_fmu_dir, trajectory=traj)
-        sensors = [inst for inst, md in setup.descriptions.items()
-                   if all(any(v.name == m for v in md.modelVariables) for m in MEASURED)]
-        ctrl = setup.driver
-        if not sensors:
-            raise ScenarioError(f"{scenario.path.name}: no FMU outputs the measurements {list(MEASURED)}")
-        md = setup.descriptions[ctrl]
-        if fmu_kind(md) == "other" or not reads_learned_feedforward(md.coSimulation.modelIdentifier):
-            raise ScenarioError(f"fmus.{ctrl}: {setup.paths[ctrl].name} does not read a learned feedforward; ILC "
-                                "runs need one of our controllers that does "
-                                f"({', '.join(LEARNING_CONTROLLERS)}, either kind)")
-        twin = Path(fmu_dir) / setup.paths[ctrl].name  # a native controller's Python twin (its interface)
-        if (settings.replan_payload_mass is not None or settings.identify_payload) and setup.kind == "native" and (
-                setup.paths[ctrl].stem not in PAYLOAD_DATA_VARIANTS or not twin.is_file()):
-            raise ScenarioError(f"fmus.{ctrl}: a re-planned slew is built into the native "
-                                f"{' or '.join(PAYLOAD_DATA_VARIANTS)} (from their Python twin in {fmu_dir}), not "
-                                f"{setup.paths[ctrl].name}")
+        sensor, ctrl, twin = _learning_instances(scenario, settings, setup, fmu_dir)
         data = None  # the slew re-planned for a known payload (flexarm.payload_data); None: the paper's, at first
         if settings.replan_payload_mass is not None:
             data = write_payload_data(settings.replan_payload_mass, folder / "payload_data", progress)
-        record = setup.record + [(sensors[0], m) for m in MEASURED if (sensors[0], m) not in setup.record]
-        n = setup.n_steps
-        journal = Journal(folder / "journal.jsonl")
-        records = journal.read()
-        trial_keys = sorted(k for k in records if k.startswith("trial-"))
-        if journal.tampered or trial_keys != [f"trial-{j:03d}" for j in range(len(trial_keys))]:
-            # each trial learns from the one before: an edited or missing line cannot be run again alone
-            raise ScenarioError(f"{journal.problems() or folder / 'journal.jsonl'}"
-                                f"{'' if journal.tampered else ': its trials are not consecutive'}; "
-                                "remove that folder or choose another --out")
-        config = _config_record(scenario, settings, setup, chain, data)
-        if records:
-            old = records.get("config", {})
-            same = {k: old.get(k) for k in config if k != "settings"} == {k: v for k, v in config.items()
-                                                                          if k != "settings"}
-            old_settings = dict(old.get("settings", {}), trials=settings.trials)
-            if not same or old_settings != settings.as_dict():
-                raise ScenarioError(f"{folder / 'journal.jsonl'}: written by another configuration (scenario "
-                                    "file, ILC settings, FMUs or data differ); remove that folder or choose "
-                                    "another --out")
-        else:
-            journal.append(config)
-        corrections = folder / "corrections"
-        corrections.mkdir(exist_ok=True)
-        commit = git_commit()
-        stopped = None
-        rows = [records[k] for k in sorted(k for k in records if k.startswith("trial-"))]
-        done = len(rows)
-        if done and rows[-1]["status"] != "ok":
-            stopped = f"trial {done - 1}: {rows[-1]['status']} ({rows[-1].get('message', '')})"
-        trial_fmus = folder / ".trial_fmus"  # the controller with each trial's correction (removed at the end)
-        trial_fmus.mkdir(exist_ok=True)
+        journal, rows = _open_journal(folder, _config_record(scenario, settings, setup, chain, data), settings)
         # identify_payload: trial 0 runs on the paper's slew, the payload is identified from it, the slew re-planned
         # for it, and the learning starts on that slew with trial 1 (no correction carried across slews)
         first = 1 if settings.identify_payload else 0  # the first trial the learning learns from
-        if first and done and rows[0].get("identified"):
+        if first and rows and rows[0].get("identified"):
             data = write_payload_data(rows[0]["identified"]["planned_for_kg"], folder / "payload_data", progress)
-        stage = make_stage(settings, setup, traj if data is None else data.trajectory(), data, setup.paths[ctrl],
-                           trial_fmus, twin)
-
-        def open_master(correction: str):
-            """A master whose controller carries `correction` ("" : none; a copy even then, so that a
-            controller FMU that already carried one runs without it)."""
-            fmu = with_learned_feedforward(stage.base, Path(correction) if correction else None,
-                                           trial_fmus / setup.paths[ctrl].name, stage.data_dir)
-            return dataclasses.replace(stage.setup, paths={**setup.paths, ctrl: fmu}).open_master(scenario.algorithm)
-
-        def correction_of(trial: int, file: str) -> np.ndarray:
-            """The correction trial `trial` ran with (none before the learning's first trial)."""
-            return np.zeros((n, 2)) if trial <= first else ilc.read_learned_feedforward(file, stage.data_dir).correction
-
-        guarded = [r["safeguard"] for r in rows if r.get("safeguard")]
-        guard = None if not guarded else Safeguard(guarded[-1]["base_trial"], guarded[-1]["lowest_norm_rad"],
-                                                   guarded[-1]["step"])
-        m = None
+        run = _Learning(scenario, settings, setup, sensor, ctrl, twin, folder, chain, first, progress)
+        run.stage = make_stage(settings, setup, traj if data is None else data.trajectory(), data, setup.paths[ctrl],
+                               run.trial_fmus, twin)
         try:
-            learn = cases[settings.learn_case]
-            if done:
-                progress(f"resuming {scenario.name} after trial {done - 1} ({folder / 'journal.jsonl'})")
-            progress(trial_header())
-            for row in rows:
-                progress(trial_line(row))
-            for j in range(done, settings.trials if stopped is None else done):
-                stem = corrections / f"trial_{j:03d}"
-                file = f"{stem}.npz" if j > first else ""
-                m = open_master(file)  # checks the correction this trial runs with
-                params = _with(learn.parameters, sensors[0], {"noise_seed": settings.seed_base + j, "noise_enabled":
-                                                    learn.parameters.get(sensors[0], {}).get("noise_enabled", True)})
-                t0 = time.perf_counter()
-                res = m.run(stage.setup.case_parameters(params), record, n, scenario.step_size)
-                wall = time.perf_counter() - t0
-                m.close()
-                m = None
-                row = {"key": f"trial-{j:03d}", "trial": j, "seed": settings.seed_base + j, "status": res["status"],
-                       "message": res["message"], "wall_time_s": wall, "correction_file": checkout_relative(Path(file))
-                       if file else "", "commit": commit, "reference": stage.reference()}
-                if res["status"] == "ok":
-                    sig = res["signals"]
-                    meas = np.column_stack([sig[f"{sensors[0]}.{v}"] for v in MEASURED])
-                    err = ilc.measured_errors(meas[:, :2], meas[:, 2:], stage.traj)
-                    row["metrics"] = trial_metrics(res, stage.setup, stage.traj, stage.n_slew,
-                                                   float(np.linalg.norm(err)))
-                    if j < first:  # identify the payload from this trial, re-plan, and learn on that slew from now on
-                        row["identified"] = identified = identified_payload(res, stage, sensors[0])
-                        progress(f"identified payload {identified['payload_mass_kg']:.4f} kg (rms residual "
-                                 f"{identified['rms_residual_deg']:.4f}°); re-planning the slew for "
-                                 f"{identified['planned_for_kg']:g} kg")
-                        data = write_payload_data(identified["planned_for_kg"], folder / "payload_data", progress)
-                        stage = make_stage(settings, setup, data.trajectory(), data, setup.paths[ctrl], trial_fmus,
-                                           twin)
-                    else:
-                        u = correction_of(j, file)
-                        if not settings.safeguard:
-                            nxt = stage.law.update(u, err, stage.feedforward, PEAK_TORQUE)
-                        else:  # flexarm.ilc_trial.Safeguard: no update kept that makes the measured error worse
-                            np.save(corrections / f"errors_{j:03d}.npy", err)  # an update may start here again
-                            norm = row["metrics"]["measured_error_2norm_rad"]
-                            guard, lowest = (Safeguard(j, norm), True) if guard is None else guard.after(j, norm)
-                            row["safeguard"] = {"new_lowest": lowest, **guard.as_dict()}
-                            b = guard.base_trial
-                            u_b = u if b == j else correction_of(b, f"{corrections / f'trial_{b:03d}'}.npz")
-                            e_b = err if b == j else np.load(corrections / f"errors_{b:03d}.npy")
-                            nxt = guard.next_correction(u_b, stage.law.update(u_b, e_b, stage.feedforward,
-                                                                              PEAK_TORQUE))
-                        meta = dict(_learned_metadata(scenario, settings, chain, commit, stage.data),
-                                    trials_learned_from=j + 1 - first,
-                                    last_trial={"trial": j, "seed": settings.seed_base + j, **row["metrics"]})
-                        ilc.write_learned_feedforward(corrections / f"trial_{j + 1:03d}", nxt, stage.model.dt, meta)
-                else:
-                    stopped = f"trial {j}: {res['status']} ({res['message']})"
-                journal.append(row)
-                rows.append(row)
-                progress(trial_line(row))
-                if stopped:
-                    break
-            evaluation = {}
-            final = corrections / f"trial_{len(rows):03d}.npz"
-            if stopped is None and final.is_file():
-                write_atomic(folder / "learned_feedforward.npz", final.read_bytes())
-                write_atomic(folder / "learned_feedforward.json", (corrections / f"trial_{len(rows):03d}.json")
-                             .read_bytes())
-                with_learned_feedforward(stage.base, folder / "learned_feedforward.npz", folder / LEARNED_CONTROLLER,
-                                         stage.data_dir)
-                n_eval = settings.evaluate_samples
-                des_eval = desired_states(stage.traj, np.arange(n_eval + 1) * scenario.step_size)
-                for key in settings.evaluate_cases:
-                    case = cases[key]
-                    params = _with(case.parameters, sensors[0], {"noise_seed": settings.seed_base + len(rows)})
-                    evaluation[key] = {"parameters": params}  # as run: scenarios.ilc.masters runs them again
-                    for label, file in (("unlearned", ""), ("learned", str(final))):
-                        m = open_master(file)
-                        res = m.run(stage.setup.case_parameters(params), record, n_eval, scenario.step_size)
-                        m.close()
-                        m = None
-                        evaluation[key][label] = {"status": res["status"], "message": res["message"]}
-                        if res["status"] == "ok":
-                            evaluation[key][label]["metrics"] = trial_metrics(res, stage.setup, stage.traj,
-                                                                              stage.n_slew, float("nan"), des_eval)
+            stopped = run.trials(rows, journal)
+            evaluation = run.evaluate(len(rows)) if stopped is None else {}
         finally:
             journal.close()
-            if m is not None:
-                m.close()
-            shutil.rmtree(trial_fmus, ignore_errors=True)
-        summary = {"scenario": scenario.name, "scenario_sha256": sha256_file(scenario.path), "commit": commit,
-                   "settings": settings.as_dict(), "fmu_kind": setup.kind, "reference": stage.reference(),
+            run.close()
+        summary = {"scenario": scenario.name, "scenario_sha256": sha256_file(scenario.path), "commit": run.commit,
+                   "settings": settings.as_dict(), "fmu_kind": setup.kind, "reference": run.stage.reference(),
                    "fmu_sha256": {i: sha256_file(p) for i, p in setup.paths.items()}, "data_sha256": chain,
-                   "samples": n, "slew_samples": stage.n_slew, "trials": rows, "stopped": stopped,
+                   "samples": setup.n_steps, "slew_samples": run.stage.n_slew, "trials": rows, "stopped": stopped,
                    "evaluation": evaluation}
         if first and rows and rows[0].get("identified"):
             summary["identified"] = rows[0]["identified"]
@@ -306,6 +159,211 @@ def run_ilc(name, out_dir: Path, fmu_dir: Path = DEFAULT_FMU_DIR, kind: str | No
         if plots and rows:
             plot_convergence(rows, folder / "convergence.png", scenario.name)
     return summary
+
+
+def _learning_instances(scenario, settings, setup, fmu_dir: Path) -> tuple[str, str, Path]:
+    """(the sensors instance, the controller instance, a native controller's Python twin); ScenarioError for a set
+    of FMUs the learning cannot run on."""
+    from fmu_build.learned import LEARNING_CONTROLLERS, reads_learned_feedforward
+    from fmu_build.native_build import PAYLOAD_DATA_VARIANTS
+
+    sensors = [inst for inst, md in setup.descriptions.items()
+               if all(any(v.name == m for v in md.modelVariables) for m in MEASURED)]
+    ctrl = setup.driver
+    if not sensors:
+        raise ScenarioError(f"{scenario.path.name}: no FMU outputs the measurements {list(MEASURED)}")
+    md = setup.descriptions[ctrl]
+    if fmu_kind(md) == "other" or not reads_learned_feedforward(md.coSimulation.modelIdentifier):
+        raise ScenarioError(f"fmus.{ctrl}: {setup.paths[ctrl].name} does not read a learned feedforward; ILC "
+                            "runs need one of our controllers that does "
+                            f"({', '.join(LEARNING_CONTROLLERS)}, either kind)")
+    twin = Path(fmu_dir) / setup.paths[ctrl].name  # a native controller's Python twin (its interface)
+    if (settings.replan_payload_mass is not None or settings.identify_payload) and setup.kind == "native" and (
+            setup.paths[ctrl].stem not in PAYLOAD_DATA_VARIANTS or not twin.is_file()):
+        raise ScenarioError(f"fmus.{ctrl}: a re-planned slew is built into the native "
+                            f"{' or '.join(PAYLOAD_DATA_VARIANTS)} (from their Python twin in {fmu_dir}), not "
+                            f"{setup.paths[ctrl].name}")
+    return sensors[0], ctrl, twin
+
+
+def _open_journal(folder: Path, config: dict, settings) -> tuple[Journal, list[dict]]:
+    """The run's journal and the trials it holds; ScenarioError for an edited, gapped or foreign journal."""
+    journal = Journal(folder / "journal.jsonl")
+    records = journal.read()
+    trial_keys = sorted(k for k in records if k.startswith("trial-"))
+    if journal.tampered or trial_keys != [f"trial-{j:03d}" for j in range(len(trial_keys))]:
+        # each trial learns from the one before: an edited or missing line cannot be run again alone
+        raise ScenarioError(f"{journal.problems() or folder / 'journal.jsonl'}"
+                            f"{'' if journal.tampered else ': its trials are not consecutive'}; "
+                            "remove that folder or choose another --out")
+    if records:
+        old = records.get("config", {})
+        same = {k: old.get(k) for k in config if k != "settings"} == {k: v for k, v in config.items()
+                                                                      if k != "settings"}
+        old_settings = dict(old.get("settings", {}), trials=settings.trials)
+        if not same or old_settings != settings.as_dict():
+            raise ScenarioError(f"{folder / 'journal.jsonl'}: written by another configuration (scenario "
+                                "file, ILC settings, FMUs or data differ); remove that folder or choose "
+                                "another --out")
+    else:
+        journal.append(config)
+    return journal, [records[k] for k in trial_keys]
+
+
+class _Learning:
+    """One ILC run's trials and evaluation: the slew in force (:attr:`stage`, switched once when the payload is
+    identified), the controller copies each trial runs with, the corrections and the safeguard."""
+
+    def __init__(self, scenario, settings, setup, sensor: str, ctrl: str, twin: Path, folder: Path, chain: dict,
+                 first: int, progress):
+        self.scenario, self.settings, self.setup, self.sensor, self.ctrl, self.twin = (scenario, settings, setup,
+                                                                                       sensor, ctrl, twin)
+        self.folder, self.chain, self.first, self.progress = folder, chain, first, progress
+        self.cases = {c.key: c for c in scenario.cases}
+        self.record = setup.record + [(sensor, m) for m in MEASURED if (sensor, m) not in setup.record]
+        self.corrections = folder / "corrections"
+        self.corrections.mkdir(exist_ok=True)
+        self.trial_fmus = folder / ".trial_fmus"  # the controller with each trial's correction (removed at the end)
+        self.trial_fmus.mkdir(exist_ok=True)
+        self.commit = git_commit()
+        self.stage = None
+        self.guard = None
+        self._master = None
+
+    def close(self) -> None:
+        if self._master is not None:
+            self._master.close()
+            self._master = None
+        shutil.rmtree(self.trial_fmus, ignore_errors=True)
+
+    def _run(self, correction: str, parameters: dict, n: int) -> dict:
+        """One run of the FMUs, the controller carrying `correction` ("": none; a copy even then, so that a
+        controller FMU that already carried one runs without it)."""
+        from fmu_build.learned import with_learned_feedforward
+
+        fmu = with_learned_feedforward(self.stage.base, Path(correction) if correction else None,
+                                       self.trial_fmus / self.setup.paths[self.ctrl].name, self.stage.data_dir)
+        self._master = dataclasses.replace(self.stage.setup, paths={**self.setup.paths, self.ctrl: fmu}).open_master(
+            self.scenario.algorithm)  # opening checks the correction it runs with
+        t0 = time.perf_counter()
+        res = self._master.run(self.stage.setup.case_parameters(parameters), self.record, n, self.scenario.step_size)
+        res["wall_time_s"] = time.perf_counter() - t0  # the run alone, as a trial's line reports it
+        self._master.close()
+        self._master = None
+        return res
+
+    def correction_of(self, trial: int, file: str) -> np.ndarray:
+        """The correction trial `trial` ran with (none before the learning's first trial)."""
+        from flexarm import ilc
+
+        return (np.zeros((self.setup.n_steps, 2)) if trial <= self.first
+                else ilc.read_learned_feedforward(file, self.stage.data_dir).correction)
+
+    def trials(self, rows: list[dict], journal: Journal) -> str | None:
+        """Run the trials after those in `rows` (appended to it and to the journal); what stopped them, or None."""
+        settings, progress = self.settings, self.progress
+        done = len(rows)
+        stopped = (f"trial {done - 1}: {rows[-1]['status']} ({rows[-1].get('message', '')})"
+                   if done and rows[-1]["status"] != "ok" else None)
+        guarded = [r["safeguard"] for r in rows if r.get("safeguard")]
+        if guarded:
+            from flexarm.ilc_trial import Safeguard
+
+            self.guard = Safeguard(guarded[-1]["base_trial"], guarded[-1]["lowest_norm_rad"], guarded[-1]["step"])
+        learn = self.cases[settings.learn_case]
+        if done:
+            progress(f"resuming {self.scenario.name} after trial {done - 1} ({self.folder / 'journal.jsonl'})")
+        progress(trial_header())
+        for row in rows:
+            progress(trial_line(row))
+        for j in range(done, settings.trials if stopped is None else done):
+            file = f"{self.corrections / f'trial_{j:03d}'}.npz" if j > self.first else ""
+            params = _with(learn.parameters, self.sensor, {"noise_seed": settings.seed_base + j, "noise_enabled":
+                                                           learn.parameters.get(self.sensor, {}).get("noise_enabled",
+                                                                                                     True)})
+            res = self._run(file, params, self.setup.n_steps)
+            row = {"key": f"trial-{j:03d}", "trial": j, "seed": settings.seed_base + j, "status": res["status"],
+                   "message": res["message"], "wall_time_s": res["wall_time_s"],
+                   "correction_file": checkout_relative(Path(file)) if file else "", "commit": self.commit,
+                   "reference": self.stage.reference()}
+            if res["status"] == "ok":
+                self._learn(j, file, res, row)
+            else:
+                stopped = f"trial {j}: {res['status']} ({res['message']})"
+            journal.append(row)
+            rows.append(row)
+            progress(trial_line(row))
+            if stopped:
+                break
+        return stopped
+
+    def _learn(self, j: int, file: str, res: dict, row: dict) -> None:
+        """Score trial `j` into `row`, then identify and re-plan (before the learning's first trial) or write the
+        next trial's correction."""
+        from flexarm import ilc
+        from flexarm.control import PEAK_TORQUE
+
+        stage, corrections = self.stage, self.corrections
+        sig = res["signals"]
+        meas = np.column_stack([sig[f"{self.sensor}.{v}"] for v in MEASURED])
+        err = ilc.measured_errors(meas[:, :2], meas[:, 2:], stage.traj)
+        row["metrics"] = trial_metrics(res, stage.setup, stage.traj, stage.n_slew, float(np.linalg.norm(err)))
+        if j < self.first:  # identify the payload from this trial, re-plan, and learn on that slew from now on
+            from flexarm.payload_data import write_payload_data
+
+            row["identified"] = identified = identified_payload(res, stage, self.sensor)
+            self.progress(f"identified payload {identified['payload_mass_kg']:.4f} kg (rms residual "
+                          f"{identified['rms_residual_deg']:.4f}°); re-planning the slew for "
+                          f"{identified['planned_for_kg']:g} kg")
+            data = write_payload_data(identified["planned_for_kg"], self.folder / "payload_data", self.progress)
+            self.stage = make_stage(self.settings, self.setup, data.trajectory(), data, self.setup.paths[self.ctrl],
+                                    self.trial_fmus, self.twin)
+            return
+        u = self.correction_of(j, file)
+        if not self.settings.safeguard:
+            nxt = stage.law.update(u, err, stage.feedforward, PEAK_TORQUE)
+        else:  # flexarm.ilc_trial.Safeguard: no update kept that makes the measured error worse
+            from flexarm.ilc_trial import Safeguard
+
+            np.save(corrections / f"errors_{j:03d}.npy", err)  # an update may start here again
+            norm = row["metrics"]["measured_error_2norm_rad"]
+            self.guard, lowest = (Safeguard(j, norm), True) if self.guard is None else self.guard.after(j, norm)
+            row["safeguard"] = {"new_lowest": lowest, **self.guard.as_dict()}
+            b = self.guard.base_trial
+            u_b = u if b == j else self.correction_of(b, f"{corrections / f'trial_{b:03d}'}.npz")
+            e_b = err if b == j else np.load(corrections / f"errors_{b:03d}.npy")
+            nxt = self.guard.next_correction(u_b, stage.law.update(u_b, e_b, stage.feedforward, PEAK_TORQUE))
+        meta = dict(_learned_metadata(self.scenario, self.settings, self.chain, self.commit, stage.data),
+                    trials_learned_from=j + 1 - self.first,
+                    last_trial={"trial": j, "seed": self.settings.seed_base + j, **row["metrics"]})
+        ilc.write_learned_feedforward(corrections / f"trial_{j + 1:03d}", nxt, stage.model.dt, meta)
+
+    def evaluate(self, n_trials: int) -> dict:
+        """The final correction written out and packed into ``learned_controller.fmu``, and each evaluation case run
+        without and with it ({} when no trial wrote one)."""
+        from fmu_build.learned import with_learned_feedforward
+
+        folder, stage, settings = self.folder, self.stage, self.settings
+        final = self.corrections / f"trial_{n_trials:03d}.npz"
+        if not final.is_file():
+            return {}
+        write_atomic(folder / "learned_feedforward.npz", final.read_bytes())
+        write_atomic(folder / "learned_feedforward.json", final.with_suffix(".json").read_bytes())
+        with_learned_feedforward(stage.base, folder / "learned_feedforward.npz", folder / LEARNED_CONTROLLER,
+                                 stage.data_dir)
+        n_eval = settings.evaluate_samples
+        des_eval = desired_states(stage.traj, np.arange(n_eval + 1) * self.scenario.step_size)
+        evaluation = {}
+        for key in settings.evaluate_cases:
+            params = _with(self.cases[key].parameters, self.sensor, {"noise_seed": settings.seed_base + n_trials})
+            evaluation[key] = {"parameters": params}  # as run: scenarios.ilc.masters runs them again
+            for label, file in (("unlearned", ""), ("learned", str(final))):
+                res = self._run(file, params, n_eval)
+                evaluation[key][label] = {"status": res["status"], "message": res["message"]}
+                if res["status"] == "ok":
+                    evaluation[key][label]["metrics"] = trial_metrics(res, stage.setup, stage.traj, stage.n_slew,
+                                                                      float("nan"), des_eval)
+        return evaluation
 
 
 def _with(parameters: dict, inst: str, values: dict) -> dict:
