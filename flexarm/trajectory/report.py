@@ -205,12 +205,22 @@ def main(argv=None) -> int:
                     help="also solve with stator mass and rotor-2 inertia at ±20 %% (stored in the metadata)")
     ap.add_argument("--quiet", action="store_true", help="no IPOPT output")
     ap.add_argument("--replan", action="store_true",
-                    help="re-plan with FATROP from the committed file (its grid) instead of a cold IPOPT solve: "
-                         "about half a minute; needs --out (the committed file stays the unloaded slew)")
+                    help="re-plan with FATROP from the committed file (its grid) instead of a cold IPOPT solve; "
+                         "needs --out (the committed file stays the unloaded slew)")
+    ap.add_argument("--fatrop", action="store_true",
+                    help="the cold solve with FATROP after IPOPT's rigid warm-up (lands on the committed file to the "
+                         "solvers' tolerance; the default IPOPT solve reproduces it exactly)")
     args = ap.parse_args(argv)
+    if args.replan and args.fatrop:
+        ap.error("--replan already solves with FATROP (from the committed file); --fatrop is for a cold solve")
     if args.replan and Path(args.out).resolve() == Path(DEFAULT_TRAJECTORY_FILE).resolve():
         ap.error("--replan: give --out FILE; the committed file is the start of every re-plan and stays as it is")
-    from .solve import replan_minimum_time, sensitivity, solve_minimum_time  # CasADi: only when solving
+    from .solve import (  # CasADi: only when solving
+        replan_minimum_time,
+        sensitivity,
+        solve_minimum_time,
+        solve_minimum_time_fatrop,
+    )
 
     try:
         params = load_parameters(args.params, payload_mass=args.payload)
@@ -218,8 +228,8 @@ def main(argv=None) -> int:
             result = replan_minimum_time(params, load_trajectory(), args.intervals, args.degree,
                                          verbose=not args.quiet)
         else:
-            result = solve_minimum_time(params, n_intervals=args.intervals, degree=args.degree,
-                                        verbose=not args.quiet)
+            solve = solve_minimum_time_fatrop if args.fatrop else solve_minimum_time
+            result = solve(params, n_intervals=args.intervals, degree=args.degree, verbose=not args.quiet)
         replay = annotate_with_replay(result, params)
         sens = None
         if args.sensitivity:

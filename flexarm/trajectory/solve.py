@@ -206,6 +206,40 @@ def replan_minimum_time(params: ArmParameters, warm_start: TrajectoryResult | Co
                    regularisation, elbow, line_tolerance, torque_rate_limit)
 
 
+def solve_minimum_time_fatrop(params: ArmParameters | None = None, n_intervals: int = 200, degree: int = 5,
+                              verbose: bool = False, elbow: int = 1, regularisation: float = DEFAULT_REGULARISATION,
+                              rigid_intervals: int = 60, max_iter: int = 300, line_tolerance: float = LINE_TOLERANCE,
+                              torque_rate_limit: float = TORQUE_RATE_LIMIT) -> TrajectoryResult:
+    """The cold solve with FATROP: IPOPT's rigid warm-up, interpolated onto the flexible grid, then FATROP's two
+    stages as in :func:`replan_minimum_time` (free t_f, then t_f rounded up to a whole ms).
+
+    The same NLP as :func:`solve_minimum_time`, which made the committed file and reproduces it exactly; this one
+    lands on it to the solvers' tolerance (``tests/test_trajectory_replan.py``) at a fraction of the CPU time
+    (``benchmarks/bench_trajectory.py`` prints both). Parameters as :func:`solve_minimum_time`.
+
+    Raises
+    ------
+    TrajectoryError
+        A stage did not converge.
+    """
+    from .warm import flexible_guess
+
+    params = params if params is not None else load_parameters()
+    t_start = time.perf_counter()
+    with blas_threads(1):
+        rigid = solve_collocation(params, RIGID_GROUPS, rigid_intervals, 3, label="rigid two-link", elbow=elbow,
+                                  regularisation=regularisation, verbose=verbose, max_iter=max_iter,
+                                  line_tolerance=line_tolerance, torque_rate_limit=torque_rate_limit)
+    result = replan_minimum_time(params, flexible_guess(rigid, n_intervals, degree), verbose=verbose, elbow=elbow,
+                                 regularisation=regularisation, max_iter=max_iter, line_tolerance=line_tolerance,
+                                 torque_rate_limit=torque_rate_limit)
+    solver = result.metadata["solver"]
+    solver.update(name=f"{solver['name']}, after IPOPT's rigid warm-up", stages=[rigid.stats, *solver["stages"]],
+                  iterations=solver["iterations"] + rigid.stats["iterations"],
+                  solve_time_s=time.perf_counter() - t_start)
+    return result
+
+
 def _result(params, free: CollocationSolution, fixed: CollocationSolution, stages: list[dict], total: float,
             solver: str, method: str, regularisation: float, elbow: int, line_tolerance: float,
             torque_rate_limit) -> TrajectoryResult:

@@ -98,6 +98,23 @@ def solution_from_trajectory(result: TrajectoryResult, params: ArmParameters) ->
                                stats={"label": "rebuilt from the 1 ms file", "t_fixed": t_f})
 
 
+def flexible_guess(sol: CollocationSolution, n_intervals: int, degree: int) -> CollocationSolution:
+    """Any collocation solution (the rigid warm-up's) interpolated onto the flexible grid, as a start for FATROP.
+
+    The element angles, rates and accelerations at the new grid's points and the torque at its nodes, linearly
+    interpolated in normalised time (:meth:`CollocationSolution.interpolate`); no multipliers. Groups: the flexible
+    model's (the rigid solution's links are straight: no deformation to start from).
+    """
+    N, d = int(n_intervals), int(degree)
+    tau_c, _ = _radau(d)
+    s = np.concatenate([[0.0], (np.repeat(np.arange(N), d) + np.tile(tau_c[1:], N)) / N])
+    at = sol.interpolate(s)
+    return CollocationSolution(groups=tuple(FLEX_GROUPS), n_intervals=N, degree=d, t_f=sol.t_f, s=s,
+                               theta=at["theta"], omega=at["omega"], alpha=at["alpha"],
+                               u=sol.interpolate(np.linspace(0.0, 1.0, N + 1))["u"], x=None, lam_x=None, lam_g=None,
+                               stats={"label": f"interpolated from '{sol.stats.get('label', 'a solution')}'"})
+
+
 def nlp_residuals(params: ArmParameters, sol: CollocationSolution, regularisation: float = DEFAULT_REGULARISATION,
                   torque_rate_limit: float | None = TORQUE_RATE_LIMIT) -> dict:
     """The collocation NLP's constraints evaluated at a solution (no solve: one function evaluation).
