@@ -6,6 +6,8 @@ returns the motor torques::
 
     τ = sat( τ_ff(t) − K(t) · (x̂ − x̂_d(t)) )
 
+(its arithmetic: :mod:`flexarm.control_law`, from which the native FMUs' C is generated)
+
 * x̂: the 11 angles reconstructed from q and ε (eqs. 21-31, rigid brackets,
   :func:`flexarm.model.reconstruct_angles`) and two velocities (below); the
   other nine velocity entries are not measured and are not fed back (their
@@ -40,6 +42,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import control_law as law
 from .gain_schedule import GainSchedule, as_trajectory, desired_states, sample_time
 from .lqr_design import OMEGA7_CHOICES
 from .model import ArmModel, N, joint_angles, joint_velocities, reconstruct_angles, strain_gauge_angles
@@ -126,13 +129,14 @@ class TrackingController:
         # x̂ = E m, so x̂ − x̂_d[k] = E m − x̂_d[k], and the law is one small mat-vec per sample.
         self._estimator = _estimator_matrix(omega7)
         m_d = np.column_stack([self._q_d, self._qdot_d, eps_d])
-        self._x_hat_d = m_d @ self._estimator.T
+        self._x_hat_d = law.reconstructed_states(m_d, self._estimator)
         if schedule is not None:
             self._gain_index = np.array([schedule.index_at(k * self.dt) for k in range(self.n_steps + 1)])
             self._gains = schedule.reduced_gains()
-            self._gains_per_measurement = np.array([g @ self._estimator for g in self._gains])
+            self._gains_per_measurement = np.array([law.gain_on_measurements(g, self._estimator)
+                                                    for g in self._gains])
             # K(k) x̂_d[k] per sample: the law is τ = τ_ff − K E m + K x̂_d (no per-sample product).
-            self._gain_offsets = np.einsum("kij,kj->ki", self._gains[self._gain_index], self._x_hat_d)
+            self._gain_offsets = law.gain_offsets(self._gains[self._gain_index], self._x_hat_d)
 
     # -- trajectory lookup --------------------------------------------------------------
     def sample_index(self, t: float) -> int:
@@ -218,13 +222,12 @@ class TrackingController:
 
     def _torque(self, k: int, m) -> np.ndarray:
         tau = self.feedforward(k)
-        if m is not None:
-            kc = self._clamped(k)
-            # K (E m − x̂_d) with K E and K x̂_d precomputed; equal to K @ error_estimate(...) up to rounding.
-            tau -= self._gains_per_measurement[self._gain_index[kc]] @ m - self._gain_offsets[kc]
-        if self.saturation is not None:
-            tau = np.minimum(np.maximum(tau, -self.saturation), self.saturation)  # np.clip, without its overhead
-        return tau
+        if m is None:
+            return tau if self.saturation is None else law.saturate(tau, self.saturation)
+        kc = self._clamped(k)
+        # K (E m − x̂_d) with K E and K x̂_d precomputed; equal to K @ error_estimate(...) up to rounding.
+        return law.tracking_torque(tau, self._gains_per_measurement[self._gain_index[kc]], m,
+                                   self._gain_offsets[kc], self.saturation)
 
     def torque(self, t: float, q, qdot, strain) -> np.ndarray:
         """Motor torques at time t (s), N·m, shape (2,); t is rounded to the sample grid."""

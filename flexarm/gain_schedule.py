@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import scipy
 
+from .control_law import has_switched
 from .gain_sets import DISCRETE_PREFIX, GainError, canonical_name, state_weight
 from .lqr_design import DEFAULT_DT, MEASURED_VELOCITY_STATES, R_PAPER, design_gain, reduce_gain
 from .model import N_STATE, ArmModel, N
@@ -130,8 +131,12 @@ def default_trajectory_path() -> Path:
 
 # -- schedules -----------------------------------------------------------------------------
 def schedule_index(times, t: float) -> int:
-    """Index of the schedule point in force at time t (s): point k covers [t_k, t_k+1); the first before t_0."""
-    return max(int(np.searchsorted(times, t + 1e-9, side="right")) - 1, 0)
+    """Index of the schedule point in force at time t (s): point k covers [t_k, t_k+1); the first before t_0.
+
+    `times` ascending; the rule is :func:`flexarm.control_law.has_switched` (the native FMUs' C is generated from
+    it), counted over the points after the first.
+    """
+    return int(np.count_nonzero(has_switched(np.asarray(times, dtype=float)[1:], t)))
 
 
 def operating_times(duration: float, schedule: str, dt: float = DEFAULT_DT) -> np.ndarray:

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import control_law
 from .gain_schedule import as_trajectory, desired_states, sample_time
 from .lqg_design import LqgDesign, transient_gains
 from .model import N_STATE
@@ -250,7 +251,7 @@ class LqgController:
         i_k = self._index[self._c(k)]
         ff = self.feedforward(k)
         tau_free = ff + correction_at(self.correction, k) - self._K[i_k] @ x_now - self._K_xi[i_k] @ state.xi
-        tau = np.minimum(np.maximum(tau_free, -self.saturation), self.saturation)
+        tau = control_law.saturate(tau_free, self.saturation)
         xi = state.xi
         if self.integral_action and np.array_equal(tau, tau_free):
             xi = xi + self.dt * (self._Cq @ x_now)
@@ -262,6 +263,8 @@ class LqgController:
 #: (:class:`PredictedTracking`): large enough that the first samples' estimate follows the measurements. The
 #: velocity error it gives is flat from about 1e4 to 1e9 (``benchmarks/study_paper_law_delay.py``).
 PREDICTOR_PRIOR = 1e6
+#: The predicting law's offset: its feedback acts on the predicted deviation C x̂, already about the trajectory.
+_NO_OFFSET = np.zeros(2)
 
 
 class PredictedTracking:
@@ -327,9 +330,8 @@ class PredictedTracking:
         m = check_sample_input(state.k, k, measurements)
         x_post, x_now = self.filter.estimate(state, k, m)
         # the paper's law on the measurement predicted for k, m_d(k) + C x̂_k: its reconstruction, its gains
-        tau = self.law.feedforward(k) - self.law.gain_per_measurement(k) @ (self.filter.design.C @ x_now)
-        if self.law.saturation is not None:
-            tau = np.minimum(np.maximum(tau, -self.law.saturation), self.law.saturation)
+        tau = control_law.tracking_torque(self.law.feedforward(k), self.law.gain_per_measurement(k),
+                                          self.filter.design.C @ x_now, _NO_OFFSET, self.law.saturation)
         du = np.vstack([state.du[1:], tau - self.filter.feedforward(k)])  # about the nominal feedforward
         return tau, LqgState(k + 1, x_post, du, state.xi, True)
 

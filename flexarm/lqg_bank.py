@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import control_law
 from .gain_schedule import (
     GainError,
     as_trajectory,
@@ -484,7 +485,7 @@ class BankController:
             u = u + self._K_xi[i_k] @ state.xi
         x_sel = weights @ x_now
         tau_free = ff + correction_at(self.correction, k) - weights @ u
-        tau = np.minimum(np.maximum(tau_free, -self.saturation), self.saturation)
+        tau = control_law.saturate(tau_free, self.saturation)
         xi = state.xi
         if self.integral_action and np.array_equal(tau, tau_free):
             xi = xi + self.dt * (self._Cq @ x_sel)

@@ -57,6 +57,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import sensor_law as law
 from .model import ArmModel, joint_angles, joint_velocities, strain_gauge_angles
 from .parameters import N_ELEMENTS, STRAIN_GAUGE_ELEMENTS, ArmParameters
 from .sensor_settings import DEFAULT_SENSOR_FILE as DEFAULT_SENSOR_FILE  # re-exported: the settings' own module
@@ -140,7 +141,7 @@ def quantize(x, lsb, lo_code: float = -np.inf, hi_code: float = np.inf) -> np.nd
     ndarray
         ``code × lsb`` (|error| ≤ lsb/2 inside the range).
     """
-    return np.clip(np.round(np.asarray(x, dtype=float) / lsb), lo_code, hi_code) * lsb
+    return law.quantize(np.asarray(x, dtype=float), lsb, lo_code, hi_code)
 
 
 def true_signals_from_state(model: ArmModel, z, tau) -> np.ndarray:
@@ -195,16 +196,13 @@ class _LowPassBank:
         self.state = np.zeros((self.sos.shape[0], n_channels, 2))
 
     def prime(self, x: np.ndarray) -> None:
-        self.state = self.zi_unit[:, None, :] * x[None, :, None]
+        self.state = law.primed_state(self.zi_unit[:, None, :], x[None, :, None])
 
     def step(self, x: np.ndarray) -> np.ndarray:
         y = x
-        for k, (b0, b1, b2, _, a1, a2) in enumerate(self.sos):
+        for k, sos in enumerate(self.sos):
             s = self.state[k]
-            x_k = y
-            y = b0 * x_k + s[:, 0]
-            s[:, 0] = b1 * x_k - a1 * y + s[:, 1]
-            s[:, 1] = b2 * x_k - a2 * y
+            y, s[:, 0], s[:, 1] = law.filter_section(sos, s[:, 0], s[:, 1], y)
         return y
 
 
@@ -328,7 +326,7 @@ class SensorBank:
         # the seed and the sample index only, never on the other settings.
         u = self._rng.random(N_SIGNALS)
         if s.noise_enabled:
-            y += self.noise_amplitude * (2.0 * u - 1.0)
+            y = law.with_noise(y, self.noise_amplitude, u)
         if s.encoder_quantization:
             y[ENCODERS] = quantize(y[ENCODERS], self.encoder_lsb)
         if s.adc_quantization:

@@ -58,8 +58,8 @@ def _newest_source() -> float:
     files = [p for p in NATIVE_SOURCES.rglob("*") if p.is_file() and "__pycache__" not in p.parts]
     files += [p for p in FLEXARM_DIR.rglob("*") if p.is_file() and "__pycache__" not in p.parts]
     here = Path(__file__).parent  # this module and the build, code generation and resource writers beside it
-    files += [here / f for f in ("native.py", "native_build.py", "native_codegen.py", "native_description.py",
-                                  "native_resources.py")]
+    files += [here / f for f in ("native.py", "native_build.py", "native_codegen.py", "law_codegen.py",
+                                  "native_description.py", "native_resources.py")]
     return max(p.stat().st_mtime for p in files)
 
 

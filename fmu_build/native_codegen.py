@@ -188,8 +188,8 @@ def generate_physics(out_dir: Path, params: ArmParameters | None = None) -> list
     for f in functions:
         gen.add(f)
     gen.generate(str(out_dir) + "/")
-    _check_no_library_math(out_dir / "flexarm_physics.c")
-    _drop_null_checks(out_dir / "flexarm_physics.c")
+    check_no_library_math(out_dir / "flexarm_physics.c")
+    drop_null_checks(out_dir / "flexarm_physics.c")
     work = max(f.sz_w() for f in functions)
     iwork = max(f.sz_iw() for f in functions)
     a_rows = ",\n    ".join("{" + ", ".join(repr(float(x)) for x in row) + "}" for row in kern.RODAS4_A)
@@ -246,14 +246,14 @@ static const double EXPM_PADE13[14] = {{{pade}}};
     return [out_dir / "flexarm_physics.c", out_dir / "flexarm_physics.h", out_dir / "plant_constants.h"]
 
 
-def _check_no_library_math(path: Path) -> None:
+def check_no_library_math(path: Path) -> None:
     """The generated C must call no C-library function whose last bit differs between platforms."""
     calls = sorted(set(re.findall(r"\b(sin|cos|tan|exp|log|pow|atan2?|sqrt|fabs)\(", path.read_text())))
     if calls:
         raise RuntimeError(f"{path}: CasADi's code calls {calls}: the physics must take cos θ and sin θ as inputs")
 
 
-def _drop_null_checks(path: Path) -> None:
+def drop_null_checks(path: Path) -> None:
     """CasADi's code tests every argument and result pointer for NULL at every use; plant.c always passes all of
     them, and the tests cost about 7 % of a step (they keep values out of registers)."""
     text = path.read_text()
@@ -261,7 +261,7 @@ def _drop_null_checks(path: Path) -> None:
     text, n_res = re.subn(r"if \(res\[(\d+)\]!=0\) ", "", text)
     if not (n_args and n_res) or re.search(r"arg\[\d+\]\?|res\[\d+\]!=0", text):
         raise RuntimeError(f"{path}: CasADi's NULL tests changed form ({n_args}, {n_res} replaced): update "
-                           "_drop_null_checks")
+                           "drop_null_checks")
     path.write_text(text)
 
 

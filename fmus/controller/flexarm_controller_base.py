@@ -51,6 +51,7 @@ from flexarm_fmu_base import Var, own_data_dir, slew_experiment, variable_table
 from pythonfmu.enums import Fmi2Status
 
 from flexarm.control import PEAK_TORQUE, TrackingController
+from flexarm.control_law import saturate
 from flexarm.learned_feedforward import LEARNED_RESOURCE, read_learned_feedforward
 from flexarm.loop_index import NO_SAMPLE, index_of_time, is_placeholder, measured_delay
 from flexarm.lqg import MAX_DELAY_SAMPLES, LqgState, PredictedTracking
@@ -249,7 +250,7 @@ class ControllerSlave(FeedthroughSlave):
         else:
             tau = self.law.feedforward(k)
             if self.law.saturation is not None:
-                tau = np.minimum(np.maximum(tau, -self.law.saturation), self.law.saturation)
+                tau = saturate(tau, self.law.saturation)
         return np.concatenate([tau, self.index_outputs(k, index, 0)])
 
     @property

@@ -5,9 +5,11 @@
  *
  * m = (q1, q2, qd1, qd2, eps1..eps6) measured; E the rigid-bracket reconstruction (eqs. 21-31) with the
  * chosen theta7-rate estimate; x_hat_d = E m_d from the desired measurements; K the reduced gain of the
- * schedule's set in force (index: the last switching time <= t_k + 1e-9). As the library, the law is
- * evaluated as tau_ff - (K E) m + K x_hat_d with K E and K x_hat_d precomputed. After the slew
- * (k >= n_steps) it holds the final desired state with zero feedforward and the last gains.
+ * schedule's set in force. As the library, the law is evaluated as tau_ff - (K E m - K x_hat_d) with K E and
+ * K x_hat_d precomputed. After the slew (k >= n_steps) it holds the final desired state with zero feedforward and
+ * the last gains. The law's arithmetic (K E, K x_hat_d, the torque, the saturation, the schedule's switching rule)
+ * is not written here: control_law_api.h's law_* functions are generated from flexarm/control_law.py
+ * (fmu_build/law_codegen.py), the functions the Python FMU runs.
  *
  * controller_mode.h (generated per FMU) fixes the variant: CONTROLLER_FEEDFORWARD, CONTROLLER_FEEDBACK
  * (0/1) and the gains resource (continuous or discrete-time designs). Trajectory, estimators and gains are
@@ -34,6 +36,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "control_law_api.h"
 #include "controller_lqg.h"
 #include "controller_mode.h"
 #include "fmi2_glue.h"
@@ -239,29 +242,11 @@ static fmi2Status configure(Instance *inst)
     d->gain_per_meas = malloc((size_t)sch->count * 2 * N_MEAS * sizeof(double));
     if (d->gain_per_meas == NULL) return fmi2Error;
     for (int g = 0; g < sch->count; g++) /* K E */
-        for (int i = 0; i < 2; i++)
-            for (int j = 0; j < N_MEAS; j++) {
-                double acc = 0.0;
-                for (int r = 0; r < N_STATE; r++) acc += sch->gains[(g * 2 + i) * N_STATE + r] * est[r * N_MEAS + j];
-                d->gain_per_meas[(g * 2 + i) * N_MEAS + j] = acc;
-            }
-    for (int k = 0; k <= d->n_steps; k++) {
-        double t = k * d->dt + 1e-9; /* GainSchedule.index_at: the last switching time <= t */
-        int g = 0;
-        while (g + 1 < sch->count && sch->times[g + 1] <= t) g++;
-        d->gain_index[k] = g;
-        double xd[N_STATE]; /* x_hat_d = E m_d */
-        for (int r = 0; r < N_STATE; r++) {
-            double acc = 0.0;
-            for (int j = 0; j < N_MEAS; j++) acc += d->desired[k * N_MEAS + j] * est[r * N_MEAS + j];
-            xd[r] = acc;
-        }
-        for (int i = 0; i < 2; i++) {
-            double acc = 0.0;
-            for (int r = 0; r < N_STATE; r++) acc += sch->gains[(g * 2 + i) * N_STATE + r] * xd[r];
-            d->offsets[k * 2 + i] = acc;
-        }
-    }
+        law_gain_on_measurements(sch->gains + (size_t)g * 2 * N_STATE, est, d->gain_per_meas + (size_t)g * 2 * N_MEAS);
+    lqg_schedule_index(sch->times, sch->count, d->n_steps, d->dt, d->gain_index); /* the set in force */
+    for (int k = 0; k <= d->n_steps; k++) /* K x_hat_d */
+        law_gain_offset(sch->gains + (size_t)d->gain_index[k] * 2 * N_STATE, est, d->desired + (size_t)k * N_MEAS,
+                        d->offsets + (size_t)k * 2);
 #endif
     memcpy(d->key, key, sizeof key);
     return fmi2OK;
@@ -302,26 +287,23 @@ static fmi2Status controller_sample(Instance *inst)
     long k = lround(inst->time / d->dt);
     if (k < 0) k = 0;
     int kc = k < d->n_steps ? (int)k : d->n_steps;
-    double tau[2], m[N_MEAS];
-    feedforward(d, k, tau);
+    double ff[2], tau[2], m[N_MEAS];
+    feedforward(d, k, ff);
     for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
     const double index = VALUE(inst, IDX_sample_index_m);
+    const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
 #if CONTROLLER_FEEDBACK
     /* fmpy's first step: no sample yet, not a measurement of q = 0; an index naming an earlier sample (a Jacobi
        master's first step, before fmi2DoStep has measured the delay): no measurement of sample k either */
-    if (!loop_is_placeholder(index, m, N_MEAS) && !(loop_measured_delay((double)k, index) >= 1.0)) {
-        const double *ke = d->gain_per_meas + (size_t)d->gain_index[kc] * 2 * N_MEAS;
-        for (int i = 0; i < 2; i++) {
-            double acc = 0.0;
-            for (int j = 0; j < N_MEAS; j++) acc += ke[i * N_MEAS + j] * m[j];
-            tau[i] -= acc - d->offsets[kc * 2 + i];
-        }
-    }
+    if (!loop_is_placeholder(index, m, N_MEAS) && !(loop_measured_delay((double)k, index) >= 1.0))
+        law_tracking_torque(ff, d->gain_per_meas + (size_t)d->gain_index[kc] * 2 * N_MEAS, m, d->offsets + kc * 2,
+                            limit, tau);
+    else
+        law_saturate(ff, limit, tau);
 #else
     (void)kc;
+    law_saturate(ff, limit, tau);
 #endif
-    const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
-    for (int i = 0; i < 2; i++) tau[i] = fmin(fmax(tau[i], -limit[i]), limit[i]);
     const double out[3] = {loop_index_of_time((double)k * d->dt), /* the torques' sample */
                            loop_measured_delay((double)k, index), 0.0}; /* the paper's law: no delay */
     lqg_set_outputs(inst, tau, out);
@@ -337,14 +319,14 @@ static void predicted_step(Instance *inst, const LqgState *s, long long k, const
 {
     ControllerData *d = inst->data;
     const int dl = d->lqg.delay;
-    double x_post[N_STATE], x_now[N_STATE], dy[N_MEAS], kx[2], nominal[2], command[2];
+    double x_post[N_STATE], x_now[N_STATE], dy[N_MEAS], ff[2], nominal[2], command[2];
+    static const double no_offset[2] = {0.0, 0.0}; /* the deviation C x_k is already about the trajectory */
     lqg_estimate(&d->lqg, s, k, m, x_post, x_now);
     const long kc = k < d->n_steps ? (long)k : d->n_steps;
-    feedforward(d, (long)k, tau);
+    feedforward(d, (long)k, ff);
     lqg_mat_vec(d->lqg.c, N_MEAS, N_STATE, N_STATE, x_now, dy); /* the predicted measurement's deviation */
-    lqg_mat_vec(d->gain_per_meas + (size_t)d->gain_index[kc] * 2 * N_MEAS, 2, N_MEAS, N_MEAS, dy, kx); /* K E */
     const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
-    for (int r = 0; r < 2; r++) tau[r] = fmin(fmax(tau[r] - kx[r], -limit[r]), limit[r]);
+    law_tracking_torque(ff, d->gain_per_meas + (size_t)d->gain_index[kc] * 2 * N_MEAS, dy, no_offset, limit, tau);
     lqg_feedforward(&d->lqg, k, nominal, command); /* the filter's input: the deviation from the nominal */
     memset(next, 0, sizeof *next);
     for (int row = 0; row < dl; row++) next->du[row][0] = s->du[row + 1][0], next->du[row][1] = s->du[row + 1][1];

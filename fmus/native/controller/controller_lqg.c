@@ -35,6 +35,7 @@
 #include "fmi2_glue.h"
 #include "model_vars.h"
 
+#include "control_law_api.h"
 #include "controller_lqg.h"
 #include "learned_ff.h"
 #include "learned_ff_data.h"
@@ -163,9 +164,9 @@ static void lqg_step(const LqgData *d, const LqgState *s, long long k, const dou
     int saturated = 0;
     for (int r = 0; r < 2; r++) {
         free_tau[r] = ff_cmd[r] - kx[r] - kxi[r];
-        tau[r] = fmin(fmax(free_tau[r], -limit[r]), limit[r]);
-        saturated |= tau[r] != free_tau[r];
     }
+    law_saturate(free_tau, limit, tau); /* flexarm.control_law.saturate */
+    for (int r = 0; r < 2; r++) saturated |= tau[r] != free_tau[r];
     double cq[2]; /* 5 */
     lqg_mat_vec(d->c, 2, N_STATE, N_STATE, x_now, cq);
     for (int r = 0; r < 2; r++) next->xi[r] = d->integral && !saturated ? s->xi[r] + d->dt * cq[r] : s->xi[r];

@@ -18,6 +18,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "control_law_api.h"
 #include "controller_lqg.h"
 #include "portable_math.h"
 
@@ -197,9 +198,9 @@ void bank_step(const LqgData *d, const LqgState *s, long long k, const double m[
     int saturated = 0;
     for (int r = 0; r < 2; r++) {
         free_tau[r] = ff_cmd[r] - fb[r];
-        tau[r] = fmin(fmax(free_tau[r], -limit[r]), limit[r]);
-        saturated |= tau[r] != free_tau[r];
     }
+    law_saturate(free_tau, limit, tau); /* flexarm.control_law.saturate */
+    for (int r = 0; r < 2; r++) saturated |= tau[r] != free_tau[r];
     double cq[2]; /* 5: C_q of the quiet filter (the law's sensor map) */
     lqg_mat_vec(b->c + (size_t)(nf - 1) * N_MEAS * N_STATE, 2, N_STATE, N_STATE, x_sel, cq);
     for (int r = 0; r < 2; r++) next->xi[r] = d->integral && !saturated ? s->xi[r] + d->dt * cq[r] : s->xi[r];

@@ -7,6 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "control_law_api.h"
 #include "controller_lqg.h"
 #include "model_vars.h"
 
@@ -124,10 +125,11 @@ void lqg_estimate(const LqgData *d, const LqgState *s, long long k, const double
 
 void lqg_schedule_index(const double *times, int count, int n_steps, double dt, int *index)
 {
-    for (int k = 0; k <= n_steps; k++) { /* LqgDesign.index_at: the last operating time <= t + 1e-9 */
-        double t = k * dt + 1e-9;
-        int i = 0;
-        while (i + 1 < count && times[i + 1] <= t) i++;
+    int i = 0; /* times ascending: the set in force only moves on (flexarm.gain_schedule.schedule_index) */
+    for (int k = 0; k <= n_steps; k++) {
+        const double t = k * dt;
+        double switched = 1.0;
+        while (i + 1 < count && (law_has_switched(&times[i + 1], &t, &switched), switched != 0.0)) i++;
         index[k] = i;
     }
 }

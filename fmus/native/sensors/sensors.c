@@ -6,6 +6,9 @@
  * sample) -> + uniform noise from the bank's own PCG64 stream (12 draws per sample, NumPy's numbers for the
  * same seed) -> quantisation (encoder counter, A/D with saturation). With filters, noise and quantisation
  * off the outputs equal the inputs exactly. Segment lengths of the gauges come from resources/.
+ * The per-sample arithmetic (a filter section, the priming, the noise, the quantisation) is not written here:
+ * sensor_law_api.h's law_* functions are generated from flexarm/sensor_law.py (fmu_build/law_codegen.py), the
+ * functions the Python FMU runs. The design below is SciPy's, followed step by step.
  *
  * Sampling (direct feedthrough): the outputs at t_k are a pure function of the committed bank and the inputs
  * present (computed into a pending copy; reads change nothing); fmi2DoStep commits the sample of the inputs
@@ -23,6 +26,7 @@
 #include "model_vars.h"
 #include "pcg64.h"
 #include "portable_math.h"
+#include "sensor_law_api.h"
 
 #define N_SIGNALS 12
 #define MAX_SECTIONS 4
@@ -165,8 +169,7 @@ static void butter_sos(int order, double cutoff_hz, double fs, Filter *f)
 static void filter_prime(const Filter *f, double state[][2], int stride, const double *x, int n)
 {
     for (int k = 0; k < f->n_sections; k++)
-        for (int c = 0; c < n; c++)
-            for (int j = 0; j < 2; j++) state[k * stride + c][j] = f->zi[k][j] * x[c];
+        for (int c = 0; c < n; c++) law_primed_state(f->zi[k], &x[c], state[k * stride + c]);
 }
 
 static void filter_step(const Filter *f, double state[][2], int stride, const double *x, double *y, int n)
@@ -174,11 +177,9 @@ static void filter_step(const Filter *f, double state[][2], int stride, const do
     for (int c = 0; c < n; c++) {
         double v = x[c];
         for (int k = 0; k < f->n_sections; k++) {
-            const double *s = f->sos[k];
-            double *st = state[k * stride + c], xk = v;
-            v = s[0] * xk + st[0];
-            st[0] = s[1] * xk - s[4] * v + st[1];
-            st[1] = s[2] * xk - s[5] * v;
+            double *st = state[k * stride + c];
+            const double xk = v, s0 = st[0], s1 = st[1];
+            law_filter_section(f->sos[k], &s0, &s1, &xk, &v, &st[0], &st[1]);
         }
         y[c] = v;
     }
@@ -198,15 +199,20 @@ static void measure(const SensorsState *s, Bank *bank, const double *x, double *
     double u[N_SIGNALS];
     for (int i = 0; i < N_SIGNALS; i++) u[i] = pcg64_random(&bank->rng); /* always 12 draws */
     if (s->noise)
-        for (int i = 0; i < N_SIGNALS; i++) y[i] += s->amplitude[i] * (2.0 * u[i] - 1.0);
+        for (int i = 0; i < N_SIGNALS; i++) {
+            const double clean = y[i];
+            law_with_noise(&clean, &s->amplitude[i], &u[i], &y[i]);
+        }
+    static const double unbounded[2] = {-HUGE_VAL, HUGE_VAL}; /* the encoders' counter: no saturation */
     if (s->encoder_quant)
-        for (int i = 0; i < 2; i++) y[i] = nearbyint(y[i] / s->encoder_lsb) * s->encoder_lsb;
+        for (int i = 0; i < 2; i++) {
+            const double v = y[i];
+            law_quantize(&v, &s->encoder_lsb, &unbounded[0], &unbounded[1], &y[i]);
+        }
     if (s->adc_quant)
-        for (int i = 2; i < N_SIGNALS; i++) { /* np.clip(np.round(y / lsb), lo, hi) * lsb (NaN stays NaN) */
-            double code = nearbyint(y[i] / s->adc_lsb[i]);
-            if (code < s->code_lo) code = s->code_lo;
-            if (code > s->code_hi) code = s->code_hi;
-            y[i] = code * s->adc_lsb[i];
+        for (int i = 2; i < N_SIGNALS; i++) {
+            const double v = y[i];
+            law_quantize(&v, &s->adc_lsb[i], &s->code_lo, &s->code_hi, &y[i]);
         }
     bank->n_samples += 1;
 }

@@ -1,0 +1,149 @@
+"""Generate the native controllers' and sensors' law C from :mod:`flexarm.control_law` and
+:mod:`flexarm.sensor_law` (build time; issue 33 item 4).
+
+As the plant's physics (:mod:`fmu_build.native_codegen`), the laws' arithmetic is not written in C: the functions
+the library and the Python FMUs run are evaluated on CasADi SX symbols and code-generated. The C FMUs keep what
+is not arithmetic of a law: reading resources, the FMI state, which sample is which, the order of the steps.
+
+Generated into ``<stem>.c``/``.h`` of an FMU's sources as ``generated_*``, called through the ``law_*`` wrappers
+of ``<stem>_api.h`` (arguments, then results, as pointers; the work arrays inside). Matrices row-major, as the
+resources hold them.
+
+``control_law`` (every controller FMU):
+
+* ``law_gain_on_measurements(K[2×22], E[22×10]) -> K E [2×10]`` (:func:`~flexarm.control_law.gain_on_measurements`);
+* ``law_gain_offset(K[2×22], E[22×10], m_d[10]) -> K (E m_d) [2]`` as the library forms it
+  (:func:`~flexarm.control_law.reconstructed_states`, :func:`~flexarm.control_law.gain_offsets`);
+* ``law_tracking_torque(τ_ff[2], K E[2×10], m[10], offset[2], limit[2]) -> τ[2]``
+  (:func:`~flexarm.control_law.tracking_torque`);
+* ``law_saturate(τ[2], limit[2]) -> τ[2]`` (:func:`~flexarm.control_law.saturate`);
+* ``law_has_switched(t_switch, t) -> 1 or 0`` (:func:`~flexarm.control_law.has_switched`, the schedules' rule).
+
+``sensor_law`` (the sensors FMU), one channel per call:
+
+* ``law_filter_section(sos[6], s0, s1, x) -> (y, s0', s1')`` (:func:`~flexarm.sensor_law.filter_section`);
+* ``law_primed_state(unit_state[2], x) -> state[2]`` (:func:`~flexarm.sensor_law.primed_state`);
+* ``law_with_noise(y, amplitude, uniform) -> y'`` (:func:`~flexarm.sensor_law.with_noise`);
+* ``law_quantize(x, lsb, lo_code, hi_code) -> x'`` (:func:`~flexarm.sensor_law.quantize`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from flexarm import control_law as law
+from flexarm import sensor_law
+
+from .native_codegen import check_no_library_math, drop_null_checks  # the plant's checks, the same
+
+#: The measurements (q1, q2, q̇1, q̇2, ε1..ε6) and the state (11 angles, 11 rates).
+N_MEAS, N_STATE = 10, 22
+
+
+def _symbols(name: str, shape: tuple[int, ...]) -> tuple[ca.SX, np.ndarray]:
+    """A CasADi input of prod(shape) elements and the same symbols as a row-major object array."""
+    n = int(np.prod(shape))
+    sym = ca.SX.sym(name, n)
+    return sym, np.array([sym[i] for i in range(n)], dtype=object).reshape(shape)
+
+
+def _output(a) -> ca.SX:
+    return ca.vertcat(*np.ravel(np.asarray(a, dtype=object)))
+
+
+def law_functions() -> list[ca.Function]:
+    """The law's CasADi functions, each built by calling :mod:`flexarm.control_law` on symbols."""
+    k_sx, k = _symbols("gain", (2, N_STATE))
+    e_sx, e = _symbols("estimator", (N_STATE, N_MEAS))
+    md_sx, md = _symbols("desired_measurements", (N_MEAS,))
+    ff_sx, ff = _symbols("feedforward", (2,))
+    ke_sx, ke = _symbols("gain_on_measurements", (2, N_MEAS))
+    m_sx, m = _symbols("measurements", (N_MEAS,))
+    off_sx, off = _symbols("offset", (2,))
+    lim_sx, lim = _symbols("limit", (2,))
+    ts_sx, ts = _symbols("switch_time", (1,))
+    t_sx, t = _symbols("t", (1,))
+    x_hat_d = law.reconstructed_states(md[None, :], e)  # (1, 22)
+    return [
+        ca.Function("generated_gain_on_measurements", [k_sx, e_sx], [_output(law.gain_on_measurements(k, e))],
+                    ["gain", "estimator"], ["gain_on_measurements"]),
+        ca.Function("generated_gain_offset", [k_sx, e_sx, md_sx], [_output(law.gain_offsets(k[None], x_hat_d))],
+                    ["gain", "estimator", "desired_measurements"], ["offset"]),
+        ca.Function("generated_tracking_torque", [ff_sx, ke_sx, m_sx, off_sx, lim_sx],
+                    [_output(law.tracking_torque(ff, ke, m, off, lim))],
+                    ["feedforward", "gain_on_measurements", "measurements", "offset", "limit"], ["torque"]),
+        ca.Function("generated_saturate", [ff_sx, lim_sx], [_output(law.saturate(ff, lim))], ["torque", "limit"],
+                    ["saturated"]),
+        ca.Function("generated_has_switched", [ts_sx, t_sx], [law.has_switched(ts[0], t[0])],
+                    ["switch_time", "t"], ["switched"]),
+    ]
+
+
+def sensor_law_functions() -> list[ca.Function]:
+    """The sensors' CasADi functions, each built by calling :mod:`flexarm.sensor_law` on one channel's symbols."""
+    sos_sx, sos = _symbols("sos", (6,))
+    s0_sx, s0 = _symbols("state0", (1,))
+    s1_sx, s1 = _symbols("state1", (1,))
+    x_sx, x = _symbols("x", (1,))
+    u_sx, u = _symbols("uniform", (1,))
+    a_sx, a = _symbols("amplitude", (1,))
+    lsb_sx, lsb = _symbols("lsb", (1,))
+    lo_sx, lo = _symbols("lo_code", (1,))
+    hi_sx, hi = _symbols("hi_code", (1,))
+    zi_sx, zi = _symbols("unit_state", (2,))
+    y, n0, n1 = sensor_law.filter_section(sos, s0, s1, x)
+    return [
+        ca.Function("generated_filter_section", [sos_sx, s0_sx, s1_sx, x_sx], [_output(y), _output(n0), _output(n1)],
+                    ["sos", "state0", "state1", "x"], ["y", "next0", "next1"]),
+        ca.Function("generated_primed_state", [zi_sx, x_sx], [_output(sensor_law.primed_state(zi, x))],
+                    ["unit_state", "x"], ["state"]),
+        ca.Function("generated_with_noise", [x_sx, a_sx, u_sx], [_output(sensor_law.with_noise(x, a, u))],
+                    ["y", "amplitude", "uniform"], ["noisy"]),
+        ca.Function("generated_quantize", [x_sx, lsb_sx, lo_sx, hi_sx],
+                    [_output(sensor_law.quantize(x, lsb, lo, hi))], ["x", "lsb", "lo_code", "hi_code"],
+                    ["quantized"]),
+    ]
+
+
+def _api(functions: list[ca.Function], stem: str, source: str) -> str:
+    """<stem>_api.h: one plain C function per generated one (arguments and results as pointers)."""
+    guard = f"{stem.upper()}_API_H"
+    lines = [f"/* GENERATED by fmu_build/law_codegen.py from {source}: do not edit. */",
+             f"#ifndef {guard}", f"#define {guard}", f'#include "{stem}.h"', ""]
+    for f in functions:
+        name = f.name()
+        ins = [f.name_in(i) for i in range(f.n_in())]
+        outs = [f.name_out(i) for i in range(f.n_out())]
+        params = [f"const double *{a}" for a in ins] + [f"double *out_{o}" for o in outs]
+        lines += [f"static inline void {name.replace('generated_', 'law_', 1)}({', '.join(params)})", "{",
+                  f"    const double *arg[{max(len(ins), 1)}] = {{{', '.join(ins)}}};",
+                  f"    double *res[{max(len(outs), 1)}] = {{{', '.join('out_' + o for o in outs)}}};",
+                  f"    long long iw[{max(f.sz_iw(), 1)}];",
+                  f"    double w[{max(f.sz_w(), 1)}];",
+                  f"    {name}(arg, res, iw, w, 0);", "}", ""]
+    return "\n".join(lines + ["#endif", ""])
+
+
+def _generate(out_dir: Path, stem: str, source: str, functions: list[ca.Function]) -> list[Path]:
+    gen = ca.CodeGenerator(f"{stem}.c", {"with_header": True, "casadi_real": "double", "casadi_int": "long long",
+                                         "with_export": False})
+    for f in functions:
+        gen.add(f)
+    gen.generate(str(out_dir) + "/")
+    check_no_library_math(out_dir / f"{stem}.c")
+    drop_null_checks(out_dir / f"{stem}.c")
+    (out_dir / f"{stem}_api.h").write_text(_api(functions, stem, source))
+    return [out_dir / f"{stem}{suffix}" for suffix in (".c", ".h", "_api.h")]
+
+
+def generate_control_law(out_dir: Path) -> list[Path]:
+    """Write control_law.c, .h and _api.h (:func:`law_functions`) into `out_dir`; return their paths."""
+    return _generate(out_dir, "control_law", "flexarm/control_law.py", law_functions())
+
+
+def generate_sensor_law(out_dir: Path) -> list[Path]:
+    """Write sensor_law.c, .h and _api.h (:func:`sensor_law_functions`) into `out_dir`; return their paths."""
+    return _generate(out_dir, "sensor_law", "flexarm/sensor_law.py", sensor_law_functions())

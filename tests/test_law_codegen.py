@@ -1,0 +1,127 @@
+"""The controllers' and sensors' per-sample arithmetic has one source (issue 33 item 4): flexarm.control_law and
+flexarm.sensor_law, from which the native C is generated (fmu_build/law_codegen.py). The native FMUs' parity with
+the Python ones is checked through the FMUs in tests/test_native_controllers.py, test_native_lqg.py,
+test_native_sensors.py and test_loop_delay.py; here, the generator, the rules and the hand-written C."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flexarm import control_law as law
+from flexarm import sensor_law
+from flexarm.gain_schedule import schedule_index
+from fmu_build import law_codegen
+
+ca = pytest.importorskip("casadi")
+NATIVE = Path(__file__).resolve().parents[1] / "fmus" / "native"
+NATIVE_CONTROLLER = NATIVE / "controller"
+
+
+def _functions(make=law_codegen.law_functions) -> dict:
+    return {f.name().removeprefix("generated_"): f for f in make()}
+
+
+def _eval(f, *args) -> np.ndarray:
+    return np.array(f(*[np.ravel(a) for a in args])).ravel()
+
+
+def test_the_generated_law_is_the_library_s_arithmetic():
+    """CasADi evaluates the generated functions operation by operation as their C does (no FMA: the C is built
+    with -ffp-contract=off), in order; the library's products go through BLAS, which may sum in another order. So
+    they agree to the rounding of those sums: n ulp of the sum of the terms' magnitudes for n terms (22 for K E,
+    10 + 22 for K (E m_d), 10 for the torque, plus its two subtractions); the saturation is exact."""
+    rng = np.random.default_rng(7)
+    f = _functions()
+    for _ in range(50):
+        k, e = rng.normal(size=(2, 22)) * 10.0 ** rng.integers(-3, 3), rng.normal(size=(22, 10))
+        m_d, m = rng.normal(size=10), rng.normal(size=10)
+        ff, limit = rng.normal(size=2) * 5, np.array([7.0, 2.25])
+        ke = law.gain_on_measurements(k, e)
+        bound = 22 * np.finfo(float).eps * (np.abs(k) @ np.abs(e))
+        assert np.all(np.abs(_eval(f["gain_on_measurements"], k, e).reshape(2, 10) - ke) <= bound)
+        offset = law.gain_offsets(k[None], law.reconstructed_states(m_d[None], e))[0]
+        bound = 32 * np.finfo(float).eps * (np.abs(k) @ (np.abs(e) @ np.abs(m_d)))
+        assert np.all(np.abs(_eval(f["gain_offset"], k, e, m_d) - offset) <= bound)
+        tau = law.tracking_torque(ff, ke, m, offset, limit)
+        bound = np.finfo(float).eps * (12 * (np.abs(ke) @ np.abs(m)) + 2 * (np.abs(ff) + np.abs(offset)))
+        assert np.all(np.abs(_eval(f["tracking_torque"], ff, ke, m, offset, limit) - tau) <= bound)
+        assert np.all(np.abs(tau) <= limit)
+        assert np.array_equal(_eval(f["saturate"], ff * 3, limit), law.saturate(ff * 3, limit))
+
+
+def test_the_switching_rule_is_the_schedules_rule():
+    """A set is in force from its own sample on, though k·dt is a few ulp off its time; the generated rule is the
+    library's, and schedule_index counts it (the native controllers scan with it)."""
+    f = _functions()["has_switched"]
+    times = np.array([0.0, 0.2, 0.4, 0.6])
+    dt = 1e-3
+    for k in range(0, 900):
+        t = k * dt
+        expected = max(int(np.searchsorted(times, t + 1e-9, side="right")) - 1, 0)
+        assert schedule_index(times, t) == expected
+        for s in times[1:]:
+            assert bool(_eval(f, s, t)[0]) == bool(law.has_switched(s, t))
+    assert law.has_switched(0.2, 0.2 - 0.5e-9) and not law.has_switched(0.2, 0.2 - 2e-9)
+    assert schedule_index(times, 0.2 - 0.5e-9) == 1 and schedule_index([0.5, 1.0], 0.0) == 0
+
+
+def test_a_change_of_the_law_reaches_the_generated_c(tmp_path, monkeypatch):
+    """The worked example of docs/architecture.md: the schedules' tolerance changed in flexarm/control_law.py alone
+    is the constant the native C compares with."""
+    out = tmp_path / "default"
+    out.mkdir()
+    law_codegen.generate_control_law(out)
+    assert "1.0000000000000001e-09" in (out / "control_law.c").read_text()
+    monkeypatch.setattr(law, "SWITCH_TOLERANCE_S", 2.5e-7)
+    changed = tmp_path / "changed"
+    changed.mkdir()
+    law_codegen.generate_control_law(changed)
+    text = (changed / "control_law.c").read_text()
+    assert "2.4999999999999999e-07" in text and "1.0000000000000001e-09" not in text
+
+
+def test_the_hand_written_controller_c_does_no_arithmetic_of_the_law():
+    """The rule, the gain products and the saturation come from control_law_api.h in every controller's C; a
+    second copy written by hand would let the kinds drift apart again."""
+    for c in sorted(NATIVE_CONTROLLER.glob("*.c")):
+        text = c.read_text()
+        assert not re.search(r"\bfmin\s*\(|\bfmax\s*\(", text), f"{c.name}: a saturation by hand"
+        assert not re.search(r"\+\s*1e-9\b", text), f"{c.name}: the schedules' tolerance by hand"
+    uses = {c.name for c in NATIVE_CONTROLLER.glob("*.c") if '#include "control_law_api.h"' in c.read_text()}
+    assert {"controller.c", "controller_lqg.c", "lqg_bank.c", "lqg_core.c"} <= uses
+
+
+def test_the_generated_sensor_law_is_the_library_s_bit_for_bit():
+    """One channel at a time the generated functions run the library's operations in its order, so the two agree
+    to the last bit, signed zeros and halves included (the quantiser rounds halves to even, as NumPy)."""
+    f = _functions(law_codegen.sensor_law_functions)
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        sos, s0, s1, x = rng.normal(size=6), rng.normal(), rng.normal(), rng.normal() * 10.0 ** rng.integers(-6, 2)
+        y, n0, n1 = sensor_law.filter_section(sos, np.array([s0]), np.array([s1]), np.array([x]))
+        got = f["filter_section"](sos, s0, s1, x)
+        assert [float(g) for g in got] == [y[0], n0[0], n1[0]]
+        zi = rng.normal(size=2)
+        assert np.array_equal(_eval(f["primed_state"], zi, x), sensor_law.primed_state(zi, x))
+        a, u = abs(rng.normal()), rng.random()
+        assert float(f["with_noise"](x, a, u)) == sensor_law.with_noise(np.array([x]), a, np.array([u]))[0]
+    lsb = 0.25
+    for x in (-0.3 * lsb, -0.5 * lsb, 0.5 * lsb, 1.5 * lsb, 2.5 * lsb, -2.5 * lsb, 1e3, -1e3, 0.1, -0.0, 7.0 * lsb):
+        for lo, hi in ((-8.0, 7.0), (-np.inf, np.inf)):
+            want = sensor_law.quantize(np.array([x]), lsb, lo, hi)[0]
+            got = float(f["quantize"](x, lsb, lo, hi))
+            assert got == want and np.signbit(got) == np.signbit(want), (x, lo, got, want)
+    assert sensor_law.quantize(np.array([0.5 * lsb, 1.5 * lsb]), lsb, -8, 7).tolist() == [0.0, 2 * lsb]
+
+
+def test_the_hand_written_sensors_c_does_no_arithmetic_of_the_law():
+    """The sensors' C designs the filters (SciPy's steps) and keeps the state; the per-sample arithmetic is the
+    generated law's."""
+    text = (NATIVE / "sensors" / "sensors.c").read_text()
+    assert '#include "sensor_law_api.h"' in text
+    for by_hand in (r"\bnearbyint\s*\(", r"2\.0\s*\*\s*u\[", r"s\[4\]\s*\*", r"zi\[k\]\[j\]\s*\*"):
+        assert not re.search(by_hand, text), by_hand
