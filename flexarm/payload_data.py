@@ -167,6 +167,7 @@ def _write(payload_mass: float, folder: Path, progress) -> dict:
     from .lqg_design import design_lqg
     from .model import ArmModel
     from .parameters import load_parameters
+    from .progress import heartbeat
     from .trajectory import load_trajectory, save_trajectory
     from .trajectory.report import annotate_with_replay
     from .trajectory.solve import replan_minimum_time
@@ -174,7 +175,8 @@ def _write(payload_mass: float, folder: Path, progress) -> dict:
     params = load_parameters(payload_mass=payload_mass)
     shutil.copy2(DEFAULT_PARAMETER_FILE, folder / DEFAULT_PARAMETER_FILE.name)
     progress(f"payload data: re-planning the slew for {payload_mass:g} kg (FATROP: its solver made, then two solves)")
-    result = replan_minimum_time(params, load_trajectory(), verbose=False)
+    with heartbeat("payload data: re-planning", emit=progress):  # about half a minute of CasADi, silent
+        result = replan_minimum_time(params, load_trajectory(), verbose=False)
     replay = annotate_with_replay(result, params)
     traj_file = folder / "trajectory.npz"
     save_trajectory(result, traj_file)
