@@ -76,6 +76,7 @@ from .reduced_model import (  # noqa: F401 (the group tuples: re-exported, warm.
     _lagrange_basis,
     _radau,
     _residual_function,
+    collocation_times,
 )
 
 #: Weight of the torque-rate regulariser Σ(Δu)², u = τ/τ_limit (s); see solve_minimum_time.
@@ -258,7 +259,6 @@ def solve_collocation(params: ArmParameters, groups, n_intervals: int, degree: i
     n, N, d = red.n, int(n_intervals), int(degree)
     if N < 2 or d < 1:
         raise ValueError("n_intervals must be >= 2 and degree >= 1")
-    tau_c, _ = _radau(d)
     M = N * d
     nx_state = n * M
     n_x = 3 * nx_state + 2 * (N + 1) + 1
@@ -299,7 +299,7 @@ def solve_collocation(params: ArmParameters, groups, n_intervals: int, degree: i
     lbg[i_rate:i_rate + n_rate] = -np.inf
 
     # initial guess
-    s_cols = (np.repeat(np.arange(N), d) + np.tile(tau_c[1:], N)) / N
+    s_cols = collocation_times(N, d)[1:]
     if guess is None:
         x0 = _straight_guess(params, red, elbow, s_cols, N)
     else:

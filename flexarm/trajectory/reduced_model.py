@@ -127,6 +127,14 @@ def _radau(degree: int) -> tuple[np.ndarray, np.ndarray]:
     return tau, D
 
 
+def collocation_times(n_intervals: int, degree: int) -> np.ndarray:
+    """The grid's points in normalised time s ∈ [0, 1], shape (1 + n_intervals·degree,): 0, then each interval's
+    Radau IIA points (k + τ_j)/N, j = 1..degree (the last of an interval is the next one's node)."""
+    tau, _ = _radau(degree)
+    n = int(n_intervals)
+    return np.concatenate([[0.0], (np.repeat(np.arange(n), degree) + np.tile(tau[1:], n)) / n])
+
+
 def _lagrange_basis(tau: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Lagrange basis on points tau evaluated at x: shape (len(x), len(tau))."""
     out = np.ones((len(x), len(tau)))

@@ -34,7 +34,7 @@ from ..parameters import ArmParameters
 from .geometry import inverse_kinematics
 from .io import TrajectoryError
 from .problem import DEFAULT_REGULARISATION, FLEX_GROUPS, LINE_TOLERANCE, TORQUE_RATE_LIMIT, CollocationSolution
-from .reduced_model import ReducedModel, _radau, _residual_function
+from .reduced_model import ReducedModel, _radau, _residual_function, collocation_times
 
 #: FATROP's options for a re-plan. The barrier starts at 1e-4: from FATROP's default (0.1) a start near the
 #: solution wanders off into restoration (benchmarks/study_fatrop_condensed.py).
@@ -120,7 +120,7 @@ class StageForm:
     def solution(self, x: np.ndarray, params: ArmParameters, stats: dict) -> CollocationSolution:
         """The :class:`CollocationSolution` (11 element angles, rates, accelerations) of a stage-form vector."""
         n, N, d, nx, nu = self.n, self.N, self.d, self.nx, self.nu
-        tau_c, D = _radau(d)
+        _, D = _radau(d)
         XU = x[:N * (nx + nu)].reshape(N, nx + nu)
         t_f = float(XU[0, 2 * n + 2])
         theta, rate, accel = [XU[0, :n]], [XU[0, n:2 * n]], []
@@ -137,7 +137,7 @@ class StageForm:
         a0 = np.linalg.solve(red.mass_coefficients * np.cos(th0[:, None] - th0[None, :]),
                              red.input_matrix @ (u[0] * params.torque_limit))
         T = red.T
-        s = np.concatenate([[0.0], (np.repeat(np.arange(N), d) + np.tile(tau_c[1:], N)) / N])
+        s = collocation_times(N, d)
         return CollocationSolution(
             groups=red.groups, n_intervals=N, degree=d, t_f=t_f, s=s,
             theta=np.asarray(theta) @ T.T, omega=np.asarray(rate) @ T.T / t_f,

@@ -23,6 +23,7 @@ from .problem import (
     ReducedModel,
     _lagrange_basis,
     _radau,
+    collocation_times,
     nlp_expressions,
     nlp_parameters,
 )
@@ -92,7 +93,7 @@ def solution_from_trajectory(result: TrajectoryResult, params: ArmParameters) ->
     th0 = red.reduce(theta[0])
     a0 = np.linalg.solve(red.mass_coefficients * np.cos(th0[:, None] - th0[None, :]), red.input_matrix @ (u[0] * lim))
     alpha[0] = red.T @ a0
-    s = np.concatenate([[0.0], (np.repeat(np.arange(N), d) + np.tile(tau_c[1:], N)) / N])
+    s = collocation_times(N, d)
     return CollocationSolution(groups=red.groups, n_intervals=N, degree=d, t_f=t_f, s=s, theta=theta, omega=omega,
                                alpha=alpha, u=u, x=None, lam_x=None, lam_g=None,
                                stats={"label": "rebuilt from the 1 ms file", "t_fixed": t_f})
@@ -106,8 +107,7 @@ def flexible_guess(sol: CollocationSolution, n_intervals: int, degree: int) -> C
     model's (the rigid solution's links are straight: no deformation to start from).
     """
     N, d = int(n_intervals), int(degree)
-    tau_c, _ = _radau(d)
-    s = np.concatenate([[0.0], (np.repeat(np.arange(N), d) + np.tile(tau_c[1:], N)) / N])
+    s = collocation_times(N, d)
     at = sol.interpolate(s)
     return CollocationSolution(groups=tuple(FLEX_GROUPS), n_intervals=N, degree=d, t_f=sol.t_f, s=s,
                                theta=at["theta"], omega=at["omega"], alpha=at["alpha"],
