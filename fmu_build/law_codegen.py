@@ -135,8 +135,18 @@ def _generate(out_dir: Path, stem: str, source: str, functions: list[ca.Function
     gen.generate(str(out_dir) + "/")
     check_no_library_math(out_dir / f"{stem}.c")
     drop_null_checks(out_dir / f"{stem}.c")
+    _route_libm(out_dir / f"{stem}.c")
     (out_dir / f"{stem}_api.h").write_text(_api(functions, stem, source))
     return [out_dir / f"{stem}{suffix}" for suffix in (".c", ".h", "_api.h")]
+
+
+def _route_libm(path: Path) -> None:
+    """CasADi's C calls fmax, fmin, remainder and copysign, which live in libm on Linux: include libm_link.h
+    (every model source does), so a binary built without libm (FMPy's ``fmpy compile``) still loads."""
+    text = path.read_text()
+    if "#include <math.h>\n" not in text:
+        raise RuntimeError(f"{path}: CasADi's code no longer includes <math.h>: update _route_libm")
+    path.write_text(text.replace("#include <math.h>\n", '#include <math.h>\n#include "libm_link.h"\n', 1))
 
 
 def generate_control_law(out_dir: Path) -> list[Path]:

@@ -53,7 +53,9 @@ def test_each_fmu_carries_only_what_it_needs(name):
     print(f"\n{name}.fmu: {fmu.stat().st_size / 1e3:.0f} kB, {len(members)} files")
     with zipfile.ZipFile(fmu) as z:  # the LQG's designs (Kalman and LQR per schedule point) are its own data
         designs = sum(i.compress_size for i in z.infolist() if "/data/lqg/" in i.filename)
-    assert fmu.stat().st_size - designs < (900e3 if tracks else 300e3)
+    # every FMU bundles the union of the FMUs' flexarm modules (about 300 kB with its binaries): the bound is there
+    # to catch data that does not belong, the 0.4 MB trajectory or the gains, not a module more
+    assert fmu.stat().st_size - designs < (900e3 if tracks else 320e3)
 
 
 def test_the_front_end_loads_the_libpython_of_the_building_python():

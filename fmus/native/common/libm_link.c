@@ -16,6 +16,7 @@
 #pragma weak pow
 #pragma weak nearbyint
 #pragma weak lround
+#pragma weak remainder
 #define HAVE(f) ((f) != 0)
 #else
 #define HAVE(f) 1 /* Windows and macOS: the math functions are in the C runtime every process has */
@@ -61,6 +62,18 @@ double flexarm_nearbyint(double x)
     if (!(abs_(x) < 0x1p52)) return x; /* already an integer, inf or NaN */
     double r = abs_(x) + 0x1p52 - 0x1p52; /* rounds to nearest, ties to even (the default mode) */
     return with_sign_of(r, x);
+}
+
+double flexarm_copysign(double x, double s)
+{
+    return with_sign_of(x, s); /* a bit operation: no library needed */
+}
+
+double flexarm_remainder(double x, double y)
+{
+    if (HAVE(remainder)) return remainder(x, y);
+    if (y == 1.0) return x - flexarm_nearbyint(x); /* exact: the quotient rounded half to even (IEEE 754) */
+    return x - y * flexarm_nearbyint(x / y);    /* other divisors: not exact (the laws take none) */
 }
 
 long flexarm_lround(double x)
