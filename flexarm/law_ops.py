@@ -3,9 +3,9 @@
 The laws (:mod:`flexarm.control_law`, :mod:`flexarm.sensor_law`) are written once, in NumPy, and the native FMUs'
 C is generated from them by evaluating them on CasADi symbols (:mod:`fmu_build.law_codegen`). A comparison of
 symbols has no truth value, so these two take another path on symbols, to the same IEEE-754 result for every
-finite value: C99's fmax/fmin for the clamp, and x − remainder(x, 1) (IEEE's remainder rounds the quotient half
-to even, as :func:`numpy.round` and C's nearbyint do) with the sign of x kept, so −0.3 rounds to −0.0 as NumPy's
-does. CasADi is imported only on that path (the generator's).
+value, NaN and ±inf included: selections by comparison for the clamp, and x − remainder(x, 1) for the rounding
+(IEEE's remainder rounds the quotient half to even, as :func:`numpy.round` and C's nearbyint do) with the sign of
+x kept, so −0.3 rounds to −0.0 as NumPy's does. CasADi is imported only on that path (the generator's).
 """
 
 from __future__ import annotations
@@ -18,12 +18,21 @@ def _symbolic(x) -> bool:
 
 
 def clamp(x, lo, hi):
-    """x clamped to [lo, hi] elementwise (NaN: NumPy keeps it; the generated C, built for finite inputs, which the
-    FMI glue alone lets in, would return a bound)."""
+    """x clamped to [lo, hi] elementwise; NaN stays NaN (a diverged signal must not come out as a bound)."""
     if _symbolic(x):
-        return np.array([xi.fmax(a).fmin(b) for xi, a, b in np.broadcast(x, lo, hi)], dtype=object).reshape(
+        return np.array([_clamp_symbol(*args) for args in np.broadcast(x, lo, hi)], dtype=object).reshape(
             np.broadcast(x, lo, hi).shape)
     return np.minimum(np.maximum(x, lo), hi)  # np.clip, without its overhead
+
+
+def _clamp_symbol(x, lo, hi):
+    """NumPy's clamp on a symbol. C's fmax/fmin drop a NaN, so the value comes from comparisons (false for NaN:
+    x passes), which CasADi writes as sums of selections; such a sum turns −0.0 into +0.0, so the sign comes
+    from fmax/fmin's result (exact and signed; copysign keeps a NaN)."""
+    import casadi as ca
+
+    chosen = ca.if_else(x < lo, lo, ca.if_else(hi < x, hi, x))
+    return ca.copysign(chosen, x.fmax(lo).fmin(hi))
 
 
 def round_half_even(x):
@@ -31,6 +40,9 @@ def round_half_even(x):
     if _symbolic(x):
         import casadi as ca
 
-        return np.array([ca.copysign(xi - ca.remainder(xi, 1.0), xi) for xi in np.ravel(x)],
-                        dtype=object).reshape(np.shape(x))
+        def rounded(xi):  # ±inf and NaN are their own (remainder would make them NaN)
+            finite = xi.fmax(-xi) < np.inf
+            return ca.copysign(ca.if_else(finite, xi - ca.remainder(xi, 1.0), xi), xi)
+
+        return np.array([rounded(xi) for xi in np.ravel(x)], dtype=object).reshape(np.shape(x))
     return np.round(x)

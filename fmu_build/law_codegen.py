@@ -37,6 +37,7 @@ import numpy as np
 from flexarm import control_law as law
 from flexarm import sensor_law
 
+from . import native_codegen
 from .native_codegen import check_no_library_math, drop_null_checks  # the plant's checks, the same
 
 #: The measurements (q1, q2, q̇1, q̇2, ε1..ε6) and the state (11 angles, 11 rates).
@@ -45,9 +46,8 @@ N_MEAS, N_STATE = 10, 22
 
 def _symbols(name: str, shape: tuple[int, ...]) -> tuple[ca.SX, np.ndarray]:
     """A CasADi input of prod(shape) elements and the same symbols as a row-major object array."""
-    n = int(np.prod(shape))
-    sym = ca.SX.sym(name, n)
-    return sym, np.array([sym[i] for i in range(n)], dtype=object).reshape(shape)
+    sym, elements = native_codegen._symbols(name, int(np.prod(shape)))
+    return sym, elements.reshape(shape)
 
 
 def _output(a) -> ca.SX:

@@ -110,11 +110,19 @@ def test_the_generated_sensor_law_is_the_library_s_bit_for_bit():
         a, u = abs(rng.normal()), rng.random()
         assert float(f["with_noise"](x, a, u)) == sensor_law.with_noise(np.array([x]), a, np.array([u]))[0]
     lsb = 0.25
-    for x in (-0.3 * lsb, -0.5 * lsb, 0.5 * lsb, 1.5 * lsb, 2.5 * lsb, -2.5 * lsb, 1e3, -1e3, 0.1, -0.0, 7.0 * lsb):
+    for x in (-0.3 * lsb, -0.5 * lsb, 0.5 * lsb, 1.5 * lsb, 2.5 * lsb, -2.5 * lsb, 1e3, -1e3, 0.1, -0.0, 7.0 * lsb,
+              2.0**60, np.inf, -np.inf, np.nan):  # a diverged signal stays NaN, as in NumPy: never a bound
         for lo, hi in ((-8.0, 7.0), (-np.inf, np.inf)):
             want = sensor_law.quantize(np.array([x]), lsb, lo, hi)[0]
             got = float(f["quantize"](x, lsb, lo, hi))
-            assert got == want and np.signbit(got) == np.signbit(want), (x, lo, got, want)
+            assert np.array_equal(got, want, equal_nan=True), (x, lo, got, want)
+            assert np.isnan(got) or np.signbit(got) == np.signbit(want), (x, lo, got, want)
+    limit, saturate = np.array([7.0, 2.25]), _functions()["saturate"]
+    for tau in ([np.nan, -0.0], [np.inf, -np.inf], [-0.0, 0.0]):  # the controllers' saturation: the same rule
+        got, want = _eval(saturate, np.array(tau), limit), law.saturate(np.array(tau), limit)
+        real = ~np.isnan(want)  # a NaN's sign bit means nothing
+        assert np.array_equal(got, want, equal_nan=True) and np.array_equal(np.signbit(got[real]),
+                                                                            np.signbit(want[real])), tau
     assert sensor_law.quantize(np.array([0.5 * lsb, 1.5 * lsb]), lsb, -8, 7).tolist() == [0.0, 2 * lsb]
 
 
