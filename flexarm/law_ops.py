@@ -46,3 +46,48 @@ def round_half_even(x):
 
         return np.array([rounded(xi) for xi in np.ravel(x)], dtype=object).reshape(np.shape(x))
     return np.round(x)
+
+
+def mat_vec(a, x):
+    """A x: a (r, c) and x (c,) -> (r,).
+
+    On numbers, NumPy's product (BLAS). On symbols, each row summed in order with a compensated (Neumaier) sum,
+    nearly exact: the Kalman filters' lightly damped modes carry rounding over thousands of samples, and a nearly
+    exact product keeps the generated law as close to the exact one as BLAS's is (plain sums in order drift
+    further). Knuth's TwoSum gives each addition's exact rounding error without a branch; CasADi would simplify
+    (s + t) − s to t, so the sums are built with its simplification off.
+    """
+    if not _symbolic(a) and not _symbolic(x):
+        return a @ x
+    import casadi as ca
+
+    a, x = np.asarray(a, dtype=object), np.asarray(x, dtype=object)
+    was = ca.GlobalOptions.getSimplificationOnTheFly()
+    ca.GlobalOptions.setSimplificationOnTheFly(False)
+    try:
+        rows = []
+        for row in a:
+            total, carry = ca.SX(0.0), ca.SX(0.0)
+            for aij, xj in zip(row, x):
+                term = aij * xj
+                t = total + term
+                b = t - total
+                carry = carry + ((total - (t - b)) + (term - b))
+                total = t
+            rows.append(total + carry)
+    finally:
+        ca.GlobalOptions.setSimplificationOnTheFly(was)
+    return np.array(rows, dtype=object)
+
+
+def where_all_equal(a, b, if_equal, otherwise):
+    """`if_equal` when a equals b elementwise (NaN equals nothing), else `otherwise`."""
+    if not _symbolic(a) and not _symbolic(b):
+        return if_equal if np.array_equal(a, b) else otherwise
+    import casadi as ca
+
+    equal = ca.SX(1.0)
+    for ai, bi in zip(np.ravel(a), np.ravel(b)):
+        equal = equal * (ai == bi)
+    return np.array([ca.if_else(equal, y, n) for y, n in zip(np.ravel(if_equal), np.ravel(otherwise))],
+                    dtype=object).reshape(np.shape(if_equal))

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import control_law
+from . import control_law, filter_law
 from .gain_schedule import as_trajectory, desired_states, sample_time
 from .lqg_design import LqgDesign, transient_gains
 from .model import N_STATE
@@ -169,7 +169,7 @@ class LqgController:
         self.n_steps = self.trajectory.n_samples
         w = design.weight_index(gain_set)
         self._K = design.K_integral[:, w, :, :N_STATE] if integral_action else design.K[:, w]
-        self._K_xi = design.K_integral[:, w, :, N_STATE:] if integral_action else np.zeros((len(design.times), 2, 2))
+        self._K_xi = design.K_integral[:, w, :, N_STATE:] if integral_action else None
         self._index = np.array([design.index_at(k * self.dt) for k in range(self.n_steps + 1)])
         self._y_d = self.z @ design.C.T  # desired measurements (the sensor map is linear)
         #: The filter's gain of samples 0 .. n_steps − 1 (None: the design's steady gain of each point).
@@ -217,15 +217,15 @@ class LqgController:
         x = state.x_post
         if state.started and j > 0 and k - d >= 0:  # time update from j − 1 with the torque sent then
             i_p = self._index[self._c(j - 1)]
-            x = self.design.Phi[i_p] @ x + self.design.Gamma[i_p] @ state.du[0]
-        dy = np.asarray(measurements, dtype=float) - self._y_d[self._c(j)]
+            x = filter_law.time_update(self.design.Phi[i_p], self.design.Gamma[i_p], x, state.du[0])
         gain = self.design.M[i_j] if self.gains is None or j >= len(self.gains) else self.gains[j]
-        x_post = x + gain @ (dy - self.design.C @ x)
+        x_post = filter_law.corrected(x, gain, self.design.C, np.asarray(measurements, dtype=float),
+                                      self._y_d[self._c(j)])
         x_now = x_post
         sent = state.du[1:] if k - d >= 0 else state.du[d + 1 - k:]  # torques of samples j .. k − 1
         for n, du in enumerate(sent):
             i_s = self._index[self._c(j + n)]
-            x_now = self.design.Phi[i_s] @ x_now + self.design.Gamma[i_s] @ du
+            x_now = filter_law.time_update(self.design.Phi[i_s], self.design.Gamma[i_s], x_now, du)
         return x_post, x_now
 
     def step(self, state: LqgState, k: int, measurements) -> tuple[np.ndarray, LqgState]:
@@ -250,11 +250,13 @@ class LqgController:
         x_post, x_now = self.estimate(state, k, m)
         i_k = self._index[self._c(k)]
         ff = self.feedforward(k)
-        tau_free = ff + correction_at(self.correction, k) - self._K[i_k] @ x_now - self._K_xi[i_k] @ state.xi
+        command = ff + correction_at(self.correction, k)
+        integral = (self._K_xi[i_k], state.xi) if self.integral_action else ()
+        tau_free = filter_law.free_torque(command, self._K[i_k], x_now, *integral)
         tau = control_law.saturate(tau_free, self.saturation)
         xi = state.xi
-        if self.integral_action and np.array_equal(tau, tau_free):
-            xi = xi + self.dt * (self._Cq @ x_now)
+        if self.integral_action:
+            xi = filter_law.integrated(xi, self.dt, self._Cq, x_now, tau, tau_free)
         du = np.vstack([state.du[1:], tau - ff])
         return tau, LqgState(k + 1, x_post, du, xi, True)
 
@@ -331,7 +333,8 @@ class PredictedTracking:
         x_post, x_now = self.filter.estimate(state, k, m)
         # the paper's law on the measurement predicted for k, m_d(k) + C x̂_k: its reconstruction, its gains
         tau = control_law.tracking_torque(self.law.feedforward(k), self.law.gain_per_measurement(k),
-                                          self.filter.design.C @ x_now, _NO_OFFSET, self.law.saturation)
+                                          filter_law.measured(self.filter.design.C, x_now), _NO_OFFSET,
+                                          self.law.saturation)
         du = np.vstack([state.du[1:], tau - self.filter.feedforward(k)])  # about the nominal feedforward
         return tau, LqgState(k + 1, x_post, du, state.xi, True)
 

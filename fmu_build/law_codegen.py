@@ -1,5 +1,5 @@
-"""Generate the native controllers' and sensors' law C from :mod:`flexarm.control_law` and
-:mod:`flexarm.sensor_law` (build time; issue 33 item 4).
+"""Generate the native controllers' and sensors' law C from :mod:`flexarm.control_law`, :mod:`flexarm.filter_law`
+and :mod:`flexarm.sensor_law` (build time; issue 33 item 4).
 
 As the plant's physics (:mod:`fmu_build.native_codegen`), the laws' arithmetic is not written in C: the functions
 the library and the Python FMUs run are evaluated on CasADi SX symbols and code-generated. The C FMUs keep what
@@ -9,7 +9,7 @@ Generated into ``<stem>.c``/``.h`` of an FMU's sources as ``generated_*``, calle
 of ``<stem>_api.h`` (arguments, then results, as pointers; the work arrays inside). Matrices row-major, as the
 resources hold them.
 
-``control_law`` (every controller FMU):
+``control_law`` (every controller FMU), from :mod:`flexarm.control_law` and :mod:`flexarm.filter_law`:
 
 * ``law_gain_on_measurements(K[2×22], E[22×10]) -> K E [2×10]`` (:func:`~flexarm.control_law.gain_on_measurements`);
 * ``law_gain_offset(K[2×22], E[22×10], m_d[10]) -> K (E m_d) [2]`` as the library forms it
@@ -17,7 +17,11 @@ resources hold them.
 * ``law_tracking_torque(τ_ff[2], K E[2×10], m[10], offset[2], limit[2]) -> τ[2]``
   (:func:`~flexarm.control_law.tracking_torque`);
 * ``law_saturate(τ[2], limit[2]) -> τ[2]`` (:func:`~flexarm.control_law.saturate`);
-* ``law_has_switched(t_switch, t) -> 1 or 0`` (:func:`~flexarm.control_law.has_switched`, the schedules' rule).
+* ``law_has_switched(t_switch, t) -> 1 or 0`` (:func:`~flexarm.control_law.has_switched`, the schedules' rule);
+* the LQG's (:mod:`flexarm.filter_law`, products as compensated sums, :func:`~flexarm.law_ops.mat_vec`):
+  ``law_time_update(Φ[22×22], Γ[22×2], x[22], Δτ[2]) -> x⁺``, ``law_corrected(x, M[22×10], C[10×22], m, m_d)
+  -> x_post``, ``law_measured(C, x) -> C x``, ``law_free_torque(τ_cmd[2], K[2×22], x) -> τ_free`` and
+  ``law_free_torque_integral(.., K_ξ[2×2], ξ[2])``, ``law_integrated(ξ, dt, C_q[2×22], x, τ, τ_free) -> ξ'``.
 
 ``sensor_law`` (the sensors FMU), one channel per call:
 
@@ -35,7 +39,7 @@ import casadi as ca
 import numpy as np
 
 from flexarm import control_law as law
-from flexarm import sensor_law
+from flexarm import filter_law, sensor_law
 
 from . import native_codegen
 from .native_codegen import check_no_library_math, drop_null_checks  # the plant's checks, the same
@@ -79,6 +83,44 @@ def law_functions() -> list[ca.Function]:
                     ["saturated"]),
         ca.Function("generated_has_switched", [ts_sx, t_sx], [law.has_switched(ts[0], t[0])],
                     ["switch_time", "t"], ["switched"]),
+    ]
+
+
+def filter_law_functions() -> list[ca.Function]:
+    """The LQG's CasADi functions (Kalman filter, predictor, feedback), each built by calling
+    :mod:`flexarm.filter_law` on symbols."""
+    phi_sx, phi = _symbols("phi", (N_STATE, N_STATE))
+    gam_sx, gam = _symbols("gamma", (N_STATE, 2))
+    x_sx, x = _symbols("x", (N_STATE,))
+    du_sx, du = _symbols("du", (2,))
+    m_gain_sx, m_gain = _symbols("filter_gain", (N_STATE, N_MEAS))
+    c_sx, c = _symbols("c", (N_MEAS, N_STATE))
+    m_sx, m = _symbols("measurements", (N_MEAS,))
+    md_sx, md = _symbols("desired", (N_MEAS,))
+    cmd_sx, cmd = _symbols("command", (2,))
+    k_sx, k = _symbols("gain", (2, N_STATE))
+    kxi_sx, kxi = _symbols("gain_integral", (2, 2))
+    xi_sx, xi = _symbols("xi", (2,))
+    dt_sx, dt = _symbols("dt", (1,))
+    cq_sx, cq = _symbols("c_q", (2, N_STATE))
+    tau_sx, tau = _symbols("tau", (2,))
+    free_sx, free = _symbols("tau_free", (2,))
+    return [
+        ca.Function("generated_time_update", [phi_sx, gam_sx, x_sx, du_sx],
+                    [_output(filter_law.time_update(phi, gam, x, du))], ["phi", "gamma", "x", "du"], ["next"]),
+        ca.Function("generated_corrected", [x_sx, m_gain_sx, c_sx, m_sx, md_sx],
+                    [_output(filter_law.corrected(x, m_gain, c, m, md))],
+                    ["x", "filter_gain", "c", "measurements", "desired"], ["posterior"]),
+        ca.Function("generated_measured", [c_sx, x_sx], [_output(filter_law.measured(c, x))], ["c", "x"],
+                    ["deviation"]),
+        ca.Function("generated_free_torque", [cmd_sx, k_sx, x_sx], [_output(filter_law.free_torque(cmd, k, x))],
+                    ["command", "gain", "x"], ["tau_free"]),
+        ca.Function("generated_free_torque_integral", [cmd_sx, k_sx, x_sx, kxi_sx, xi_sx],
+                    [_output(filter_law.free_torque(cmd, k, x, kxi, xi))],
+                    ["command", "gain", "x", "gain_integral", "xi"], ["tau_free"]),
+        ca.Function("generated_integrated", [xi_sx, dt_sx, cq_sx, x_sx, tau_sx, free_sx],
+                    [_output(filter_law.integrated(xi, dt, cq, x, tau, free))],
+                    ["xi", "dt", "c_q", "x", "tau", "tau_free"], ["next_xi"]),
     ]
 
 
@@ -151,7 +193,8 @@ def _route_libm(path: Path) -> None:
 
 def generate_control_law(out_dir: Path) -> list[Path]:
     """Write control_law.c, .h and _api.h (:func:`law_functions`) into `out_dir`; return their paths."""
-    return _generate(out_dir, "control_law", "flexarm/control_law.py", law_functions())
+    return _generate(out_dir, "control_law", "flexarm/control_law.py and flexarm/filter_law.py",
+                     law_functions() + filter_law_functions())
 
 
 def generate_sensor_law(out_dir: Path) -> list[Path]:

@@ -5,6 +5,7 @@ test_native_sensors.py and test_loop_delay.py; here, the generator, the rules an
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 
 from flexarm import control_law as law
-from flexarm import sensor_law
+from flexarm import filter_law, sensor_law
 from flexarm.gain_schedule import schedule_index
 from fmu_build import law_codegen
 
@@ -93,6 +94,70 @@ def test_the_hand_written_controller_c_does_no_arithmetic_of_the_law():
         assert not re.search(r"\+\s*1e-9\b", text), f"{c.name}: the schedules' tolerance by hand"
     uses = {c.name for c in NATIVE_CONTROLLER.glob("*.c") if '#include "control_law_api.h"' in c.read_text()}
     assert {"controller.c", "controller_lqg.c", "lqg_bank.c", "lqg_core.c"} <= uses
+
+
+def _exact_rows(a: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """A x with each row's rounded products summed exactly (math.fsum), then rounded once."""
+    return np.array([math.fsum(a_r * x) for a_r in a])
+
+
+def test_the_generated_filter_law_sums_nearly_exactly():
+    """The LQG's filter, predictor and feedback (flexarm.filter_law) generated with compensated sums: each product
+    row within 1 ulp of its exactly summed products plus n² eps² of their magnitudes (Neumaier's bound), where the
+    library's BLAS and a plain sum in order may be n eps of the magnitudes off. A row whose first and last terms
+    (±1e18) cancel shows the difference: a plain sum in order loses the twenty terms between them."""
+    f, eps = _functions(law_codegen.filter_law_functions), np.finfo(float).eps
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        phi, gam, x, du = rng.normal(size=(22, 22)), rng.normal(size=(22, 2)), rng.normal(size=22), rng.normal(size=2)
+        phi[0, 0], phi[0, 21], x[0], x[21] = 1e18, -1e18, 1.0, 1.0  # row 0: its first and last term cancel
+        got = _eval(f["time_update"], phi, gam, x, du)
+        in_order = sum(phi[0] * x, 0.0) + gam[0] @ du  # a plain sum loses the twenty terms between them
+        assert abs(in_order - got[0]) > 0.1 * abs(got[0] - gam[0] @ du)
+        ab = np.abs(phi) @ np.abs(x) + np.abs(gam) @ np.abs(du)
+        exact = _exact_rows(phi, x) + _exact_rows(gam, du)
+        assert np.all(np.abs(got - exact) <= 2 * eps * np.abs(exact) + 24**2 * eps**2 * ab)
+        assert np.all(np.abs(got - filter_law.time_update(phi, gam, x, du)) <= 24 * eps * ab)
+        gain, c, m, m_d = rng.normal(size=(22, 10)), rng.normal(size=(10, 22)), rng.normal(size=10), rng.normal(
+            size=10)
+        want = filter_law.corrected(x, gain, c, m, m_d)
+        bound = 32 * eps * (np.abs(x) + np.abs(gain) @ (np.abs(m) + np.abs(m_d) + np.abs(c) @ np.abs(x)))
+        assert np.all(np.abs(_eval(f["corrected"], x, gain, c, m, m_d) - want) <= bound)
+        assert np.all(np.abs(_eval(f["measured"], c, x) - _exact_rows(c, x)) <= eps * np.abs(c @ x)
+                      + 22**2 * eps**2 * (np.abs(c) @ np.abs(x)))
+        cmd, k, k_xi, xi = rng.normal(size=2), rng.normal(size=(2, 22)), rng.normal(size=(2, 2)), rng.normal(size=2)
+        bound = 26 * eps * (np.abs(cmd) + np.abs(k) @ np.abs(x) + np.abs(k_xi) @ np.abs(xi))
+        assert np.all(np.abs(_eval(f["free_torque"], cmd, k, x) - filter_law.free_torque(cmd, k, x)) <= bound)
+        assert np.all(np.abs(_eval(f["free_torque_integral"], cmd, k, x, k_xi, xi)
+                             - filter_law.free_torque(cmd, k, x, k_xi, xi)) <= bound)
+
+
+def test_the_generated_anti_windup_integrates_only_an_unsaturated_sample():
+    """ξ + dt C_q x when τ = τ_free, else ξ: a saturated torque, or a NaN one (never equal), holds the integrator,
+    in the library and in the generated C alike."""
+    f = _functions(law_codegen.filter_law_functions)["integrated"]
+    rng = np.random.default_rng(9)
+    c_q, x, xi, dt = rng.normal(size=(2, 22)), rng.normal(size=22), rng.normal(size=2), 1e-3
+    for tau, tau_free, moves in (([1.0, 2.0], [1.0, 2.0], True), ([7.0, 2.0], [9.0, 2.0], False),
+                                 ([np.nan, 0.0], [np.nan, 0.0], False)):
+        tau, tau_free = np.array(tau), np.array(tau_free)
+        want = filter_law.integrated(xi, dt, c_q, x, tau, tau_free)
+        got = _eval(f, xi, dt, c_q, x, tau, tau_free)
+        assert np.allclose(got, want, rtol=0, atol=1e-15 * np.abs(want).max())  # sums as in the test above
+        assert (not np.array_equal(want, xi)) == moves and (not np.array_equal(got, xi)) == moves
+
+
+def test_the_hand_written_lqg_c_does_no_arithmetic_of_the_single_filter():
+    """The LQG FMU's filter, predictor, feedback and anti-windup, and the predicting paper's law's measurement, are
+    the generated ones; the hand C only says which sample and which design point."""
+    core = (NATIVE_CONTROLLER / "lqg_core.c").read_text()
+    estimate = core[core.index("void lqg_estimate"):core.index("void lqg_schedule_index")]
+    propagate = core[core.index("void lqg_propagate"):core.index("void lqg_feedforward")]
+    assert "law_corrected(" in estimate and "law_time_update(" in propagate
+    assert "lqg_mat_vec" not in estimate + propagate
+    lqg = (NATIVE_CONTROLLER / "controller_lqg.c").read_text()
+    assert "lqg_mat_vec" not in lqg and "law_free_torque" in lqg and "law_integrated(" in lqg
+    assert "lqg_mat_vec" not in (NATIVE_CONTROLLER / "controller.c").read_text()
 
 
 def test_the_generated_sensor_law_is_the_library_s_bit_for_bit():

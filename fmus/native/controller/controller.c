@@ -324,7 +324,7 @@ static void predicted_step(Instance *inst, const LqgState *s, long long k, const
     lqg_estimate(&d->lqg, s, k, m, x_post, x_now);
     const long kc = k < d->n_steps ? (long)k : d->n_steps;
     feedforward(d, (long)k, ff);
-    lqg_mat_vec(d->lqg.c, N_MEAS, N_STATE, N_STATE, x_now, dy); /* the predicted measurement's deviation */
+    law_measured(d->lqg.c, x_now, dy); /* the predicted measurement's deviation (flexarm.filter_law.measured) */
     const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
     law_tracking_torque(ff, d->gain_per_meas + (size_t)d->gain_index[kc] * 2 * N_MEAS, dy, no_offset, limit, tau);
     lqg_feedforward(&d->lqg, k, nominal, command); /* the filter's input: the deviation from the nominal */

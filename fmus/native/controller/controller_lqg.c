@@ -153,23 +153,23 @@ static void lqg_step(const LqgData *d, const LqgState *s, long long k, const dou
     const int i_k = d->index[lqg_clamp(d, k)]; /* 4 */
     double ff[2], ff_cmd[2];
     lqg_feedforward(d, k, ff, ff_cmd);
-    double kx[2], kxi[2] = {0.0, 0.0}, free_tau[2];
-    if (d->integral) {
+    double free_tau[2]; /* flexarm.filter_law.free_torque, control_law.saturate, filter_law.integrated */
+    if (d->integral) { /* the augmented gain [K K_xi] per row: its two blocks */
         const double *ka = g->k_integral + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_AUG;
-        lqg_mat_vec(ka, 2, N_STATE, N_AUG, x_now, kx);
-        lqg_mat_vec(ka + N_STATE, 2, 2, N_AUG, s->xi, kxi);
+        double k[2 * N_STATE], k_xi[2 * 2];
+        for (int r = 0; r < 2; r++) {
+            memcpy(k + r * N_STATE, ka + r * N_AUG, N_STATE * sizeof *k);
+            memcpy(k_xi + r * 2, ka + r * N_AUG + N_STATE, 2 * sizeof *k_xi);
+        }
+        law_free_torque_integral(ff_cmd, k, x_now, k_xi, s->xi, free_tau);
     } else {
-        lqg_mat_vec(g->k + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_STATE, 2, N_STATE, N_STATE, x_now, kx);
+        law_free_torque(ff_cmd, g->k + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_STATE, x_now, free_tau);
     }
-    int saturated = 0;
-    for (int r = 0; r < 2; r++) {
-        free_tau[r] = ff_cmd[r] - kx[r] - kxi[r];
-    }
-    law_saturate(free_tau, limit, tau); /* flexarm.control_law.saturate */
-    for (int r = 0; r < 2; r++) saturated |= tau[r] != free_tau[r];
-    double cq[2]; /* 5 */
-    lqg_mat_vec(d->c, 2, N_STATE, N_STATE, x_now, cq);
-    for (int r = 0; r < 2; r++) next->xi[r] = d->integral && !saturated ? s->xi[r] + d->dt * cq[r] : s->xi[r];
+    law_saturate(free_tau, limit, tau);
+    if (d->integral) /* 5: C's first two rows map the state to the joint angles */
+        law_integrated(s->xi, &d->dt, d->c, x_now, tau, free_tau, next->xi);
+    else
+        next->xi[0] = s->xi[0], next->xi[1] = s->xi[1];
     for (int row = 0; row < dl; row++) next->du[row][0] = s->du[row + 1][0], next->du[row][1] = s->du[row + 1][1];
     next->du[dl][0] = tau[0] - ff[0], next->du[dl][1] = tau[1] - ff[1];
     memcpy(next->x_post[0], x_post, sizeof x_post);

@@ -1,7 +1,9 @@
 /*
  * The LQG's Kalman filter and predictor, shared by controller_lqg.c (the LQG FMU) and controller.c (the paper's
- * laws predicting over a measured loop delay, flexarm.lqg.PredictedTracking): resource reading, the compensated
- * matrix-vector product, the design's time update and the estimate of steps 1-3 (controller_lqg.c's header).
+ * laws predicting over a measured loop delay, flexarm.lqg.PredictedTracking): resource reading, which sample and
+ * design point each step of the estimate (steps 1-3 of controller_lqg.c's header) uses, and the transient filter
+ * gains. The arithmetic of each step is flexarm/filter_law.py's, generated (control_law_api.h); the compensated
+ * matrix-vector product here serves the payload bank and the gains' design, still written in C.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -80,15 +82,13 @@ void lqg_mat_vec(const double *a, int rows, int cols, int stride, const double *
     }
 }
 
-/* x <- Phi x + Gamma du at design point i. */
+/* x <- Phi x + Gamma du at design point i (flexarm.filter_law.time_update, generated). */
 void lqg_propagate(const Design *g, int i, double *x, const double du[2])
 {
-    double px[N_STATE], gu[N_STATE];
-    lqg_mat_vec(g->phi + (size_t)i * N_STATE * N_STATE, N_STATE, N_STATE, N_STATE, x, px);
-    lqg_mat_vec(g->gamma + (size_t)i * N_STATE * 2, N_STATE, 2, 2, du, gu);
-    for (int r = 0; r < N_STATE; r++) x[r] = px[r] + gu[r];
+    double next[N_STATE];
+    law_time_update(g->phi + (size_t)i * N_STATE * N_STATE, g->gamma + (size_t)i * N_STATE * 2, x, du, next);
+    memcpy(x, next, sizeof next);
 }
-
 
 void lqg_feedforward(const LqgData *d, long long k, double nominal[2], double command[2])
 {
@@ -107,16 +107,13 @@ void lqg_estimate(const LqgData *d, const LqgState *s, long long k, const double
     const Design *g = d->design;
     const int dl = d->delay;
     long long j = k - dl > 0 ? k - dl : 0;
-    double x[N_STATE], cx[N_MEAS], innovation[N_MEAS], mi[N_STATE];
+    double x[N_STATE];
     memcpy(x, s->x_post[0], sizeof x);
     if (s->started && j > 0 && k - dl >= 0) lqg_propagate(g, d->index[lqg_clamp(d, j - 1)], x, s->du[0]); /* 1 */
     const double *y_d = d->desired + lqg_clamp(d, j) * N_MEAS;                                            /* 2 */
-    lqg_mat_vec(d->c, N_MEAS, N_STATE, N_STATE, x, cx);
-    for (int r = 0; r < N_MEAS; r++) innovation[r] = (m[r] - y_d[r]) - cx[r];
     const double *gain = d->gains != NULL && j < d->n_gains ? d->gains + (size_t)j * N_STATE * N_MEAS
                                                              : g->m + (size_t)d->index[lqg_clamp(d, j)] * N_STATE * N_MEAS;
-    lqg_mat_vec(gain, N_STATE, N_MEAS, N_MEAS, innovation, mi);
-    for (int r = 0; r < N_STATE; r++) x_post[r] = x[r] + mi[r];
+    law_corrected(x, gain, d->c, m, y_d, x_post); /* flexarm.filter_law.corrected */
     memcpy(x_now, x_post, N_STATE * sizeof *x_now); /* 3: the torques of samples j .. k - 1 */
     int first = k - dl >= 0 ? 1 : (int)(dl + 1 - k);
     for (int row = first, n = 0; row <= dl; row++, n++)
