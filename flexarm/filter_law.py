@@ -1,9 +1,10 @@
-"""The LQG's per-sample arithmetic, written once (issue 33 item 4): its Kalman filter, predictor and feedback.
+"""The LQG's per-sample arithmetic, written once (issue 33 item 4): its Kalman filters, predictor and feedback.
 
-The library's laws (:class:`flexarm.lqg.LqgController`, :class:`flexarm.lqg.PredictedTracking`) call these
-functions on NumPy arrays; the native controller FMUs' C is generated from them, evaluated on CasADi symbols at
-build time (:mod:`fmu_build.law_codegen`), as :mod:`flexarm.control_law`'s. The C keeps which sample and which
-design point is which, and the order of the steps.
+The library's laws (:class:`flexarm.lqg.LqgController`, :class:`flexarm.lqg.PredictedTracking`,
+:class:`flexarm.lqg_bank.BankController`, the last on all its filters at once) call these functions on NumPy
+arrays; the native controller FMUs' C is generated from them, evaluated on CasADi symbols at build time
+(:mod:`fmu_build.law_codegen`), as :mod:`flexarm.control_law`'s. The C keeps which sample and which design point is
+which, and the order of the steps.
 
 Matrix-vector products go through :func:`flexarm.law_ops.mat_vec`: NumPy's (BLAS) on numbers, compensated sums
 in the generated C. Shapes: the error state x (22,) (11 angles, rad, and 11 rates, rad/s, about the trajectory),
@@ -12,11 +13,11 @@ the ten measurements (q1, q2, q̇1, q̇2, ε1..ε6), torques (2,) in N·m.
 
 from __future__ import annotations
 
-from .law_ops import mat_vec, where_all_equal
+from .law_ops import dot, mat_vec, weighted, where_all_equal
 
 
-def time_update(phi, gamma, x, du):
-    """x⁺ = Φ x + Γ Δτ: the error state one sample on.
+def time_update(phi, gamma, x, du, drift=None):
+    """x⁺ = Φ x + Γ Δτ (+ d): the error state one sample on.
 
     Parameters
     ----------
@@ -27,25 +28,45 @@ def time_update(phi, gamma, x, du):
     x : array_like, shape (22,)
     du : array_like, shape (2,)
         The torques held over the sample less the nominal feedforward, N·m.
+    drift : array_like, shape (22,), optional
+        A payload model's drift over the sample (:func:`flexarm.lqg_bank.drift_along_path`).
+
+    The payload bank passes all its filters at once: phi (n, 22, 22), gamma (n, 22, 2), x (n, 22), drift (n, 22).
     """
-    return mat_vec(phi, x) + mat_vec(gamma, du)
+    x_next = mat_vec(phi, x) + mat_vec(gamma, du)
+    return x_next if drift is None else x_next + drift
 
 
-def corrected(x, gain, c, measurements, desired):
-    """The posterior x + M ((m − m_d) − C x): the measurement update with the filter gain M.
+def innovation(x, c, measurements, desired):
+    """e = (m − m_d) − C x: what the measurements say that the prior x does not, shape (10,) (or (n, 10) for n
+    priors x (n, 22)).
 
     Parameters
     ----------
     x : array_like, shape (22,)
         The prior.
-    gain : array_like, shape (22, 10)
-        M of the sample.
     c : array_like, shape (10, 22)
         The sensor map C.
     measurements, desired : array_like, shape (10,)
         m and the trajectory's m_d of the sample (rad, rad/s).
     """
-    return x + mat_vec(gain, (measurements - desired) - mat_vec(c, x))
+    return (measurements - desired) - mat_vec(c, x)
+
+
+def updated(x, gain, innovation):
+    """The posterior x + M e: the measurement update with the filter gain M (22, 10) (or one per prior)."""
+    return x + mat_vec(gain, innovation)
+
+
+def corrected(x, gain, c, measurements, desired):
+    """The posterior x + M ((m − m_d) − C x) of the single filter (:func:`innovation`, :func:`updated`)."""
+    return updated(x, gain, innovation(x, c, measurements, desired))
+
+
+def log_likelihood_update(log_p, e, s_inv, log_det_s):
+    """log p − ½ (eᵀ S⁻¹ e + log det S): a model's log posterior after its innovation e (10,), S⁻¹ (10, 10) and
+    log det S of its filter (the payload bank; batched over models on numbers)."""
+    return log_p - 0.5 * (dot(e, mat_vec(s_inv, e)) + log_det_s)
 
 
 def measured(c, x):
@@ -69,6 +90,24 @@ def free_torque(command, gain, x, gain_integral=None, xi=None):
     """
     tau = command - mat_vec(gain, x)
     return tau if gain_integral is None else tau - mat_vec(gain_integral, xi)
+
+
+def feedback(gain, x, gain_integral=None, xi=None):
+    """u = K x (+ K_ξ ξ): one payload model's feedback on its own estimate, N·m, shape (2,) (batched over models
+    on numbers: gain (n, 2, 22), x (n, 22))."""
+    u = mat_vec(gain, x)
+    return u if gain_integral is None else u + mat_vec(gain_integral, xi)
+
+
+def bank_free_torque(command, weights, feedbacks):
+    """τ = τ_cmd − Σ_f w_f u_f before the saturation: the payload bank's models' feedbacks (n, 2) weighed by
+    their posterior (n,), N·m."""
+    return command - weighted(weights, feedbacks)
+
+
+def weighted_estimate(weights, estimates):
+    """Σ_f w_f x_f: the bank's estimates (n, 22) weighed as its torque (the integrators' input)."""
+    return weighted(weights, estimates)
 
 
 def integrated(xi, dt, c_q, x, tau, tau_free):

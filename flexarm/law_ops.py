@@ -49,16 +49,20 @@ def round_half_even(x):
 
 
 def mat_vec(a, x):
-    """A x: a (r, c) and x (c,) -> (r,).
+    """A x: a (r, c) and x (c,) -> (r,); on numbers also batched, the product NumPy takes for the shapes.
 
-    On numbers, NumPy's product (BLAS). On symbols, each row summed in order with a compensated (Neumaier) sum,
-    nearly exact: the Kalman filters' lightly damped modes carry rounding over thousands of samples, and a nearly
-    exact product keeps the generated law as close to the exact one as BLAS's is (plain sums in order drift
-    further). Knuth's TwoSum gives each addition's exact rounding error without a branch; CasADi would simplify
-    (s + t) − s to t, so the sums are built with its simplification off.
+    On numbers, NumPy's product (BLAS): a (r, c) on x (c,) as ``a @ x``; one matrix on a batch of vectors x (n, c)
+    as ``x @ a.T`` (one GEMM), a matrix per vector, a (n, r, c) and x (n, c), as one ``matmul``; a batch of matrices
+    on one vector as ``a @ x``. On symbols (a (r, c), x (c,) only), each row summed in order with a compensated
+    (Neumaier) sum, nearly exact: the Kalman filters' lightly damped modes carry rounding over thousands of
+    samples, and a nearly exact product keeps the generated law as close to the exact one as BLAS's is (plain sums
+    in order drift further). Knuth's TwoSum gives each addition's exact rounding error without a branch; CasADi
+    would simplify (s + t) − s to t, so the sums are built with its simplification off.
     """
     if not _symbolic(a) and not _symbolic(x):
-        return a @ x
+        if np.ndim(x) == 1:
+            return a @ x
+        return x @ a.T if np.ndim(a) == 2 else np.matmul(a, x[..., None])[..., 0]
     import casadi as ca
 
     a, x = np.asarray(a, dtype=object), np.asarray(x, dtype=object)
@@ -91,3 +95,18 @@ def where_all_equal(a, b, if_equal, otherwise):
         equal = equal * (ai == bi)
     return np.array([ca.if_else(equal, y, n) for y, n in zip(np.ravel(if_equal), np.ravel(otherwise))],
                     dtype=object).reshape(np.shape(if_equal))
+
+
+def dot(a, b):
+    """a · b over the last axis (a batch of vector pairs on numbers; one pair on symbols, a compensated sum)."""
+    if not _symbolic(a) and not _symbolic(b):
+        return np.einsum("...a,...a->...", a, b)
+    return mat_vec(np.asarray(b, dtype=object)[None, :], a)[0]
+
+
+def weighted(weights, rows):
+    """Σ_f w_f rows_f: weights (n,) and rows (n, m) -> (m,) (``weights @ rows`` on numbers; on symbols each
+    column a compensated sum over f in order)."""
+    if not _symbolic(weights) and not _symbolic(rows):
+        return weights @ rows
+    return mat_vec(np.asarray(rows, dtype=object).T, weights)

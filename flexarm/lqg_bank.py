@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import control_law
+from . import control_law, filter_law
 from .gain_schedule import (
     GainError,
     as_trajectory,
@@ -91,11 +91,6 @@ BANK_FILE_FORMAT = "flexarm-lqg-bank/1"
 #: What each filter's design keeps in the bank file (what the control law and the likelihoods use).
 BANK_DESIGN_ARRAYS = ("times", "operating_points", "tau_bar", "Phi", "Gamma", "W", "M", "P_prior", "P_post",
                       "K", "K_integral", "C", "V")
-
-
-def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """One matrix-vector product per filter: A (n_filters, r, c), x (n_filters, c) -> (n_filters, r)."""
-    return np.matmul(A, x[..., None])[..., 0]
 
 
 def drift_along_path(design: LqgDesign, psi: np.ndarray, delta_acceleration: np.ndarray, dt: float) -> np.ndarray:
@@ -453,22 +448,21 @@ class BankController:
         j = max(k - d, 0)
         fresh = k - d >= 0
         i_j = self._index[self._c(j)]
-        dy = m - self._y_d[self._c(j)]
         sent = state.du[1:] if fresh else state.du[d + 1 - k:]  # torques of samples j .. k − 1
         x = state.x_post
         if state.started and j > 0 and fresh:  # time update from j − 1, drift included
             i_p = self._index[self._c(j - 1)]
-            x = _mv(self._Phi[i_p], x) + self._Gamma[i_p] @ state.du[0] + self._drift[self._c(j - 1)]
-        e = dy - x @ self.design.C.T  # innovations, (n_filters, 10)
+            x = filter_law.time_update(self._Phi[i_p], self._Gamma[i_p], x, state.du[0], self._drift[self._c(j - 1)])
+        e = filter_law.innovation(x, self.design.C, m, self._y_d[self._c(j)])  # (n_filters, 10)
         log_p = state.log_p.copy()
         if fresh and j > 0:
             n_m = len(log_p)
-            log_p -= 0.5 * (np.einsum("fa,fa->f", e[:n_m], _mv(self._S_inv[i_j], e[:n_m])) + self._log_det_S[i_j])
-        x_post = x + _mv(self._M[i_j], e)
+            log_p = filter_law.log_likelihood_update(log_p, e[:n_m], self._S_inv[i_j], self._log_det_S[i_j])
+        x_post = filter_law.updated(x, self._M[i_j], e)
         x_now = x_post
         for q, du in enumerate(sent):  # predict across the delay with the torques sent
             i_s = self._index[self._c(j + q)]
-            x_now = _mv(self._Phi[i_s], x_now) + self._Gamma[i_s] @ du + self._drift[self._c(j + q)]
+            x_now = filter_law.time_update(self._Phi[i_s], self._Gamma[i_s], x_now, du, self._drift[self._c(j + q)])
         log_p -= np.logaddexp.reduce(log_p)
         log_p = np.maximum(log_p, self.log_floor)
         log_p -= np.logaddexp.reduce(log_p)
@@ -480,13 +474,12 @@ class BankController:
         weights = self.weights(log_p)
         i_k = self._index[self._c(k)]
         ff = self.feedforward(k)
-        u = _mv(self._K[i_k], x_now)  # each model's feedback on its own estimate, (n_filters, 2)
-        if self.integral_action:
-            u = u + self._K_xi[i_k] @ state.xi
-        x_sel = weights @ x_now
-        tau_free = ff + correction_at(self.correction, k) - weights @ u
+        integral = (self._K_xi[i_k], state.xi) if self.integral_action else ()
+        u = filter_law.feedback(self._K[i_k], x_now, *integral)  # each model's on its own estimate, (n_filters, 2)
+        tau_free = filter_law.bank_free_torque(ff + correction_at(self.correction, k), weights, u)
         tau = control_law.saturate(tau_free, self.saturation)
         xi = state.xi
-        if self.integral_action and np.array_equal(tau, tau_free):
-            xi = xi + self.dt * (self._Cq @ x_sel)
+        if self.integral_action:
+            xi = filter_law.integrated(xi, self.dt, self._Cq, filter_law.weighted_estimate(weights, x_now), tau,
+                                       tau_free)
         return tau, BankState(k + 1, x_post, log_p, np.vstack([state.du[1:], tau - ff]), xi, True)

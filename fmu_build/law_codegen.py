@@ -19,9 +19,14 @@ resources hold them.
 * ``law_saturate(τ[2], limit[2]) -> τ[2]`` (:func:`~flexarm.control_law.saturate`);
 * ``law_has_switched(t_switch, t) -> 1 or 0`` (:func:`~flexarm.control_law.has_switched`, the schedules' rule);
 * the LQG's (:mod:`flexarm.filter_law`, products as compensated sums, :func:`~flexarm.law_ops.mat_vec`):
-  ``law_time_update(Φ[22×22], Γ[22×2], x[22], Δτ[2]) -> x⁺``, ``law_corrected(x, M[22×10], C[10×22], m, m_d)
-  -> x_post``, ``law_measured(C, x) -> C x``, ``law_free_torque(τ_cmd[2], K[2×22], x) -> τ_free`` and
-  ``law_free_torque_integral(.., K_ξ[2×2], ξ[2])``, ``law_integrated(ξ, dt, C_q[2×22], x, τ, τ_free) -> ξ'``.
+  ``law_time_update_drift(Φ[22×22], Γ[22×2], x[22], Δτ[2], d[22]) -> x⁺``,
+  ``law_innovation(x, C[10×22], m, m_d) -> e``, ``law_updated(x, M[22×10], e) -> x_post`` (the two are
+  :func:`~flexarm.filter_law.corrected`), ``law_measured(C, x) -> C x``,
+  ``law_free_torque(τ_cmd[2], K[2×22], x) -> τ_free`` and ``law_free_torque_integral(.., K_ξ[2×2], ξ[2])``,
+  ``law_integrated(ξ, dt, C_q[2×22], x, τ, τ_free) -> ξ'``; the payload bank's per filter
+  ``law_log_likelihood_update`` and ``law_feedback`` (``_integral``), and over its filters
+  ``law_bank_free_torque(τ_cmd, w[12], u[12×2])`` and ``law_weighted_estimate(w[12], x[12×22])``
+  (``LAW_BANK_FILTERS`` = 12, unused filters weighted 0).
 
 ``sensor_law`` (the sensors FMU), one channel per call:
 
@@ -46,6 +51,9 @@ from .native_codegen import check_no_library_math, drop_null_checks  # the plant
 
 #: The measurements (q1, q2, q̇1, q̇2, ε1..ε6) and the state (11 angles, 11 rates).
 N_MEAS, N_STATE = 10, 22
+#: Room for the payload bank's filters in the native controller (its resource says how many: 9); the bank's
+#: weighted sums are generated for this many, the unused ones weighted 0. The C's MAX_FILTERS is this.
+BANK_FILTERS = 12
 
 
 def _symbols(name: str, shape: tuple[int, ...]) -> tuple[ca.SX, np.ndarray]:
@@ -105,12 +113,38 @@ def filter_law_functions() -> list[ca.Function]:
     cq_sx, cq = _symbols("c_q", (2, N_STATE))
     tau_sx, tau = _symbols("tau", (2,))
     free_sx, free = _symbols("tau_free", (2,))
+    # one time update, with the drift: the single filter passes a zero drift, which changes no bit (its compensated
+    # sums start from +0.0, so they are never -0.0, and x + 0.0 = x for every other x); one copy of the largest
+    # function (22 x 24 compensated products) instead of two
+    drift_sx, drift = _symbols("drift", (N_STATE,))
+    e_sx, e = _symbols("innovation", (N_MEAS,))
+    lp_sx, lp = _symbols("log_p", (1,))
+    si_sx, si = _symbols("s_inv", (N_MEAS, N_MEAS))
+    ld_sx, ld = _symbols("log_det_s", (1,))
+    w_sx, w = _symbols("weights", (BANK_FILTERS,))
+    u_sx, u = _symbols("feedbacks", (BANK_FILTERS, 2))
+    xs_sx, xs = _symbols("estimates", (BANK_FILTERS, N_STATE))
     return [
-        ca.Function("generated_time_update", [phi_sx, gam_sx, x_sx, du_sx],
-                    [_output(filter_law.time_update(phi, gam, x, du))], ["phi", "gamma", "x", "du"], ["next"]),
-        ca.Function("generated_corrected", [x_sx, m_gain_sx, c_sx, m_sx, md_sx],
-                    [_output(filter_law.corrected(x, m_gain, c, m, md))],
-                    ["x", "filter_gain", "c", "measurements", "desired"], ["posterior"]),
+        ca.Function("generated_time_update_drift", [phi_sx, gam_sx, x_sx, du_sx, drift_sx],
+                    [_output(filter_law.time_update(phi, gam, x, du, drift))], ["phi", "gamma", "x", "du", "drift"],
+                    ["next"]),
+        ca.Function("generated_innovation", [x_sx, c_sx, m_sx, md_sx], [_output(filter_law.innovation(x, c, m, md))],
+                    ["x", "c", "measurements", "desired"], ["innovation"]),
+        ca.Function("generated_updated", [x_sx, m_gain_sx, e_sx], [_output(filter_law.updated(x, m_gain, e))],
+                    ["x", "filter_gain", "innovation"], ["posterior"]),
+        ca.Function("generated_log_likelihood_update", [lp_sx, e_sx, si_sx, ld_sx],
+                    [_output(filter_law.log_likelihood_update(lp, e, si, ld))],
+                    ["log_p", "innovation", "s_inv", "log_det_s"], ["next_log_p"]),
+        ca.Function("generated_feedback", [k_sx, x_sx], [_output(filter_law.feedback(k, x))], ["gain", "x"],
+                    ["feedback"]),
+        ca.Function("generated_feedback_integral", [k_sx, x_sx, kxi_sx, xi_sx],
+                    [_output(filter_law.feedback(k, x, kxi, xi))], ["gain", "x", "gain_integral", "xi"],
+                    ["feedback"]),
+        ca.Function("generated_bank_free_torque", [cmd_sx, w_sx, u_sx],
+                    [_output(filter_law.bank_free_torque(cmd, w, u))], ["command", "weights", "feedbacks"],
+                    ["tau_free"]),
+        ca.Function("generated_weighted_estimate", [w_sx, xs_sx], [_output(filter_law.weighted_estimate(w, xs))],
+                    ["weights", "estimates"], ["estimate"]),
         ca.Function("generated_measured", [c_sx, x_sx], [_output(filter_law.measured(c, x))], ["c", "x"],
                     ["deviation"]),
         ca.Function("generated_free_torque", [cmd_sx, k_sx, x_sx], [_output(filter_law.free_torque(cmd, k, x))],
@@ -150,11 +184,11 @@ def sensor_law_functions() -> list[ca.Function]:
     ]
 
 
-def _api(functions: list[ca.Function], stem: str, source: str) -> str:
+def _api(functions: list[ca.Function], stem: str, source: str, defines: tuple[str, ...] = ()) -> str:
     """<stem>_api.h: one plain C function per generated one (arguments and results as pointers)."""
     guard = f"{stem.upper()}_API_H"
     lines = [f"/* GENERATED by fmu_build/law_codegen.py from {source}: do not edit. */",
-             f"#ifndef {guard}", f"#define {guard}", f'#include "{stem}.h"', ""]
+             f"#ifndef {guard}", f"#define {guard}", f'#include "{stem}.h"', "", *defines, ""]
     for f in functions:
         name = f.name()
         ins = [f.name_in(i) for i in range(f.n_in())]
@@ -169,7 +203,8 @@ def _api(functions: list[ca.Function], stem: str, source: str) -> str:
     return "\n".join(lines + ["#endif", ""])
 
 
-def _generate(out_dir: Path, stem: str, source: str, functions: list[ca.Function]) -> list[Path]:
+def _generate(out_dir: Path, stem: str, source: str, functions: list[ca.Function],
+              defines: tuple[str, ...] = ()) -> list[Path]:
     gen = ca.CodeGenerator(f"{stem}.c", {"with_header": True, "casadi_real": "double", "casadi_int": "long long",
                                          "with_export": False})
     for f in functions:
@@ -178,7 +213,7 @@ def _generate(out_dir: Path, stem: str, source: str, functions: list[ca.Function
     check_no_library_math(out_dir / f"{stem}.c")
     drop_null_checks(out_dir / f"{stem}.c")
     _route_libm(out_dir / f"{stem}.c")
-    (out_dir / f"{stem}_api.h").write_text(_api(functions, stem, source))
+    (out_dir / f"{stem}_api.h").write_text(_api(functions, stem, source, defines))
     return [out_dir / f"{stem}{suffix}" for suffix in (".c", ".h", "_api.h")]
 
 
@@ -194,7 +229,8 @@ def _route_libm(path: Path) -> None:
 def generate_control_law(out_dir: Path) -> list[Path]:
     """Write control_law.c, .h and _api.h (:func:`law_functions`) into `out_dir`; return their paths."""
     return _generate(out_dir, "control_law", "flexarm/control_law.py and flexarm/filter_law.py",
-                     law_functions() + filter_law_functions())
+                     law_functions() + filter_law_functions(),
+                     (f"#define LAW_BANK_FILTERS {BANK_FILTERS} /* the bank's weighted sums' length */",))
 
 
 def generate_sensor_law(out_dir: Path) -> list[Path]:

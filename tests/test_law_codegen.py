@@ -111,7 +111,7 @@ def test_the_generated_filter_law_sums_nearly_exactly():
     for _ in range(20):
         phi, gam, x, du = rng.normal(size=(22, 22)), rng.normal(size=(22, 2)), rng.normal(size=22), rng.normal(size=2)
         phi[0, 0], phi[0, 21], x[0], x[21] = 1e18, -1e18, 1.0, 1.0  # row 0: its first and last term cancel
-        got = _eval(f["time_update"], phi, gam, x, du)
+        got = _eval(f["time_update_drift"], phi, gam, x, du, np.zeros(22))
         in_order = sum(phi[0] * x, 0.0) + gam[0] @ du  # a plain sum loses the twenty terms between them
         assert abs(in_order - got[0]) > 0.1 * abs(got[0] - gam[0] @ du)
         ab = np.abs(phi) @ np.abs(x) + np.abs(gam) @ np.abs(du)
@@ -122,7 +122,10 @@ def test_the_generated_filter_law_sums_nearly_exactly():
             size=10)
         want = filter_law.corrected(x, gain, c, m, m_d)
         bound = 32 * eps * (np.abs(x) + np.abs(gain) @ (np.abs(m) + np.abs(m_d) + np.abs(c) @ np.abs(x)))
-        assert np.all(np.abs(_eval(f["corrected"], x, gain, c, m, m_d) - want) <= bound)
+        e = _eval(f["innovation"], x, c, m, m_d)
+        assert np.all(np.abs(_eval(f["updated"], x, gain, e) - want) <= bound)
+        drift = rng.normal(size=22)
+        assert np.array_equal(_eval(f["time_update_drift"], phi, gam, x, du, drift), got + drift)
         assert np.all(np.abs(_eval(f["measured"], c, x) - _exact_rows(c, x)) <= eps * np.abs(c @ x)
                       + 22**2 * eps**2 * (np.abs(c) @ np.abs(x)))
         cmd, k, k_xi, xi = rng.normal(size=2), rng.normal(size=(2, 22)), rng.normal(size=(2, 2)), rng.normal(size=2)
@@ -130,6 +133,36 @@ def test_the_generated_filter_law_sums_nearly_exactly():
         assert np.all(np.abs(_eval(f["free_torque"], cmd, k, x) - filter_law.free_torque(cmd, k, x)) <= bound)
         assert np.all(np.abs(_eval(f["free_torque_integral"], cmd, k, x, k_xi, xi)
                              - filter_law.free_torque(cmd, k, x, k_xi, xi)) <= bound)
+
+
+def test_the_generated_bank_law_is_the_library_s_batched_one():
+    """The payload bank's law per filter (likelihood, feedback) and over its filters (the weighted torque and
+    estimate) as the library forms it for all filters at once; the generated sums run over LAW_BANK_FILTERS = 12
+    filters, the unused ones weighted 0, which changes no bit. Bounds: n eps of the terms' magnitudes (BLAS)."""
+    f, eps, n = _functions(law_codegen.filter_law_functions), np.finfo(float).eps, law_codegen.BANK_FILTERS
+    rng = np.random.default_rng(13)
+    for nf in (3, 9, n):
+        e, s_inv = rng.normal(size=(nf, 10)), rng.normal(size=(nf, 10, 10))
+        log_p, log_det = rng.normal(size=nf), rng.normal(size=nf)
+        want = filter_law.log_likelihood_update(log_p, e, s_inv, log_det)  # batched, as BankController
+        for i in range(nf):
+            got = float(f["log_likelihood_update"](log_p[i], e[i], s_inv[i].ravel(), log_det[i]))
+            scale = np.abs(e[i]) @ np.abs(s_inv[i]) @ np.abs(e[i]) + abs(log_det[i]) + abs(log_p[i])
+            assert abs(got - want[i]) <= 24 * eps * scale
+        k, x, k_xi, xi = rng.normal(size=(nf, 2, 22)), rng.normal(size=(nf, 22)), rng.normal(size=(nf, 2, 2)), \
+            rng.normal(size=2)
+        u = filter_law.feedback(k, x, k_xi, xi)
+        for i in range(nf):
+            bound = 26 * eps * (np.abs(k[i]) @ np.abs(x[i]) + np.abs(k_xi[i]) @ np.abs(xi))
+            assert np.all(np.abs(_eval(f["feedback_integral"], k[i], x[i], k_xi[i], xi) - u[i]) <= bound)
+            assert np.all(np.abs(_eval(f["feedback"], k[i], x[i]) - k[i] @ x[i]) <= bound)
+        w, cmd = rng.dirichlet(np.ones(nf)), rng.normal(size=2)
+        pad = lambda a: np.concatenate([a, np.zeros((n - len(a), *a.shape[1:]))])  # noqa: E731
+        tau = _eval(f["bank_free_torque"], cmd, pad(w), pad(u))
+        bound = 14 * eps * (np.abs(cmd) + w @ np.abs(u))
+        assert np.all(np.abs(tau - filter_law.bank_free_torque(cmd, w, u)) <= bound)
+        x_sel = _eval(f["weighted_estimate"], pad(w), pad(x))
+        assert np.all(np.abs(x_sel - filter_law.weighted_estimate(w, x)) <= 14 * eps * (w @ np.abs(x)))
 
 
 def test_the_generated_anti_windup_integrates_only_an_unsaturated_sample():
@@ -147,17 +180,21 @@ def test_the_generated_anti_windup_integrates_only_an_unsaturated_sample():
         assert (not np.array_equal(want, xi)) == moves and (not np.array_equal(got, xi)) == moves
 
 
-def test_the_hand_written_lqg_c_does_no_arithmetic_of_the_single_filter():
-    """The LQG FMU's filter, predictor, feedback and anti-windup, and the predicting paper's law's measurement, are
-    the generated ones; the hand C only says which sample and which design point."""
+def test_the_hand_written_lqg_c_does_no_arithmetic_of_the_filters():
+    """The LQG FMU's filter, predictor, feedback and anti-windup, the payload bank's per sample (but its posterior's
+    normalisation), and the predicting paper's law's measurement are the generated ones; the hand C only says which
+    sample and which design point."""
     core = (NATIVE_CONTROLLER / "lqg_core.c").read_text()
     estimate = core[core.index("void lqg_estimate"):core.index("void lqg_schedule_index")]
     propagate = core[core.index("void lqg_propagate"):core.index("void lqg_feedforward")]
-    assert "law_corrected(" in estimate and "law_time_update(" in propagate
+    assert "law_innovation(" in estimate and "law_updated(" in estimate and "law_time_update_drift(" in propagate
     assert "lqg_mat_vec" not in estimate + propagate
     lqg = (NATIVE_CONTROLLER / "controller_lqg.c").read_text()
     assert "lqg_mat_vec" not in lqg and "law_free_torque" in lqg and "law_integrated(" in lqg
     assert "lqg_mat_vec" not in (NATIVE_CONTROLLER / "controller.c").read_text()
+    bank = (NATIVE_CONTROLLER / "lqg_bank.c").read_text()
+    step = bank[bank.index("void bank_step"):]
+    assert "lqg_mat_vec" not in step and "law_log_likelihood_update(" in step and "law_bank_free_torque(" in step
 
 
 def test_the_generated_sensor_law_is_the_library_s_bit_for_bit():

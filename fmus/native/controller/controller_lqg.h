@@ -5,6 +5,7 @@
 #ifndef FLEXARM_CONTROLLER_LQG_H
 #define FLEXARM_CONTROLLER_LQG_H
 
+#include "control_law_api.h"
 #include "fmi2_glue.h"
 
 #define N_MEAS 10
@@ -13,7 +14,7 @@
 #define N_AUG (N_STATE + 2)
 #define N_WEIGHTS 4
 #define MAX_DELAY 10
-#define MAX_FILTERS 12 /* room for the bank's filters (the resource says how many: 9) */
+#define MAX_FILTERS LAW_BANK_FILTERS /* room for the bank's filters (the resource says how many: 9) */
 
 typedef struct {
     int count;
@@ -104,7 +105,7 @@ double *lqg_read_array(Instance *inst, const char *file, const char *text, const
 /* y = A x, A rows x cols with row stride `stride`, compensated sums. */
 void lqg_mat_vec(const double *a, int rows, int cols, int stride, const double *x, double *y);
 /* x <- Phi x + Gamma du at design point i. */
-void lqg_propagate(const Design *g, int i, double *x, const double du[2]);
+void lqg_propagate(const Design *g, int i, double *x, const double du[2], const double *drift);
 /* The point of `times` (count) in force at each sample k = 0 .. n_steps: the last time <= k dt + 1e-9. */
 void lqg_schedule_index(const double *times, int count, int n_steps, double dt, int *index);
 

@@ -11,8 +11,11 @@
  *   4. torque: tau = sat(tau_ff - sum_f w_f (K_f x_now_f + K_xi,f xi)), w = (0, p_1 .. p_(n-1), p_0): the quiet
  *      filter stands in for the unloaded model
  *   5. integral action: xi += dt C_q sum_f w_f x_now_f, only in a sample whose torque does not saturate
- * The drift d_j = psi(point of j) delta_acceleration_j is formed here at instantiation, as
- * flexarm.lqg_bank.drift_along_path does. Resource: lqg_bank_<schedule>.txt (fmu_build/native_resources.py).
+ * The arithmetic of steps 1, 4 and 5 is flexarm/filter_law.py's, generated (control_law_api.h); written here by
+ * hand, as BankController.step writes it in NumPy: the posterior's normalisation, floor and re-seeding (2, 3;
+ * NumPy's exp and log1p through portable_math) and the drift d_j = psi(point of j) delta_acceleration_j, formed
+ * at instantiation as flexarm.lqg_bank.drift_along_path does. Resource: lqg_bank_<schedule>.txt
+ * (fmu_build/native_resources.py).
  */
 #include <math.h>
 #include <stdlib.h>
@@ -111,24 +114,13 @@ static double log_sum_exp(const double *v, int n)
     return acc;
 }
 
-/* e' S e for S (10 x 10, row-major) as the law's einsum of e and S e: S e first, compensated sums. */
-static double quadratic_form(const double *s, const double e[N_MEAS])
-{
-    double se[N_MEAS], out;
-    lqg_mat_vec(s, N_MEAS, N_MEAS, N_MEAS, e, se);
-    lqg_mat_vec(se, 1, N_MEAS, N_MEAS, e, &out);
-    return out;
-}
-
 static long long clamp(const LqgData *d, long long k) { return k < d->n_steps ? k : d->n_steps; }
 
-/* x <- Phi x + Gamma du + drift_f(i_drift) at point i (the order of NumPy's expression). */
+/* x <- Phi x + Gamma du + drift_f(i_drift) at point i (flexarm.filter_law.time_update with the drift). */
 static void propagate_drift(const Bank *b, int f, int i, long long i_drift, long long rows, double *x,
                             const double du[2])
 {
-    const double *drift = b->drift + ((size_t)f * (size_t)rows + (size_t)i_drift) * N_STATE;
-    lqg_propagate(&b->filters[f], i, x, du);
-    for (int r = 0; r < N_STATE; r++) x[r] += drift[r];
+    lqg_propagate(&b->filters[f], i, x, du, b->drift + ((size_t)f * (size_t)rows + (size_t)i_drift) * N_STATE);
 }
 
 void bank_step(const LqgData *d, const LqgState *s, long long k, const double m[N_MEAS], const double limit[2],
@@ -140,24 +132,23 @@ void bank_step(const LqgData *d, const LqgState *s, long long k, const double m[
     const int fresh = k - dl >= 0, i_j = b->index[clamp(d, j)];
     const int first = fresh ? 1 : (int)(dl + 1 - k); /* the torques of samples j .. k - 1 */
     const double *y_d = d->desired + clamp(d, j) * N_MEAS;
-    double dy[N_MEAS], x_now[MAX_FILTERS][N_STATE];
-    for (int r = 0; r < N_MEAS; r++) dy[r] = m[r] - y_d[r];
+    double x_now[MAX_FILTERS][N_STATE] = {{0.0}}; /* the filters past nf weighted 0 (the generated sums' length) */
     memset(next, 0, sizeof *next);
     memcpy(next->log_p, s->log_p, sizeof next->log_p);
     for (int f = 0; f < nf; f++) { /* 1 */
         const Design *g = &b->filters[f];
-        double x[N_STATE], cx[N_MEAS], e[N_MEAS], me[N_STATE];
+        double x[N_STATE], e[N_MEAS];
         memcpy(x, s->x_post[f], sizeof x);
         if (s->started && j > 0 && fresh) propagate_drift(b, f, b->index[clamp(d, j - 1)], clamp(d, j - 1), rows, x,
                                                           s->du[0]);
-        lqg_mat_vec(b->c + (size_t)f * N_MEAS * N_STATE, N_MEAS, N_STATE, N_STATE, x, cx);
-        for (int r = 0; r < N_MEAS; r++) e[r] = dy[r] - cx[r];
+        law_innovation(x, b->c + (size_t)f * N_MEAS * N_STATE, m, y_d, e);
         if (fresh && j > 0 && f < nm) {
             const size_t at = (size_t)f * (size_t)b->count + (size_t)i_j;
-            next->log_p[f] -= 0.5 * (quadratic_form(b->s_inv + at * N_MEAS * N_MEAS, e) + b->log_det_s[at]);
+            const double log_p = next->log_p[f];
+            law_log_likelihood_update(&log_p, e, b->s_inv + at * N_MEAS * N_MEAS, &b->log_det_s[at], &next->log_p[f]);
         }
-        lqg_mat_vec(g->m + (size_t)i_j * N_STATE * N_MEAS, N_STATE, N_MEAS, N_MEAS, e, me);
-        for (int r = 0; r < N_STATE; r++) next->x_post[f][r] = x_now[f][r] = x[r] + me[r];
+        law_updated(x, g->m + (size_t)i_j * N_STATE * N_MEAS, e, next->x_post[f]);
+        memcpy(x_now[f], next->x_post[f], sizeof x_now[f]);
         for (int row = first, q = 0; row <= dl; row++, q++)
             propagate_drift(b, f, b->index[clamp(d, j + q)], clamp(d, j + q), rows, x_now[f], s->du[row]);
     }
@@ -172,38 +163,35 @@ void bank_step(const LqgData *d, const LqgState *s, long long k, const double m[
         memcpy(next->x_post[nf - 1], next->x_post[0], sizeof next->x_post[0]);
         memcpy(x_now[nf - 1], x_now[0], sizeof x_now[0]);
     }
-    w[0] = 0.0; /* 4 */
+    for (int i = 0; i < MAX_FILTERS; i++) w[i] = 0.0; /* 4 */
     for (int i = 1; i < nm; i++) w[i] = p[i];
     w[nf - 1] = p[0];
     const int i_k = b->index[clamp(d, k)];
-    double ff[2], ff_cmd[2];
+    double ff[2], ff_cmd[2], u[MAX_FILTERS][2] = {{0.0}}, free_tau[2];
     lqg_feedforward(d, k, ff, ff_cmd);
-    double u[2][MAX_FILTERS], x_t[N_STATE][MAX_FILTERS], fb[2], x_sel[N_STATE], free_tau[2];
-    for (int f = 0; f < nf; f++) { /* each model's feedback on its own estimate */
+    for (int f = 0; f < nf; f++) { /* each model's feedback on its own estimate (flexarm.filter_law.feedback) */
         const Design *g = &b->filters[f];
-        double kx[2], kxi[2];
-        if (d->integral) {
+        if (d->integral) { /* the augmented gain [K K_xi] per row: its two blocks */
             const double *ka = g->k_integral + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_AUG;
-            lqg_mat_vec(ka, 2, N_STATE, N_AUG, x_now[f], kx);
-            lqg_mat_vec(ka + N_STATE, 2, 2, N_AUG, s->xi, kxi);
-            for (int r = 0; r < 2; r++) u[r][f] = kx[r] + kxi[r];
+            double k_x[2 * N_STATE], k_xi[2 * 2];
+            for (int r = 0; r < 2; r++) {
+                memcpy(k_x + r * N_STATE, ka + r * N_AUG, N_STATE * sizeof *k_x);
+                memcpy(k_xi + r * 2, ka + r * N_AUG + N_STATE, 2 * sizeof *k_xi);
+            }
+            law_feedback_integral(k_x, x_now[f], k_xi, s->xi, u[f]);
         } else {
-            lqg_mat_vec(g->k + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_STATE, 2, N_STATE, N_STATE, x_now[f], kx);
-            for (int r = 0; r < 2; r++) u[r][f] = kx[r];
+            law_feedback(g->k + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_STATE, x_now[f], u[f]);
         }
-        for (int r = 0; r < N_STATE; r++) x_t[r][f] = x_now[f][r];
     }
-    lqg_mat_vec(u[0], 2, nf, MAX_FILTERS, w, fb);                 /* weights @ u */
-    lqg_mat_vec(x_t[0], N_STATE, nf, MAX_FILTERS, w, x_sel);       /* weights @ x_now */
-    int saturated = 0;
-    for (int r = 0; r < 2; r++) {
-        free_tau[r] = ff_cmd[r] - fb[r];
+    law_bank_free_torque(ff_cmd, w, u[0], free_tau);
+    law_saturate(free_tau, limit, tau);
+    if (d->integral) { /* 5: C_q of the quiet filter (the law's sensor map) on the weighted estimate */
+        double x_sel[N_STATE];
+        law_weighted_estimate(w, x_now[0], x_sel);
+        law_integrated(s->xi, &d->dt, b->c + (size_t)(nf - 1) * N_MEAS * N_STATE, x_sel, tau, free_tau, next->xi);
+    } else {
+        next->xi[0] = s->xi[0], next->xi[1] = s->xi[1];
     }
-    law_saturate(free_tau, limit, tau); /* flexarm.control_law.saturate */
-    for (int r = 0; r < 2; r++) saturated |= tau[r] != free_tau[r];
-    double cq[2]; /* 5: C_q of the quiet filter (the law's sensor map) */
-    lqg_mat_vec(b->c + (size_t)(nf - 1) * N_MEAS * N_STATE, 2, N_STATE, N_STATE, x_sel, cq);
-    for (int r = 0; r < 2; r++) next->xi[r] = d->integral && !saturated ? s->xi[r] + d->dt * cq[r] : s->xi[r];
     for (int row = 0; row < dl; row++) next->du[row][0] = s->du[row + 1][0], next->du[row][1] = s->du[row + 1][1];
     next->du[dl][0] = tau[0] - ff[0], next->du[dl][1] = tau[1] - ff[1];
     next->k = k + 1;

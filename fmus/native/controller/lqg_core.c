@@ -45,9 +45,9 @@ int lqg_read_design(Instance *inst, const char *file, const char *text, Design *
 }
 
 /* -- the law -------------------------------------------------------------------------------------------------- */
-/* y = A x for A (rows x cols, row stride `stride`). Compensated (Neumaier) sums: the filter's lightly damped
-   modes accumulate rounding over thousands of samples, and nearly exact dot products keep the native law as
-   close to the exact one as NumPy's (BLAS) is. */
+/* y = A x for A (rows x cols, row stride `stride`), for what is not generated yet (the bank's drift at
+   instantiation, the predictor's filter gains): the compensated sums of the generated law
+   (flexarm.law_ops.mat_vec, whose docstring says why), the same bits. */
 /* sum += term, carry += the exact rounding error of that addition (Knuth's TwoSum: no branch; the error is the
    one Neumaier's test-and-subtract gives, bit for bit, both being exact). */
 #define NEUMAIER(sum, carry, term)                                         \
@@ -82,11 +82,14 @@ void lqg_mat_vec(const double *a, int rows, int cols, int stride, const double *
     }
 }
 
-/* x <- Phi x + Gamma du at design point i (flexarm.filter_law.time_update, generated). */
-void lqg_propagate(const Design *g, int i, double *x, const double du[2])
+/* x <- Phi x + Gamma du + drift at design point i (flexarm.filter_law.time_update, generated); drift NULL: none
+   (a zero drift, which changes no bit: law_time_update_drift's sums are never -0.0). */
+void lqg_propagate(const Design *g, int i, double *x, const double du[2], const double *drift)
 {
+    static const double no_drift[N_STATE];
     double next[N_STATE];
-    law_time_update(g->phi + (size_t)i * N_STATE * N_STATE, g->gamma + (size_t)i * N_STATE * 2, x, du, next);
+    law_time_update_drift(g->phi + (size_t)i * N_STATE * N_STATE, g->gamma + (size_t)i * N_STATE * 2, x, du,
+                          drift != NULL ? drift : no_drift, next);
     memcpy(x, next, sizeof next);
 }
 
@@ -109,15 +112,17 @@ void lqg_estimate(const LqgData *d, const LqgState *s, long long k, const double
     long long j = k - dl > 0 ? k - dl : 0;
     double x[N_STATE];
     memcpy(x, s->x_post[0], sizeof x);
-    if (s->started && j > 0 && k - dl >= 0) lqg_propagate(g, d->index[lqg_clamp(d, j - 1)], x, s->du[0]); /* 1 */
+    if (s->started && j > 0 && k - dl >= 0) lqg_propagate(g, d->index[lqg_clamp(d, j - 1)], x, s->du[0], NULL); /* 1 */
     const double *y_d = d->desired + lqg_clamp(d, j) * N_MEAS;                                            /* 2 */
     const double *gain = d->gains != NULL && j < d->n_gains ? d->gains + (size_t)j * N_STATE * N_MEAS
                                                              : g->m + (size_t)d->index[lqg_clamp(d, j)] * N_STATE * N_MEAS;
-    law_corrected(x, gain, d->c, m, y_d, x_post); /* flexarm.filter_law.corrected */
+    double e[N_MEAS]; /* flexarm.filter_law.corrected */
+    law_innovation(x, d->c, m, y_d, e);
+    law_updated(x, gain, e, x_post);
     memcpy(x_now, x_post, N_STATE * sizeof *x_now); /* 3: the torques of samples j .. k - 1 */
     int first = k - dl >= 0 ? 1 : (int)(dl + 1 - k);
     for (int row = first, n = 0; row <= dl; row++, n++)
-        lqg_propagate(g, d->index[lqg_clamp(d, j + n)], x_now, s->du[row]);
+        lqg_propagate(g, d->index[lqg_clamp(d, j + n)], x_now, s->du[row], NULL);
 }
 
 void lqg_schedule_index(const double *times, int count, int n_steps, double dt, int *index)
