@@ -13,7 +13,9 @@ the ten measurements (q1, q2, q̇1, q̇2, ε1..ε6), torques (2,) in N·m.
 
 from __future__ import annotations
 
-from .law_ops import dot, mat_vec, weighted, where_all_equal
+import numpy as np
+
+from .law_ops import clamp, dot, exp, log_sum_exp, mat_vec, weighted, where, where_all_equal
 
 
 def time_update(phi, gamma, x, du, drift=None):
@@ -67,6 +69,22 @@ def log_likelihood_update(log_p, e, s_inv, log_det_s):
     """log p − ½ (eᵀ S⁻¹ e + log det S): a model's log posterior after its innovation e (10,), S⁻¹ (10, 10) and
     log det S of its filter (the payload bank; batched over models on numbers)."""
     return log_p - 0.5 * (dot(e, mat_vec(s_inv, e)) + log_det_s)
+
+
+def normalised_posterior(log_p, log_floor, active=None):
+    """The payload bank's log posterior normalised, floored at `log_floor` and normalised again, and its
+    probabilities: (log p, p), each (n_models,). A NaN stays NaN (np.maximum's floor). `active` (symbols only: the
+    generated C's fixed length) marks the models present; the rest come out −inf and 0, and change no sum."""
+    if active is not None:
+        log_p = where(active, log_p, -np.inf)
+    log_p = log_p - log_sum_exp(log_p)
+    log_p = clamp(log_p, log_floor, np.inf)
+    if active is not None:
+        log_p = where(active, log_p, -np.inf)
+    log_p = log_p - log_sum_exp(log_p)
+    if active is not None:  # a NaN posterior leaves the absent ones −inf too
+        log_p = where(active, log_p, -np.inf)
+    return log_p, exp(log_p)
 
 
 def measured(c, x):

@@ -10,6 +10,8 @@ x kept, so −0.3 rounds to −0.0 as NumPy's does. CasADi is imported only on t
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 
@@ -66,9 +68,7 @@ def mat_vec(a, x):
     import casadi as ca
 
     a, x = np.asarray(a, dtype=object), np.asarray(x, dtype=object)
-    was = ca.GlobalOptions.getSimplificationOnTheFly()
-    ca.GlobalOptions.setSimplificationOnTheFly(False)
-    try:
+    with as_written():
         rows = []
         for row in a:
             total, carry = ca.SX(0.0), ca.SX(0.0)
@@ -79,9 +79,32 @@ def mat_vec(a, x):
                 carry = carry + ((total - (t - b)) + (term - b))
                 total = t
             rows.append(total + carry)
+    return np.array(rows, dtype=object)
+
+
+@contextlib.contextmanager
+def as_written():
+    """Build CasADi expressions exactly as written: its on-the-fly simplification rewrites (s + t) − s as t and
+    a·(1/b) as a/b, which round differently from what the numbers path computes."""
+    import casadi as ca
+
+    was = ca.GlobalOptions.getSimplificationOnTheFly()
+    ca.GlobalOptions.setSimplificationOnTheFly(False)
+    try:
+        yield
     finally:
         ca.GlobalOptions.setSimplificationOnTheFly(was)
-    return np.array(rows, dtype=object)
+
+
+def where(condition, if_true, otherwise):
+    """`if_true` where `condition` holds, else `otherwise`, elementwise (:func:`numpy.where`)."""
+    if not _symbolic(condition) and not _symbolic(if_true) and not _symbolic(otherwise):
+        return np.where(condition, if_true, otherwise)
+    import casadi as ca
+
+    shape = np.broadcast(condition, if_true, otherwise).shape
+    return np.array([ca.if_else(c, a, b) for c, a, b in np.broadcast(condition, if_true, otherwise)],
+                    dtype=object).reshape(shape)
 
 
 def where_all_equal(a, b, if_equal, otherwise):
@@ -110,3 +133,36 @@ def weighted(weights, rows):
     if not _symbolic(weights) and not _symbolic(rows):
         return weights @ rows
     return mat_vec(np.asarray(rows, dtype=object).T, weights)
+
+
+#: NumPy's NPY_LOGE2, log 2 (its logaddexp of two equal values).
+LOGE2 = 0.693147180559945309417232121458176568
+
+
+def log_sum_exp(v):
+    """log Σ exp(v) over the last axis as :func:`numpy.logaddexp.reduce` forms it: a left fold of NumPy's
+    logaddexp, max + log1p(exp(−|x − y|)), x + log 2 when equal (on symbols, one vector; the generated C calls the
+    portable exp and log1p, :func:`fmu_build.law_codegen`)."""
+    if not _symbolic(v):
+        return np.logaddexp.reduce(v, axis=-1)
+    import casadi as ca
+
+    v = np.ravel(np.asarray(v, dtype=object))
+    with as_written():
+        total = v[0]
+        for y in v[1:]:
+            t = total - y
+            ordered = ca.if_else(t > 0, total + ca.log1p(ca.exp(-t)), ca.if_else(t <= 0, y + ca.log1p(ca.exp(t)), t))
+            total = ca.if_else(total == y, total + LOGE2, ordered)
+    out = np.empty((), dtype=object)  # a 0-d object array: NumPy would try to convert a bare symbol
+    out[()] = total
+    return out
+
+
+def exp(x):
+    """e^x elementwise (NumPy's on numbers; the portable one in the generated C)."""
+    if not _symbolic(x):
+        return np.exp(x)
+    import casadi as ca
+
+    return np.array([ca.exp(xi) for xi in np.ravel(x)], dtype=object).reshape(np.shape(x))

@@ -463,10 +463,7 @@ class BankController:
         for q, du in enumerate(sent):  # predict across the delay with the torques sent
             i_s = self._index[self._c(j + q)]
             x_now = filter_law.time_update(self._Phi[i_s], self._Gamma[i_s], x_now, du, self._drift[self._c(j + q)])
-        log_p -= np.logaddexp.reduce(log_p)
-        log_p = np.maximum(log_p, self.log_floor)
-        log_p -= np.logaddexp.reduce(log_p)
-        p = np.exp(log_p)
+        log_p, p = filter_law.normalised_posterior(log_p, self.log_floor)
         if self.history is not None:
             self.history.append(p)
         if p[0] < self.reseed_below:  # the unloaded arm is ruled out: the quiet filter follows its fast twin

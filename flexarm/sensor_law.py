@@ -2,9 +2,8 @@
 
 :class:`flexarm.sensors.SensorBank` (the library and the Python sensors FMU) calls these on NumPy arrays, one
 value per channel; the native sensors FMU's C is generated from the same functions on CasADi symbols, one channel
-at a time (:mod:`fmu_build.law_codegen`). The Butterworth design itself is SciPy's in the library; the native FMU
-designs it at initialisation as SciPy does (``fmus/native/sensors/sensors.c``, checked against SciPy by
-``tests/test_native_sensors.py``).
+at a time (:mod:`fmu_build.law_codegen`). The filters' design is :mod:`flexarm.filter_design`, generated the same
+way.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ Choices (the paper is silent; defaults in ``flexarm/data/sensors_default.toml``)
   (accelerometers) low-pass filters of unstated type. We use Butterworth
   filters (default order 2) discretised by the bilinear transform with
   frequency pre-warping at the sample rate (:func:`scipy.signal.butter` with
-  ``fs``), so the gain is exactly −3.01 dB at the cut-off and 1 at DC. The
+  ``fs``, computed by :mod:`flexarm.filter_design`), so the gain is exactly −3.01 dB at the cut-off and 1 at DC. The
   state is set to steady state on the first sample after :meth:`SensorBank.reset`,
   so a constant input gives no start-up transient. Off by default: the
   paper's simulations had none.
@@ -58,6 +58,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import sensor_law as law
+from .filter_design import butterworth_lowpass
 from .model import ArmModel, joint_angles, joint_velocities, strain_gauge_angles
 from .parameters import N_ELEMENTS, STRAIN_GAUGE_ELEMENTS, ArmParameters
 from .sensor_settings import DEFAULT_SENSOR_FILE as DEFAULT_SENSOR_FILE  # re-exported: the settings' own module
@@ -185,14 +186,10 @@ class _LowPassBank:
     """
 
     def __init__(self, order: int, cutoff_hz: float, dt: float, n_channels: int):
-        # butter(..., fs=) pre-warps the cut-off before the bilinear transform,
-        # so the digital filter's −3 dB point is exactly cutoff_hz.
-        from scipy import signal  # here: scipy.signal costs about a second to import, and few users filter
-
-        self.sos = signal.butter(order, cutoff_hz, btype="low", output="sos", fs=1.0 / dt)
-        # Per-section state for a unit step in steady state; scaled by the
-        # first sample to start without a transient.
-        self.zi_unit = signal.sosfilt_zi(self.sos)
+        # Pre-warped before the bilinear transform, so the digital filter's −3 dB point is exactly cutoff_hz; with
+        # each section's state for a unit step in steady state, scaled by the first sample to start without a
+        # transient (flexarm.filter_design, the design the native FMU's C is generated from).
+        self.sos, self.zi_unit = butterworth_lowpass(order, cutoff_hz, 1.0 / dt)
         self.state = np.zeros((self.sos.shape[0], n_channels, 2))
 
     def prime(self, x: np.ndarray) -> None:

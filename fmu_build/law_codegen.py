@@ -26,25 +26,31 @@ resources hold them.
   ``law_integrated(ξ, dt, C_q[2×22], x, τ, τ_free) -> ξ'``; the payload bank's per filter
   ``law_log_likelihood_update`` and ``law_feedback`` (``_integral``), and over its filters
   ``law_bank_free_torque(τ_cmd, w[12], u[12×2])`` and ``law_weighted_estimate(w[12], x[12×22])``
-  (``LAW_BANK_FILTERS`` = 12, unused filters weighted 0).
+  (``LAW_BANK_FILTERS`` = 12, unused filters weighted 0), and its posterior
+  ``law_normalised_posterior(log p[12], active[12], log_floor) -> (log p, p)``
+  (:func:`~flexarm.filter_law.normalised_posterior`; its exp and log1p are the portable ones).
 
 ``sensor_law`` (the sensors FMU), one channel per call:
 
 * ``law_filter_section(sos[6], s0, s1, x) -> (y, s0', s1')`` (:func:`~flexarm.sensor_law.filter_section`);
 * ``law_primed_state(unit_state[2], x) -> state[2]`` (:func:`~flexarm.sensor_law.primed_state`);
 * ``law_with_noise(y, amplitude, uniform) -> y'`` (:func:`~flexarm.sensor_law.with_noise`);
-* ``law_quantize(x, lsb, lo_code, hi_code) -> x'`` (:func:`~flexarm.sensor_law.quantize`).
+* ``law_quantize(x, lsb, lo_code, hi_code) -> x'`` (:func:`~flexarm.sensor_law.quantize`);
+* the Butterworth design at initialisation (:mod:`flexarm.filter_design`): ``law_prewarp_argument(cutoff_hz,
+  sample_rate_hz) -> a``, whose tangent the C takes with the portable ``flexarm_tan``, then
+  ``law_butterworth_order_<N>(tan a) -> (sos[n×6], unit_state[n×2])`` for N = 1..8, n = (N + 1) / 2 sections.
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
 from flexarm import control_law as law
-from flexarm import filter_law, sensor_law
+from flexarm import filter_design, filter_law, sensor_law
 
 from . import native_codegen
 from .native_codegen import check_no_library_math, drop_null_checks  # the plant's checks, the same
@@ -124,6 +130,10 @@ def filter_law_functions() -> list[ca.Function]:
     w_sx, w = _symbols("weights", (BANK_FILTERS,))
     u_sx, u = _symbols("feedbacks", (BANK_FILTERS, 2))
     xs_sx, xs = _symbols("estimates", (BANK_FILTERS, N_STATE))
+    lps_sx, lps = _symbols("log_p", (BANK_FILTERS,))
+    act_sx, act = _symbols("active", (BANK_FILTERS,))
+    floor_sx, floor = _symbols("log_floor", (1,))
+    posterior = filter_law.normalised_posterior(lps, floor, act)
     return [
         ca.Function("generated_time_update_drift", [phi_sx, gam_sx, x_sx, du_sx, drift_sx],
                     [_output(filter_law.time_update(phi, gam, x, du, drift))], ["phi", "gamma", "x", "du", "drift"],
@@ -145,6 +155,9 @@ def filter_law_functions() -> list[ca.Function]:
                     ["tau_free"]),
         ca.Function("generated_weighted_estimate", [w_sx, xs_sx], [_output(filter_law.weighted_estimate(w, xs))],
                     ["weights", "estimates"], ["estimate"]),
+        ca.Function("generated_normalised_posterior", [lps_sx, act_sx, floor_sx],
+                    [_output(posterior[0]), _output(posterior[1])], ["log_p", "active", "log_floor"],
+                    ["normalised_log_p", "p"]),
         ca.Function("generated_measured", [c_sx, x_sx], [_output(filter_law.measured(c, x))], ["c", "x"],
                     ["deviation"]),
         ca.Function("generated_free_torque", [cmd_sx, k_sx, x_sx], [_output(filter_law.free_torque(cmd, k, x))],
@@ -181,7 +194,23 @@ def sensor_law_functions() -> list[ca.Function]:
         ca.Function("generated_quantize", [x_sx, lsb_sx, lo_sx, hi_sx],
                     [_output(sensor_law.quantize(x, lsb, lo, hi))], ["x", "lsb", "lo_code", "hi_code"],
                     ["quantized"]),
+        *butterworth_functions(),
     ]
+
+
+def butterworth_functions() -> list[ca.Function]:
+    """The filter design of :mod:`flexarm.filter_design`: the tangent's argument, and one function per order."""
+    c_sx, c = _symbols("cutoff_hz", (1,))
+    fs_sx, fs = _symbols("sample_rate_hz", (1,))
+    t_sx, t = _symbols("tan_prewarp", (1,))
+    functions = [ca.Function("generated_prewarp_argument", [c_sx, fs_sx],
+                             [_output(filter_design.prewarp_argument(c[0], fs[0]))],
+                             ["cutoff_hz", "sample_rate_hz"], ["argument"])]
+    for order in filter_design.ORDERS:
+        sos, unit_state = filter_design.butterworth_sections(order, t[0])
+        functions.append(ca.Function(f"generated_butterworth_order_{order}", [t_sx],
+                                     [_output(sos), _output(unit_state)], ["tan_prewarp"], ["sos", "unit_state"]))
+    return functions
 
 
 def _api(functions: list[ca.Function], stem: str, source: str, defines: tuple[str, ...] = ()) -> str:
@@ -210,11 +239,25 @@ def _generate(out_dir: Path, stem: str, source: str, functions: list[ca.Function
     for f in functions:
         gen.add(f)
     gen.generate(str(out_dir) + "/")
+    _route_portable(out_dir / f"{stem}.c")
     check_no_library_math(out_dir / f"{stem}.c")
     drop_null_checks(out_dir / f"{stem}.c")
     _route_libm(out_dir / f"{stem}.c")
     (out_dir / f"{stem}_api.h").write_text(_api(functions, stem, source, defines))
     return [out_dir / f"{stem}{suffix}" for suffix in (".c", ".h", "_api.h")]
+
+
+def _route_portable(path: Path) -> None:
+    """The laws' exp and log1p (the bank's posterior, :func:`flexarm.law_ops.log_sum_exp`) call the portable ones
+    (``portable_math.h``, the hand C's before), whose bits are the same on every platform; C libraries' differ."""
+    text = path.read_text()
+    routed, n = re.subn(r"\b(exp|log1p)\(", r"flexarm_\1(", text)
+    routed = routed.replace("return log(1+x);", "return flexarm_log1p(x);")  # casadi_log1p's pre-C99 branch
+    if n:
+        if "#include <math.h>\n" not in routed:
+            raise RuntimeError(f"{path}: CasADi's code no longer includes <math.h>: update _route_portable")
+        routed = routed.replace("#include <math.h>\n", '#include <math.h>\n#include "portable_math.h"\n', 1)
+    path.write_text(routed)
 
 
 def _route_libm(path: Path) -> None:
@@ -235,4 +278,6 @@ def generate_control_law(out_dir: Path) -> list[Path]:
 
 def generate_sensor_law(out_dir: Path) -> list[Path]:
     """Write sensor_law.c, .h and _api.h (:func:`sensor_law_functions`) into `out_dir`; return their paths."""
-    return _generate(out_dir, "sensor_law", "flexarm/sensor_law.py", sensor_law_functions())
+    return _generate(out_dir, "sensor_law", "flexarm/sensor_law.py and flexarm/filter_design.py",
+                     sensor_law_functions(),
+                     (f"#define LAW_BUTTERWORTH_ORDERS {filter_design.ORDERS[-1]} /* law_butterworth_order_1.. */",))

@@ -165,6 +165,34 @@ def test_the_generated_bank_law_is_the_library_s_batched_one():
         assert np.all(np.abs(x_sel - filter_law.weighted_estimate(w, x)) <= 14 * eps * (w @ np.abs(x)))
 
 
+def test_the_generated_bank_posterior_is_the_library_s_bit_for_bit():
+    """The posterior's normalisation, floor and normalisation again, over LAW_BANK_FILTERS = 12 entries with the
+    models present marked: the absent ones (−inf) change no bit of NumPy's left fold, and a floored model, ±inf
+    and NaN come out as the library's. exp and log1p here are CasADi's (the C library's, as NumPy's logaddexp's);
+    the generated C calls the portable ones, held to NumPy's by the native bank's parity tests."""
+    f = _functions(law_codegen.filter_law_functions)["normalised_posterior"]
+    n, log_floor = law_codegen.BANK_FILTERS, math.log(1e-4)
+    rng = np.random.default_rng(21)
+    cases = [rng.normal(scale=s, size=nm) for nm in (1, 3, 9, 11) for s in (0.1, 30.0)]
+    cases += [np.array([0.0, -50.0, -3.0]), np.array([2.0, 2.0, 2.0]), np.array([-np.inf, 0.0, 1.0]),
+              np.array([np.nan, 0.0, 1.0]), np.array([1.0, np.inf, 0.0])]
+    for log_p in cases:
+        with np.errstate(invalid="ignore"):  # NaN and inf - inf: the cases meant
+            want_log_p, want_p = filter_law.normalised_posterior(log_p, log_floor)
+        nm = len(log_p)
+        padded = np.concatenate([log_p, np.full(n - nm, 7.0)])  # what stands past the models must not matter
+        got = f(padded, (np.arange(n) < nm).astype(float), log_floor)
+        got_log_p, got_p = np.array(got[0]).ravel(), np.array(got[1]).ravel()
+        np.testing.assert_array_equal(got_log_p[:nm], want_log_p)
+        # p = exp(log p): NumPy's exp and the one CasADi evaluates with may round apart, by an ulp
+        finite = np.isfinite(want_p)
+        np.testing.assert_array_equal(np.isnan(got_p[:nm]), np.isnan(want_p))
+        assert (np.abs(got_p[:nm][finite] - want_p[finite]) <= np.finfo(float).eps * want_p[finite]).all()
+        assert (got_log_p[nm:] == -np.inf).all() and (got_p[nm:] == 0).all()
+    floored = filter_law.normalised_posterior(np.array([0.0, -50.0]), log_floor)[0]
+    assert floored[1] > -50.0  # the floor acts: the test above would see a wrong floor
+
+
 def test_the_generated_anti_windup_integrates_only_an_unsaturated_sample():
     """ξ + dt C_q x when τ = τ_free, else ξ: a saturated torque, or a NaN one (never equal), holds the integrator,
     in the library and in the generated C alike."""
@@ -195,6 +223,7 @@ def test_the_hand_written_lqg_c_does_no_arithmetic_of_the_filters():
     bank = (NATIVE_CONTROLLER / "lqg_bank.c").read_text()
     step = bank[bank.index("void bank_step"):]
     assert "lqg_mat_vec" not in step and "law_log_likelihood_update(" in step and "law_bank_free_torque(" in step
+    assert "law_normalised_posterior(" in step and not re.search(r"\b(flexarm_)?(exp|log1p|logaddexp)\(", step)
 
 
 def test_the_generated_sensor_law_is_the_library_s_bit_for_bit():
@@ -229,9 +258,11 @@ def test_the_generated_sensor_law_is_the_library_s_bit_for_bit():
 
 
 def test_the_hand_written_sensors_c_does_no_arithmetic_of_the_law():
-    """The sensors' C designs the filters (SciPy's steps) and keeps the state; the per-sample arithmetic is the
-    generated law's."""
+    """The sensors' C keeps the state; the per-sample arithmetic and the filters' design are the generated law's
+    (flexarm/filter_design.py): no complex arithmetic, pole pairing or 2×2 solve by hand."""
     text = (NATIVE / "sensors" / "sensors.c").read_text()
-    assert '#include "sensor_law_api.h"' in text
+    assert '#include "sensor_law_api.h"' in text and "law_butterworth_order_8" in text
+    for by_hand in (r"\bhypot\s*\(", r"\bCplx\b", r"flexarm_(cos|sin)\s*\(", r"\bpow\s*\(\s*warped"):
+        assert not re.search(by_hand, text), by_hand
     for by_hand in (r"\bnearbyint\s*\(", r"2\.0\s*\*\s*u\[", r"s\[4\]\s*\*", r"zi\[k\]\[j\]\s*\*"):
         assert not re.search(by_hand, text), by_hand

@@ -6,15 +6,15 @@
  *      innovation e = dm - C x; the identification filters add -(e' S_inv e + log det S) / 2 to their model's
  *      log posterior; x_post = x + M e; predictor to k with the torques sent at j .. k-1, drift included
  *   2. the log posterior: minus its log-sum-exp, floored at log_floor, minus its log-sum-exp again (a left fold of
- *      NumPy's logaddexp, as np.logaddexp.reduce); p = exp(log_p)
+ *      NumPy's logaddexp, as np.logaddexp.reduce); p = exp(log_p) (flexarm.filter_law.normalised_posterior)
  *   3. p_0 < reseed_below: the quiet filter takes the unloaded identification filter's estimates
  *   4. torque: tau = sat(tau_ff - sum_f w_f (K_f x_now_f + K_xi,f xi)), w = (0, p_1 .. p_(n-1), p_0): the quiet
  *      filter stands in for the unloaded model
  *   5. integral action: xi += dt C_q sum_f w_f x_now_f, only in a sample whose torque does not saturate
- * The arithmetic of steps 1, 4 and 5 is flexarm/filter_law.py's, generated (control_law_api.h); written here by
- * hand, as BankController.step writes it in NumPy: the posterior's normalisation, floor and re-seeding (2, 3;
- * NumPy's exp and log1p through portable_math) and the drift d_j = psi(point of j) delta_acceleration_j, formed
- * at instantiation as flexarm.lqg_bank.drift_along_path does. Resource: lqg_bank_<schedule>.txt
+ * The arithmetic of steps 1, 2, 4 and 5 is flexarm/filter_law.py's, generated (control_law_api.h; its exp and
+ * log1p are portable_math's); written here by hand, as BankController.step writes it in NumPy: the re-seeding (3)
+ * and the drift d_j = psi(point of j) delta_acceleration_j, formed at instantiation as
+ * flexarm.lqg_bank.drift_along_path does. Resource: lqg_bank_<schedule>.txt
  * (fmu_build/native_resources.py).
  */
 #include <math.h>
@@ -23,9 +23,6 @@
 
 #include "control_law_api.h"
 #include "controller_lqg.h"
-#include "portable_math.h"
-
-#define LOGE2 0.693147180559945309417232121458176568 /* NumPy's NPY_LOGE2 */
 
 /* -- resources -------------------------------------------------------------------------------------------- */
 void bank_free(Bank *b)
@@ -96,24 +93,6 @@ void bank_initial_state(const Bank *b, LqgState *s)
 }
 
 /* -- the law -------------------------------------------------------------------------------------------------- */
-/* NumPy's npy_logaddexp: log(e^x + e^y) as max + log1p(exp(-|x - y|)), x + log 2 when equal. */
-static double logaddexp(double x, double y)
-{
-    if (x == y) return x + LOGE2;
-    const double t = x - y;
-    if (t > 0) return x + flexarm_log1p(flexarm_exp(-t));
-    if (t <= 0) return y + flexarm_log1p(flexarm_exp(t));
-    return t; /* nan */
-}
-
-/* np.logaddexp.reduce: a left fold. */
-static double log_sum_exp(const double *v, int n)
-{
-    double acc = v[0];
-    for (int i = 1; i < n; i++) acc = logaddexp(acc, v[i]);
-    return acc;
-}
-
 static long long clamp(const LqgData *d, long long k) { return k < d->n_steps ? k : d->n_steps; }
 
 /* x <- Phi x + Gamma du + drift_f(i_drift) at point i (flexarm.filter_law.time_update with the drift). */
@@ -152,13 +131,10 @@ void bank_step(const LqgData *d, const LqgState *s, long long k, const double m[
         for (int row = first, q = 0; row <= dl; row++, q++)
             propagate_drift(b, f, b->index[clamp(d, j + q)], clamp(d, j + q), rows, x_now[f], s->du[row]);
     }
-    double *log_p = next->log_p, p[MAX_FILTERS], w[MAX_FILTERS]; /* 2 */
-    double lse = log_sum_exp(log_p, nm);
-    for (int i = 0; i < nm; i++) log_p[i] -= lse;
-    for (int i = 0; i < nm; i++) /* np.maximum: a NaN stays NaN */
-        log_p[i] = isnan(log_p[i]) || log_p[i] > b->log_floor ? log_p[i] : b->log_floor;
-    lse = log_sum_exp(log_p, nm);
-    for (int i = 0; i < nm; i++) log_p[i] -= lse, p[i] = flexarm_exp(log_p[i]);
+    double log_p[MAX_FILTERS], active[MAX_FILTERS], p[MAX_FILTERS], w[MAX_FILTERS]; /* 2 */
+    for (int i = 0; i < MAX_FILTERS; i++) log_p[i] = i < nm ? next->log_p[i] : -HUGE_VAL, active[i] = i < nm;
+    law_normalised_posterior(log_p, active, &b->log_floor, log_p, p);
+    for (int i = 0; i < nm; i++) next->log_p[i] = log_p[i];
     if (p[0] < b->reseed_below) { /* 3: the unloaded arm is ruled out */
         memcpy(next->x_post[nf - 1], next->x_post[0], sizeof next->x_post[0]);
         memcpy(x_now[nf - 1], x_now[0], sizeof x_now[0]);

@@ -2,13 +2,13 @@
  * Native sensors FMU: flexarm.sensors.SensorBank in C (paper section 6).
  *
  * Per sample: true signal -> Butterworth low-pass (gauges, accelerometers; optional, second-order sections
- * designed as scipy.signal.butter(..., output="sos", fs) designs them, primed to steady state on the first
+ * designed as scipy.signal.butter(..., output="sos", fs) designs them (flexarm/filter_design.py), primed to steady state on the first
  * sample) -> + uniform noise from the bank's own PCG64 stream (12 draws per sample, NumPy's numbers for the
  * same seed) -> quantisation (encoder counter, A/D with saturation). With filters, noise and quantisation
  * off the outputs equal the inputs exactly. Segment lengths of the gauges come from resources/.
  * The per-sample arithmetic (a filter section, the priming, the noise, the quantisation) is not written here:
  * sensor_law_api.h's law_* functions are generated from flexarm/sensor_law.py (fmu_build/law_codegen.py), the
- * functions the Python FMU runs. The design below is SciPy's, followed step by step.
+ * functions the Python FMU runs, and so is the filters' design (flexarm/filter_design.py).
  *
  * Sampling (direct feedthrough): the outputs at t_k are a pure function of the committed bank and the inputs
  * present (computed into a pending copy; reads change nothing); fmi2DoStep commits the sample of the inputs
@@ -62,108 +62,21 @@ static const int TRUE_IDX[N_SIGNALS] = {IDX_q1, IDX_q2, IDX_qd1, IDX_qd2, IDX_ep
 static const int MEASURED_IDX[N_SIGNALS] = {IDX_q1_m, IDX_q2_m, IDX_qd1_m, IDX_qd2_m, IDX_eps1_m, IDX_eps2_m,
                                             IDX_eps3_m, IDX_eps4_m, IDX_eps5_m, IDX_eps6_m, IDX_acc1_m, IDX_acc2_m};
 
-/* -- Butterworth design, the steps of scipy.signal.butter(N, fc, output="sos", fs) ----------------- */
-typedef struct {
-    double re, im;
-} Cplx;
+/* -- Butterworth design at initialisation: generated from flexarm/filter_design.py, one function per order -- */
+typedef void (*Design)(const double *tan_prewarp, double *out_sos, double *out_unit_state);
+static const Design DESIGNS[LAW_BUTTERWORTH_ORDERS] = {
+    law_butterworth_order_1, law_butterworth_order_2, law_butterworth_order_3, law_butterworth_order_4,
+    law_butterworth_order_5, law_butterworth_order_6, law_butterworth_order_7, law_butterworth_order_8};
 
-static Cplx cmul(Cplx a, Cplx b) { return (Cplx){a.re * b.re - a.im * b.im, a.re * b.im + a.im * b.re}; }
-
-static Cplx cdiv(Cplx a, Cplx b) /* NumPy's complex division (Smith's method) */
+static void butter_sos(int order, double cutoff_hz, double fs, Filter *f) /* order in [1, 8]: the range check */
 {
-    if (fabs(b.re) >= fabs(b.im)) {
-        double rat = b.im / b.re, scl = 1.0 / (b.re + b.im * rat);
-        return (Cplx){(a.re + a.im * rat) * scl, (a.im - a.re * rat) * scl};
-    }
-    double rat = b.re / b.im, scl = 1.0 / (b.im + b.re * rat);
-    return (Cplx){(a.re * rat + a.im) * scl, (a.im * rat - a.re) * scl};
-}
-
-static double cabs_(Cplx a) { return hypot(a.re, a.im); }
-
-static void butter_sos(int order, double cutoff_hz, double fs, Filter *f)
-{
-    const double pi = 3.141592653589793;
-    double wn = cutoff_hz / (fs / 2);
-    double warped = 2 * 2.0 * flexarm_tan(pi * wn / 2.0);
-    Cplx p[9], den_prod = {1.0, 0.0};
-    for (int i = 0; i < order; i++) { /* buttap: p = -exp(1j*pi*m/(2N)), then lp2lp and bilinear (fs = 2) */
-        double m = (double)(-order + 1 + 2 * i);
-        double theta = (pi * m) * (1.0 / (2 * order));
-        Cplx analog = {-flexarm_cos(theta), -flexarm_sin(theta)};
-        if (m == 0) analog.im = -0.0;
-        Cplx lp = {warped * analog.re, warped * analog.im};
-        Cplx den = {4.0 - lp.re, -lp.im};
-        p[i] = cdiv((Cplx){4.0 + lp.re, lp.im}, den);
-        den_prod = i == 0 ? den : cmul(den_prod, den);
-    }
-    double k = pow(warped, order) * cdiv((Cplx){1.0, 0.0}, den_prod).re;
-    /* zpk2sos(pairing="nearest"): odd order gets a pole and a zero at 0; poles as (positive-imaginary
-       complex, then real); sections filled from the last, worst (closest to the unit circle) pole first */
-    int n_p = 0, n_z = 0;
-    Cplx poles[9];
-    double zeros[9];
-    for (int i = 0; i < order; i++) zeros[n_z++] = -1.0;
-    if (order % 2) zeros[n_z++] = 0.0;
-    for (int i = 0; i < order; i++)
-        if (p[i].im > 0) poles[n_p++] = p[i];
-    for (int i = 0; i < order; i++)
-        if (p[i].im == 0) poles[n_p++] = p[i];
-    if (order % 2) poles[n_p++] = (Cplx){0.0, 0.0};
+    double argument, tangent, sos[MAX_SECTIONS * 6], unit_state[MAX_SECTIONS * 2];
+    law_prewarp_argument(&cutoff_hz, &fs, &argument);
+    tangent = flexarm_tan(argument); /* the portable tangent: the same bits on every platform */
+    DESIGNS[order - 1](&tangent, sos, unit_state);
     f->n_sections = (order + 1) / 2;
-    for (int si = f->n_sections - 1; si >= 0; si--) {
-        int best = 0;
-        for (int i = 1; i < n_p; i++)
-            if (fabs(1 - cabs_(poles[i])) < fabs(1 - cabs_(poles[best]))) best = i;
-        Cplx p1 = poles[best], p2;
-        for (int i = best; i + 1 < n_p; i++) poles[i] = poles[i + 1];
-        n_p--;
-        if (p1.im == 0) { /* the real pole closest to the unit circle pairs with it */
-            int j = -1;
-            for (int i = 0; i < n_p; i++)
-                if (poles[i].im == 0 && (j < 0 || fabs(cabs_(poles[i]) - 1) < fabs(cabs_(poles[j]) - 1))) j = i;
-            p2 = poles[j];
-            for (int i = j; i + 1 < n_p; i++) poles[i] = poles[i + 1];
-            n_p--;
-        } else {
-            p2 = (Cplx){p1.re, -p1.im};
-        }
-        double zz[2];
-        for (int t = 0; t < 2; t++) { /* the nearest (real) zeros */
-            int j = 0;
-            for (int i = 1; i < n_z; i++)
-                if (cabs_((Cplx){zeros[i] - p1.re, -p1.im}) < cabs_((Cplx){zeros[j] - p1.re, -p1.im})) j = i;
-            zz[t] = zeros[j];
-            for (int i = j; i + 1 < n_z; i++) zeros[i] = zeros[i + 1];
-            n_z--;
-        }
-        double *s = f->sos[si];
-        s[0] = 1.0, s[1] = -zz[1] + -zz[0], s[2] = (-zz[0]) * (-zz[1]);
-        Cplx prod = cmul((Cplx){-p1.re, -p1.im}, (Cplx){-p2.re, -p2.im});
-        s[3] = 1.0, s[4] = -p2.re + -p1.re, s[5] = prod.re;
-    }
-    for (int j = 0; j < 3; j++) f->sos[0][j] *= k;
-    /* sosfilt_zi: each section's lfilter_zi (a 2x2 solve with partial pivoting), scaled by the DC gains */
-    double scale = 1.0;
-    for (int si = 0; si < f->n_sections; si++) {
-        const double *b = f->sos[si], *a = f->sos[si] + 3;
-        double m00 = 1 + a[1], m01 = -1.0, m10 = a[2], m11 = 1.0;
-        double r0 = b[1] - a[1] * b[0], r1 = b[2] - a[2] * b[0], x0, x1;
-        if (fabs(m10) > fabs(m00)) { /* swap rows */
-            double t;
-            t = m00, m00 = m10, m10 = t;
-            t = m01, m01 = m11, m11 = t;
-            t = r0, r0 = r1, r1 = t;
-        }
-        double l = m10 * (1.0 / m00);
-        double u11 = m11 - l * m01;
-        double y1 = r1 - l * r0;
-        x1 = y1 / u11;
-        x0 = (r0 - m01 * x1) / m00;
-        f->zi[si][0] = scale * x0;
-        f->zi[si][1] = scale * x1;
-        scale *= (b[0] + b[1] + b[2]) / (a[0] + a[1] + a[2]);
-    }
+    memcpy(f->sos, sos, (size_t)f->n_sections * sizeof f->sos[0]);
+    memcpy(f->zi, unit_state, (size_t)f->n_sections * sizeof f->zi[0]);
 }
 
 static void filter_prime(const Filter *f, double state[][2], int stride, const double *x, int n)
