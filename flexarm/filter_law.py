@@ -87,6 +87,18 @@ def normalised_posterior(log_p, log_floor, active=None):
     return log_p, exp(log_p)
 
 
+def state_drift(psi, delta_acceleration):
+    """d = Ψ Δα: a payload model's state drift over one sample (rad, rad/s), shape (22,), from Ψ E (22, 11) of its
+    design point and what the payload adds to the element accelerations (11,), rad/s²."""
+    return mat_vec(psi, delta_acceleration)
+
+
+def reseeded(p_unloaded, reseed_below, x_quiet, x_unloaded):
+    """The quiet filter's estimate: the unloaded model's once its posterior p_unloaded falls below `reseed_below`
+    (the unloaded arm is ruled out; a NaN posterior rules out nothing), else its own."""
+    return where(p_unloaded < reseed_below, x_unloaded, x_quiet)
+
+
 def measured(c, x):
     """C x: the ten measurements' deviation that the error state x gives, shape (10,)."""
     return mat_vec(c, x)

@@ -107,7 +107,7 @@ def drift_along_path(design: LqgDesign, psi: np.ndarray, delta_acceleration: np.
     dt : float
         s.
     """
-    return np.array([psi[design.index_at(j * dt)] @ a for j, a in enumerate(delta_acceleration)])
+    return np.array([filter_law.state_drift(psi[design.index_at(j * dt)], a) for j, a in enumerate(delta_acceleration)])
 
 
 @dataclass
@@ -466,8 +466,8 @@ class BankController:
         log_p, p = filter_law.normalised_posterior(log_p, self.log_floor)
         if self.history is not None:
             self.history.append(p)
-        if p[0] < self.reseed_below:  # the unloaded arm is ruled out: the quiet filter follows its fast twin
-            x_post[-1], x_now[-1] = x_post[0], x_now[0]
+        x_post[-1] = filter_law.reseeded(p[0], self.reseed_below, x_post[-1], x_post[0])
+        x_now[-1] = filter_law.reseeded(p[0], self.reseed_below, x_now[-1], x_now[0])
         weights = self.weights(log_p)
         i_k = self._index[self._c(k)]
         ff = self.feedforward(k)

@@ -28,7 +28,9 @@ resources hold them.
   ``law_bank_free_torque(τ_cmd, w[12], u[12×2])`` and ``law_weighted_estimate(w[12], x[12×22])``
   (``LAW_BANK_FILTERS`` = 12, unused filters weighted 0), and its posterior
   ``law_normalised_posterior(log p[12], active[12], log_floor) -> (log p, p)``
-  (:func:`~flexarm.filter_law.normalised_posterior`; its exp and log1p are the portable ones).
+  (:func:`~flexarm.filter_law.normalised_posterior`; its exp and log1p are the portable ones), the quiet filter's
+  ``law_reseeded(p_0, reseed_below, x_quiet[22], x_unloaded[22]) -> x`` and, at instantiation,
+  ``law_state_drift(Ψ[22×11], Δα[11]) -> d`` (:func:`~flexarm.filter_law.state_drift`).
 
 ``sensor_law`` (the sensors FMU), one channel per call:
 
@@ -51,6 +53,7 @@ import numpy as np
 
 from flexarm import control_law as law
 from flexarm import filter_design, filter_law, sensor_law
+from flexarm.parameters import N_ELEMENTS
 
 from . import native_codegen
 from .native_codegen import check_no_library_math, drop_null_checks  # the plant's checks, the same
@@ -134,6 +137,11 @@ def filter_law_functions() -> list[ca.Function]:
     act_sx, act = _symbols("active", (BANK_FILTERS,))
     floor_sx, floor = _symbols("log_floor", (1,))
     posterior = filter_law.normalised_posterior(lps, floor, act)
+    psi_sx, psi = _symbols("psi", (N_STATE, N_ELEMENTS))
+    da_sx, da = _symbols("delta_acceleration", (N_ELEMENTS,))
+    p0_sx, p0 = _symbols("p_unloaded", (1,))
+    rb_sx, rb = _symbols("reseed_below", (1,))
+    xu_sx, xu = _symbols("x_unloaded", (N_STATE,))
     return [
         ca.Function("generated_time_update_drift", [phi_sx, gam_sx, x_sx, du_sx, drift_sx],
                     [_output(filter_law.time_update(phi, gam, x, du, drift))], ["phi", "gamma", "x", "du", "drift"],
@@ -158,6 +166,11 @@ def filter_law_functions() -> list[ca.Function]:
         ca.Function("generated_normalised_posterior", [lps_sx, act_sx, floor_sx],
                     [_output(posterior[0]), _output(posterior[1])], ["log_p", "active", "log_floor"],
                     ["normalised_log_p", "p"]),
+        ca.Function("generated_state_drift", [psi_sx, da_sx], [_output(filter_law.state_drift(psi, da))],
+                    ["psi", "delta_acceleration"], ["drift"]),
+        ca.Function("generated_reseeded", [p0_sx, rb_sx, x_sx, xu_sx],
+                    [_output(filter_law.reseeded(p0[0], rb[0], x, xu))],
+                    ["p_unloaded", "reseed_below", "x_quiet", "x_unloaded"], ["x"]),
         ca.Function("generated_measured", [c_sx, x_sx], [_output(filter_law.measured(c, x))], ["c", "x"],
                     ["deviation"]),
         ca.Function("generated_free_torque", [cmd_sx, k_sx, x_sx], [_output(filter_law.free_torque(cmd, k, x))],

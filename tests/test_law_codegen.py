@@ -193,6 +193,23 @@ def test_the_generated_bank_posterior_is_the_library_s_bit_for_bit():
     assert floored[1] > -50.0  # the floor acts: the test above would see a wrong floor
 
 
+def test_the_generated_reseeding_and_drift_are_the_library_s():
+    """The quiet filter takes the unloaded model's estimate only below the threshold (NaN: never), bit for bit; the
+    drift Ψ Δα is a compensated sum against NumPy's, so within 13 eps of Σ|Ψ||Δα| (11 terms, as the rows above)."""
+    f = _functions(law_codegen.filter_law_functions)
+    rng = np.random.default_rng(17)
+    quiet, unloaded = rng.normal(size=22), rng.normal(size=22)
+    for p_0, takes in ((1e-6, True), (0.5, False), (1e-3, False), (np.nan, False)):
+        want = filter_law.reseeded(p_0, 1e-3, quiet, unloaded)
+        np.testing.assert_array_equal(_eval(f["reseeded"], p_0, 1e-3, quiet, unloaded), want)
+        np.testing.assert_array_equal(want, unloaded if takes else quiet)
+    eps = np.finfo(float).eps
+    for _ in range(20):
+        psi, da = rng.normal(size=(22, 11)) * 10.0 ** rng.integers(-6, 2), rng.normal(size=11) * 50
+        got = _eval(f["state_drift"], psi, da)
+        assert np.all(np.abs(got - filter_law.state_drift(psi, da)) <= 13 * eps * (np.abs(psi) @ np.abs(da)))
+
+
 def test_the_generated_anti_windup_integrates_only_an_unsaturated_sample():
     """ξ + dt C_q x when τ = τ_free, else ξ: a saturated torque, or a NaN one (never equal), holds the integrator,
     in the library and in the generated C alike."""
@@ -209,9 +226,9 @@ def test_the_generated_anti_windup_integrates_only_an_unsaturated_sample():
 
 
 def test_the_hand_written_lqg_c_does_no_arithmetic_of_the_filters():
-    """The LQG FMU's filter, predictor, feedback and anti-windup, the payload bank's per sample (but its posterior's
-    normalisation), and the predicting paper's law's measurement are the generated ones; the hand C only says which
-    sample and which design point."""
+    """The LQG FMU's filter, predictor, feedback and anti-windup, the payload bank's per sample (posterior,
+    re-seeding) and its drift, and the predicting paper's law's measurement are the generated ones; the hand C only
+    says which sample and which design point."""
     core = (NATIVE_CONTROLLER / "lqg_core.c").read_text()
     estimate = core[core.index("void lqg_estimate"):core.index("void lqg_schedule_index")]
     propagate = core[core.index("void lqg_propagate"):core.index("void lqg_feedforward")]
@@ -223,6 +240,7 @@ def test_the_hand_written_lqg_c_does_no_arithmetic_of_the_filters():
     bank = (NATIVE_CONTROLLER / "lqg_bank.c").read_text()
     step = bank[bank.index("void bank_step"):]
     assert "lqg_mat_vec" not in step and "law_log_likelihood_update(" in step and "law_bank_free_torque(" in step
+    assert "law_reseeded(" in step and "law_state_drift(" in bank and "lqg_mat_vec" not in bank
     assert "law_normalised_posterior(" in step and not re.search(r"\b(flexarm_)?(exp|log1p|logaddexp)\(", step)
 
 

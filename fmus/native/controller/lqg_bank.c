@@ -11,10 +11,9 @@
  *   4. torque: tau = sat(tau_ff - sum_f w_f (K_f x_now_f + K_xi,f xi)), w = (0, p_1 .. p_(n-1), p_0): the quiet
  *      filter stands in for the unloaded model
  *   5. integral action: xi += dt C_q sum_f w_f x_now_f, only in a sample whose torque does not saturate
- * The arithmetic of steps 1, 2, 4 and 5 is flexarm/filter_law.py's, generated (control_law_api.h; its exp and
- * log1p are portable_math's); written here by hand, as BankController.step writes it in NumPy: the re-seeding (3)
- * and the drift d_j = psi(point of j) delta_acceleration_j, formed at instantiation as
- * flexarm.lqg_bank.drift_along_path does. Resource: lqg_bank_<schedule>.txt
+ * The arithmetic of every step is flexarm/filter_law.py's, generated (control_law_api.h; its exp and log1p are
+ * portable_math's), and so is the drift d_j = psi(point of j) delta_acceleration_j formed at instantiation
+ * (flexarm.lqg_bank.drift_along_path): this file says which filter, sample and design point, in which order. Resource: lqg_bank_<schedule>.txt
  * (fmu_build/native_resources.py).
  */
 #include <math.h>
@@ -81,8 +80,8 @@ int bank_load(Instance *inst, const char *file, const char *text, LqgData *d)
                                  b->m + at * N_STATE * N_MEAS, b->k + at * N_WEIGHTS * 2 * N_STATE,
                                  b->k_integral + at * N_WEIGHTS * 2 * N_AUG};
         for (size_t j = 0; j < rows; j++) /* drift_along_path: psi[index_at(j dt)] @ delta_acceleration[j] */
-            lqg_mat_vec(b->psi + (at + (size_t)b->index[j]) * N_STATE * N_ELEMENTS, N_STATE, N_ELEMENTS, N_ELEMENTS,
-                        b->delta_acceleration + (f * rows + j) * N_ELEMENTS, b->drift + (f * rows + j) * N_STATE);
+            law_state_drift(b->psi + (at + (size_t)b->index[j]) * N_STATE * N_ELEMENTS,
+                            b->delta_acceleration + (f * rows + j) * N_ELEMENTS, b->drift + (f * rows + j) * N_STATE);
     }
     return 0;
 }
@@ -135,10 +134,11 @@ void bank_step(const LqgData *d, const LqgState *s, long long k, const double m[
     for (int i = 0; i < MAX_FILTERS; i++) log_p[i] = i < nm ? next->log_p[i] : -HUGE_VAL, active[i] = i < nm;
     law_normalised_posterior(log_p, active, &b->log_floor, log_p, p);
     for (int i = 0; i < nm; i++) next->log_p[i] = log_p[i];
-    if (p[0] < b->reseed_below) { /* 3: the unloaded arm is ruled out */
-        memcpy(next->x_post[nf - 1], next->x_post[0], sizeof next->x_post[0]);
-        memcpy(x_now[nf - 1], x_now[0], sizeof x_now[0]);
-    }
+    double quiet[N_STATE]; /* 3: the quiet filter re-seeded once the unloaded arm is ruled out */
+    law_reseeded(&p[0], &b->reseed_below, next->x_post[nf - 1], next->x_post[0], quiet);
+    memcpy(next->x_post[nf - 1], quiet, sizeof quiet);
+    law_reseeded(&p[0], &b->reseed_below, x_now[nf - 1], x_now[0], quiet);
+    memcpy(x_now[nf - 1], quiet, sizeof quiet);
     for (int i = 0; i < MAX_FILTERS; i++) w[i] = 0.0; /* 4 */
     for (int i = 1; i < nm; i++) w[i] = p[i];
     w[nf - 1] = p[0];
