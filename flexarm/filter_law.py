@@ -15,7 +15,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from .law_ops import clamp, dot, exp, log_sum_exp, mat_vec, weighted, where, where_all_equal
+from .law_ops import (
+    clamp,
+    dot,
+    exp,
+    identity_minus,
+    log_sum_exp,
+    mat_vec,
+    matmul,
+    solve,
+    weighted,
+    where,
+    where_all_equal,
+)
 
 
 def time_update(phi, gamma, x, du, drift=None):
@@ -97,6 +109,16 @@ def reseeded(p_unloaded, reseed_below, x_quiet, x_unloaded):
     """The quiet filter's estimate: the unloaded model's once its posterior p_unloaded falls below `reseed_below`
     (the unloaded arm is ruled out; a NaN posterior rules out nothing), else its own."""
     return where(p_unloaded < reseed_below, x_unloaded, x_quiet)
+
+
+def covariance_step(p, c, v, phi, w):
+    """One sample of the time-varying Kalman filter: the gain M = P Cᵀ (C P Cᵀ + V)⁻¹ (22, 10) and the next prior
+    P⁺ = Φ (I − M C) P Φᵀ + W (22, 22), symmetrised (P, V, W symmetric; :func:`flexarm.lqg_design.transient_gains`).
+    On numbers NumPy's products and LU solve, as before; the generated C (MX) CasADi's products and LDLᵀ solve."""
+    cp = matmul(c, p)
+    gain = solve(matmul(cp, c.T) + v, cp).T
+    p_next = matmul(matmul(phi, matmul(identity_minus(matmul(gain, c)), p)), phi.T) + w
+    return gain, 0.5 * (p_next + p_next.T)
 
 
 def measured(c, x):

@@ -166,3 +166,35 @@ def exp(x):
     import casadi as ca
 
     return np.array([ca.exp(xi) for xi in np.ravel(x)], dtype=object).reshape(np.shape(x))
+
+
+def _matrix_symbol(x) -> bool:
+    """A CasADi MX matrix: the generator's path for laws on whole matrices (compact loops in the generated C)."""
+    return type(x).__name__ == "MX"
+
+
+def matmul(a, b):
+    """a b (NumPy's ``@`` on numbers; CasADi's mtimes, plain sums in order, on MX matrices)."""
+    if _matrix_symbol(a) or _matrix_symbol(b):
+        import casadi as ca
+
+        return ca.mtimes(a, b)
+    return a @ b
+
+
+def solve(a, b):
+    """a⁻¹ b for a symmetric positive definite a (NumPy's LU solve on numbers; CasADi's LDLᵀ on MX matrices)."""
+    if _matrix_symbol(a) or _matrix_symbol(b):
+        import casadi as ca
+
+        return ca.solve(a, b, "ldl")
+    return np.linalg.solve(a, b)
+
+
+def identity_minus(a):
+    """I − a for a square a."""
+    if _matrix_symbol(a):
+        import casadi as ca
+
+        return ca.DM.eye(a.shape[0]) - a
+    return np.eye(len(a)) - a

@@ -51,6 +51,7 @@ from pathlib import Path
 import numpy as np
 import scipy
 
+from .filter_law import covariance_step  # the law the native predictor's C is generated from
 from .gain_schedule import (
     SCHEDULES,
     desired_states,
@@ -455,10 +456,7 @@ def transient_gains(design: LqgDesign, points, initial_covariance: float) -> np.
         raise ValueError(f"initial_covariance: a factor > 0, got {initial_covariance!r}")
     C, V = design.C, design.V
     P = initial_covariance * design.P_prior[points[0]]
-    identity = np.eye(len(P))
     gains = np.empty((len(points), *C.T.shape))
     for j, i in enumerate(points):
-        gains[j] = np.linalg.solve(C @ P @ C.T + V, C @ P).T  # P Cᵀ S⁻¹, S and P symmetric
-        P = design.Phi[i] @ ((identity - gains[j] @ C) @ P) @ design.Phi[i].T + design.W[i]
-        P = 0.5 * (P + P.T)
+        gains[j], P = covariance_step(P, C, V, design.Phi[i], design.W[i])
     return gains

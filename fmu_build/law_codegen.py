@@ -184,6 +184,21 @@ def filter_law_functions() -> list[ca.Function]:
     ]
 
 
+def covariance_step_function() -> ca.Function:
+    """:func:`flexarm.filter_law.covariance_step` on CasADi MX matrices: the predictor's time-varying filter at
+    instantiation, 2058 samples of 22×22 products, as loops (SX would unroll them into megabytes of C). The C's
+    buffers are row-major, CasADi's column-major: each input is read as its transpose and each output written as
+    one."""
+    p_t = ca.MX.sym("p", N_STATE, N_STATE)
+    c_t = ca.MX.sym("c", N_STATE, N_MEAS)
+    v_t = ca.MX.sym("v", N_MEAS, N_MEAS)
+    phi_t = ca.MX.sym("phi", N_STATE, N_STATE)
+    w_t = ca.MX.sym("w", N_STATE, N_STATE)
+    gain, p_next = filter_law.covariance_step(p_t.T, c_t.T, v_t.T, phi_t.T, w_t.T)
+    return ca.Function("generated_covariance_step", [p_t, c_t, v_t, phi_t, w_t], [gain.T, p_next.T],
+                       ["p", "c", "measurement_noise", "phi", "process_noise"], ["gain", "p_next"])
+
+
 def sensor_law_functions() -> list[ca.Function]:
     """The sensors' CasADi functions, each built by calling :mod:`flexarm.sensor_law` on one channel's symbols."""
     sos_sx, sos = _symbols("sos", (6,))
@@ -285,7 +300,7 @@ def _route_libm(path: Path) -> None:
 def generate_control_law(out_dir: Path) -> list[Path]:
     """Write control_law.c, .h and _api.h (:func:`law_functions`) into `out_dir`; return their paths."""
     return _generate(out_dir, "control_law", "flexarm/control_law.py and flexarm/filter_law.py",
-                     law_functions() + filter_law_functions(),
+                     law_functions() + filter_law_functions() + [covariance_step_function()],
                      (f"#define LAW_BANK_FILTERS {BANK_FILTERS} /* the bank's weighted sums' length */",))
 
 

@@ -1,6 +1,6 @@
 /*
  * What controller_lqg.c (the FMU, the single Kalman filter) and lqg_bank.c (the payload bank) share: the
- * sizes, a design's arrays, the controller's state and the compensated matrix-vector product.
+ * sizes, a design's arrays, the controller's state and the steps both take.
  */
 #ifndef FLEXARM_CONTROLLER_LQG_H
 #define FLEXARM_CONTROLLER_LQG_H
@@ -102,8 +102,6 @@ void lqg_remember(double foreign[][3], int *n, long long sample, const double to
 void lqg_set_outputs(Instance *inst, const double tau[2], const double index[3]);
 /* An array of n doubles labelled `name` in a resource text, malloc'ed (NULL after logging why not). */
 double *lqg_read_array(Instance *inst, const char *file, const char *text, const char *name, size_t n);
-/* y = A x, A rows x cols with row stride `stride`, compensated sums. */
-void lqg_mat_vec(const double *a, int rows, int cols, int stride, const double *x, double *y);
 /* x <- Phi x + Gamma du at design point i. */
 void lqg_propagate(const Design *g, int i, double *x, const double du[2], const double *drift);
 /* The point of `times` (count) in force at each sample k = 0 .. n_steps: the last time <= k dt + 1e-9. */

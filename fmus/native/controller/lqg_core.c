@@ -2,8 +2,8 @@
  * The LQG's Kalman filter and predictor, shared by controller_lqg.c (the LQG FMU) and controller.c (the paper's
  * laws predicting over a measured loop delay, flexarm.lqg.PredictedTracking): resource reading, which sample and
  * design point each step of the estimate (steps 1-3 of controller_lqg.c's header) uses, and the transient filter
- * gains. The arithmetic of each step is flexarm/filter_law.py's, generated (control_law_api.h); the compensated
- * matrix-vector product here serves the payload bank and the gains' design, still written in C.
+ * gains. The arithmetic of each step, and of the gains' time-varying filter, is flexarm/filter_law.py's, generated
+ * (control_law_api.h).
  */
 #include <math.h>
 #include <stdlib.h>
@@ -45,43 +45,6 @@ int lqg_read_design(Instance *inst, const char *file, const char *text, Design *
 }
 
 /* -- the law -------------------------------------------------------------------------------------------------- */
-/* y = A x for A (rows x cols, row stride `stride`), for what is not generated yet (the bank's drift at
-   instantiation, the predictor's filter gains): the compensated sums of the generated law
-   (flexarm.law_ops.mat_vec, whose docstring says why), the same bits. */
-/* sum += term, carry += the exact rounding error of that addition (Knuth's TwoSum: no branch; the error is the
-   one Neumaier's test-and-subtract gives, bit for bit, both being exact). */
-#define NEUMAIER(sum, carry, term)                                         \
-    do {                                                                   \
-        const double t_ = (sum) + (term), b_ = t_ - (sum);                 \
-        (carry) += ((sum) - (t_ - b_)) + ((term) - b_);                    \
-        (sum) = t_;                                                        \
-    } while (0)
-
-void lqg_mat_vec(const double *a, int rows, int cols, int stride, const double *x, double *y)
-{
-    int r = 0;
-    for (; r + 4 <= rows; r += 4) { /* four rows at a time: four independent chains (the same sums, faster) */
-        const double *a0 = a + r * stride, *a1 = a0 + stride, *a2 = a1 + stride, *a3 = a2 + stride;
-        double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0, c0 = 0.0, c1 = 0.0, c2 = 0.0, c3 = 0.0;
-        for (int c = 0; c < cols; c++) {
-            const double t0 = a0[c] * x[c], t1 = a1[c] * x[c], t2 = a2[c] * x[c], t3 = a3[c] * x[c];
-            NEUMAIER(s0, c0, t0);
-            NEUMAIER(s1, c1, t1);
-            NEUMAIER(s2, c2, t2);
-            NEUMAIER(s3, c3, t3);
-        }
-        y[r] = s0 + c0, y[r + 1] = s1 + c1, y[r + 2] = s2 + c2, y[r + 3] = s3 + c3;
-    }
-    for (; r < rows; r++) {
-        double sum = 0.0, carry = 0.0;
-        for (int c = 0; c < cols; c++) {
-            const double term = a[r * stride + c] * x[c];
-            NEUMAIER(sum, carry, term);
-        }
-        y[r] = sum + carry;
-    }
-}
-
 /* x <- Phi x + Gamma du + drift at design point i (flexarm.filter_law.time_update, generated); drift NULL: none
    (a zero drift, which changes no bit: law_time_update_drift's sums are never -0.0). */
 void lqg_propagate(const Design *g, int i, double *x, const double du[2], const double *drift)
@@ -188,85 +151,32 @@ int lqg_read_noise(Instance *inst, const char *file, const char *text, int count
     return 0;
 }
 
-/* c = a b for a (n x m), b (m x p), all row-major; compensated sums as lqg_mat_vec. */
-static void mat_mul(const double *a, const double *b, int n, int m, int p, double *c)
-{
-    for (int i = 0; i < n; i++)
-        for (int j = 0; j < p; j++) {
-            double sum = 0.0, carry = 0.0;
-            for (int r = 0; r < m; r++) NEUMAIER(sum, carry, a[i * m + r] * b[r * p + j]);
-            c[i * p + j] = sum + carry;
-        }
-}
-
 int lqg_transient_gains(Instance *inst, LqgData *d, const Noise *noise, double factor)
 {
     const Design *g = d->design;
     const long n = d->n_steps;
     double *gains = malloc((size_t)n * N_STATE * N_MEAS * sizeof *gains);
-    double *p = malloc(5 * N_STATE * N_STATE * sizeof *p);
+    double *p = malloc(2 * N_STATE * N_STATE * sizeof *p);
     if (gains == NULL || p == NULL) {
         free(gains), free(p);
         glue_log(inst, fmi2Error, "the predictor's filter gains: out of memory");
         return -1;
     }
-    double *a = p + N_STATE * N_STATE, *b = a + N_STATE * N_STATE, *phi_t = b + N_STATE * N_STATE;
-    double *ct = phi_t + N_STATE * N_STATE; /* C^T, 22 x 10 */
-    double cp[N_MEAS * N_STATE], s[N_MEAS * N_MEAS];
+    double *p_next = p + N_STATE * N_STATE;
     for (int i = 0; i < N_STATE * N_STATE; i++) p[i] = factor * noise->p_prior0[i];
-    for (int r = 0; r < N_STATE; r++)
-        for (int q = 0; q < N_MEAS; q++) ct[r * N_MEAS + q] = d->c[q * N_STATE + r];
-    for (long j = 0; j < n; j++) {
-        const int i = d->index[j];
-        mat_mul(d->c, p, N_MEAS, N_STATE, N_STATE, cp); /* C P */
-        mat_mul(cp, ct, N_MEAS, N_STATE, N_MEAS, s);    /* S = C P C^T + V */
-        for (int q = 0; q < N_MEAS * N_MEAS; q++) s[q] += noise->v[q];
-        for (int r = 0; r < N_MEAS; r++) /* S symmetric: its upper triangle onto the lower, as NumPy's solve sees it */
-            for (int q = 0; q < r; q++) s[r * N_MEAS + q] = s[q * N_MEAS + r] = 0.5 * (s[r * N_MEAS + q] + s[q * N_MEAS + r]);
-        for (int r = 0; r < N_MEAS; r++) { /* Cholesky S = L L^T, in place (lower) */
-            for (int q = 0; q <= r; q++) {
-                double sum = s[r * N_MEAS + q];
-                for (int t = 0; t < q; t++) sum -= s[r * N_MEAS + t] * s[q * N_MEAS + t];
-                if (q == r) {
-                    if (!(sum > 0.0)) {
-                        free(gains), free(p);
-                        glue_log(inst, fmi2Error, "the predictor's filter: the innovation covariance at sample %ld "
-                                 "is not positive definite", j);
-                        return -1;
-                    }
-                    s[r * N_MEAS + r] = sqrt(sum);
-                } else {
-                    s[r * N_MEAS + q] = sum / s[q * N_MEAS + q];
-                }
+    for (long j = 0; j < n; j++) { /* flexarm.lqg_design.transient_gains: the generated covariance_step */
+        const size_t i = (size_t)d->index[j];
+        double *gain = gains + (size_t)j * N_STATE * N_MEAS;
+        law_covariance_step(p, d->c, noise->v, g->phi + i * N_STATE * N_STATE, noise->w + i * N_STATE * N_STATE,
+                            gain, p_next);
+        for (int q = 0; q < N_STATE * N_MEAS; q++)
+            if (!isfinite(gain[q])) {
+                free(gains), free(p);
+                glue_log(inst, fmi2Error, "the predictor's filter: its gain at sample %ld is not finite (the "
+                         "innovation covariance is not positive definite)", j);
+                return -1;
             }
-        }
-        double *gain = gains + (size_t)j * N_STATE * N_MEAS; /* M = P C^T S^-1: solve S M^T = C P, column by column */
-        for (int col = 0; col < N_STATE; col++) {
-            double y[N_MEAS];
-            for (int r = 0; r < N_MEAS; r++) {
-                double sum = cp[r * N_STATE + col];
-                for (int t = 0; t < r; t++) sum -= s[r * N_MEAS + t] * y[t];
-                y[r] = sum / s[r * N_MEAS + r];
-            }
-            for (int r = N_MEAS - 1; r >= 0; r--) {
-                double sum = y[r];
-                for (int t = r + 1; t < N_MEAS; t++) sum -= s[t * N_MEAS + r] * y[t];
-                y[r] = sum / s[r * N_MEAS + r];
-            }
-            for (int r = 0; r < N_MEAS; r++) gain[col * N_MEAS + r] = y[r];
-        }
-        /* P <- Phi (I - M C) P Phi^T + W */
-        mat_mul(gain, cp, N_STATE, N_MEAS, N_STATE, a); /* M C P */
-        for (int q = 0; q < N_STATE * N_STATE; q++) a[q] = p[q] - a[q];
-        const double *phi = g->phi + (size_t)i * N_STATE * N_STATE;
-        mat_mul(phi, a, N_STATE, N_STATE, N_STATE, b);
-        for (int r = 0; r < N_STATE; r++)
-            for (int q = 0; q < N_STATE; q++) phi_t[r * N_STATE + q] = phi[q * N_STATE + r];
-        mat_mul(b, phi_t, N_STATE, N_STATE, N_STATE, p);
-        const double *w = noise->w + (size_t)i * N_STATE * N_STATE;
-        for (int q = 0; q < N_STATE * N_STATE; q++) p[q] += w[q];
-        for (int r = 0; r < N_STATE; r++)
-            for (int q = 0; q < r; q++) p[r * N_STATE + q] = p[q * N_STATE + r] = 0.5 * (p[r * N_STATE + q] + p[q * N_STATE + r]);
+        memcpy(p, p_next, N_STATE * N_STATE * sizeof *p);
     }
     free(p);
     free(d->gains);
