@@ -85,6 +85,25 @@ def test_a_change_of_the_law_reaches_the_generated_c(tmp_path, monkeypatch):
     assert "2.4999999999999999e-07" in text and "1.0000000000000001e-09" not in text
 
 
+def test_a_change_of_the_filter_design_reaches_the_generated_c(tmp_path, monkeypatch):
+    """The filters' design is one source too: a Butterworth whose cut-off is not pre-warped, written in
+    flexarm/filter_design.py alone, is what the native sensors' generated C computes (and the library's design)."""
+    from flexarm import filter_design
+
+    default = tmp_path / "default"
+    default.mkdir()
+    law_codegen.generate_sensor_law(default)
+    monkeypatch.setattr(filter_design, "prewarp_argument", lambda cutoff_hz, sample_rate_hz: 1.25 * cutoff_hz
+                        / sample_rate_hz)
+    changed = tmp_path / "changed"
+    changed.mkdir()
+    law_codegen.generate_sensor_law(changed)
+    text = (changed / "sensor_law.c").read_text()
+    assert text != (default / "sensor_law.c").read_text() and "1.2500000000000000e+00" in text
+    assert math.isclose(filter_design.butterworth_lowpass(2, 100.0, 1000.0)[0][0, 0],
+                        filter_design.butterworth_sections(2, math.tan(0.125))[0][0][0], rel_tol=0, abs_tol=0)
+
+
 def test_the_hand_written_controller_c_does_no_arithmetic_of_the_law():
     """The rule, the gain products and the saturation come from control_law_api.h in every controller's C; a
     second copy written by hand would let the kinds drift apart again."""
