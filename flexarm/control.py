@@ -160,7 +160,7 @@ class TrackingController:
             raise ControllerError(f"k: sample index must be >= 0, got {k}")
         tau = np.zeros(2) if self.mode == "fb" or k >= self.n_steps else self.trajectory.tau[k].copy()
         if self.correction is not None and k < len(self.correction):
-            tau += self.correction[k]
+            tau = law.corrected_feedforward(tau, self.correction[k])
         return tau
 
     def gain(self, k: int) -> np.ndarray:

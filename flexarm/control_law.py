@@ -32,6 +32,12 @@ def has_switched(switch_time, t):
     return switch_time <= t + SWITCH_TOLERANCE_S  # on symbols: 1 or 0 in the generated C
 
 
+def corrected_feedforward(feedforward, correction):
+    """The feedforward the law sends, N·m (2,): the trajectory's plus a learned correction (:mod:`flexarm.ilc`).
+    Which row of each (zero after the slew, zero past the correction's end) the callers say."""
+    return feedforward + correction
+
+
 def gain_on_measurements(gain, estimator):
     """K E: a gain on the ten measurements.
 

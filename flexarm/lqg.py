@@ -250,7 +250,7 @@ class LqgController:
         x_post, x_now = self.estimate(state, k, m)
         i_k = self._index[self._c(k)]
         ff = self.feedforward(k)
-        command = ff + correction_at(self.correction, k)
+        command = control_law.corrected_feedforward(ff, correction_at(self.correction, k))
         integral = (self._K_xi[i_k], state.xi) if self.integral_action else ()
         tau_free = filter_law.free_torque(command, self._K[i_k], x_now, *integral)
         tau = control_law.saturate(tau_free, self.saturation)

@@ -473,7 +473,8 @@ class BankController:
         ff = self.feedforward(k)
         integral = (self._K_xi[i_k], state.xi) if self.integral_action else ()
         u = filter_law.feedback(self._K[i_k], x_now, *integral)  # each model's on its own estimate, (n_filters, 2)
-        tau_free = filter_law.bank_free_torque(ff + correction_at(self.correction, k), weights, u)
+        command = control_law.corrected_feedforward(ff, correction_at(self.correction, k))
+        tau_free = filter_law.bank_free_torque(command, weights, u)
         tau = control_law.saturate(tau_free, self.saturation)
         xi = state.xi
         if self.integral_action:

@@ -81,6 +81,7 @@ def law_functions() -> list[ca.Function]:
     e_sx, e = _symbols("estimator", (N_STATE, N_MEAS))
     md_sx, md = _symbols("desired_measurements", (N_MEAS,))
     ff_sx, ff = _symbols("feedforward", (2,))
+    corr_sx, corr = _symbols("correction", (2,))
     ke_sx, ke = _symbols("gain_on_measurements", (2, N_MEAS))
     m_sx, m = _symbols("measurements", (N_MEAS,))
     off_sx, off = _symbols("offset", (2,))
@@ -96,6 +97,8 @@ def law_functions() -> list[ca.Function]:
         ca.Function("generated_tracking_torque", [ff_sx, ke_sx, m_sx, off_sx, lim_sx],
                     [_output(law.tracking_torque(ff, ke, m, off, lim))],
                     ["feedforward", "gain_on_measurements", "measurements", "offset", "limit"], ["torque"]),
+        ca.Function("generated_corrected_feedforward", [ff_sx, corr_sx],
+                    [_output(law.corrected_feedforward(ff, corr))], ["feedforward", "correction"], ["command"]),
         ca.Function("generated_saturate", [ff_sx, lim_sx], [_output(law.saturate(ff, lim))], ["torque", "limit"],
                     ["saturated"]),
         ca.Function("generated_has_switched", [ts_sx, t_sx], [law.has_switched(ts[0], t[0])],

@@ -54,6 +54,13 @@ def test_the_generated_law_is_the_library_s_arithmetic():
         assert np.array_equal(_eval(f["saturate"], ff * 3, limit), law.saturate(ff * 3, limit))
 
 
+def test_the_generated_corrected_feedforward_is_the_library_s():
+    f = _functions()["corrected_feedforward"]
+    for ff, corr in (([1.5, -0.25], [1e-3, -2e-3]), ([-0.0, 0.0], [0.0, -0.0]), ([7.0, 2.25], [np.nan, 0.0])):
+        want = law.corrected_feedforward(np.array(ff), np.array(corr))
+        np.testing.assert_array_equal(_eval(f, ff, corr), want)
+
+
 def test_the_switching_rule_is_the_schedules_rule():
     """A set is in force from its own sample on, though k·dt is a few ulp off its time; the generated rule is the
     library's, and schedule_index counts it (the native controllers scan with it)."""
@@ -105,12 +112,13 @@ def test_a_change_of_the_filter_design_reaches_the_generated_c(tmp_path, monkeyp
 
 
 def test_the_hand_written_controller_c_does_no_arithmetic_of_the_law():
-    """The rule, the gain products and the saturation come from control_law_api.h in every controller's C; a
-    second copy written by hand would let the kinds drift apart again."""
+    """The rule, the gain products, the learned feedforward's sum and the saturation come from control_law_api.h in
+    every controller's C; a second copy written by hand would let the kinds drift apart again."""
     for c in sorted(NATIVE_CONTROLLER.glob("*.c")):
         text = c.read_text()
         assert not re.search(r"\bfmin\s*\(|\bfmax\s*\(", text), f"{c.name}: a saturation by hand"
         assert not re.search(r"\+\s*1e-9\b", text), f"{c.name}: the schedules' tolerance by hand"
+        assert not re.search(r"[+-]=?\s*\(?[^;]*->correction\[", text), f"{c.name}: the learned correction by hand"
     uses = {c.name for c in NATIVE_CONTROLLER.glob("*.c") if '#include "control_law_api.h"' in c.read_text()}
     assert {"controller.c", "controller_lqg.c", "lqg_bank.c", "lqg_core.c"} <= uses
 

@@ -268,7 +268,10 @@ static void feedforward(const ControllerData *d, long k, double tau[2])
     tau[0] = tau[1] = 0.0;
 #if CONTROLLER_FEEDFORWARD
     if (k < d->n_steps) tau[0] = d->feedforward[2 * k], tau[1] = d->feedforward[2 * k + 1];
-    if (k < d->n_correction) tau[0] += d->correction[2 * k], tau[1] += d->correction[2 * k + 1];
+    if (k < d->n_correction) { /* flexarm.control_law.corrected_feedforward */
+        const double nominal[2] = {tau[0], tau[1]};
+        law_corrected_feedforward(nominal, d->correction + 2 * k, tau);
+    }
 #else
     (void)d, (void)k;
 #endif

@@ -59,10 +59,9 @@ void lqg_propagate(const Design *g, int i, double *x, const double du[2], const 
 void lqg_feedforward(const LqgData *d, long long k, double nominal[2], double command[2])
 {
     const double *slew = k < d->n_steps ? d->feedforward + 2 * k : NULL; /* zero feedforward in the hold */
-    for (int r = 0; r < 2; r++) {
-        nominal[r] = slew ? slew[r] : 0.0;
-        command[r] = nominal[r] + (k < d->n_correction ? d->correction[2 * k + r] : 0.0);
-    }
+    const double none[2] = {0.0, 0.0}, *correction = k < d->n_correction ? d->correction + 2 * k : none;
+    for (int r = 0; r < 2; r++) nominal[r] = slew ? slew[r] : 0.0;
+    law_corrected_feedforward(nominal, correction, command); /* flexarm.control_law.corrected_feedforward */
 }
 
 /* Steps 1-3 of the law (controller_lqg.c's header): the posterior at j = max(k - d, 0) from measurements m of
