@@ -51,7 +51,6 @@ available through :meth:`SensorBank.curvatures`.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from typing import NamedTuple
 
@@ -240,29 +239,19 @@ class SensorBank:
         s = settings
         self.segment_lengths = strain_gauge_segment_lengths(params)
 
-        deg = math.pi / 180.0
-        amp = np.zeros(N_SIGNALS)
-        amp[ENCODERS] = s.encoder_noise_deg * deg
-        amp[TACHOMETERS] = s.tachometer_noise_deg_per_s * deg
-        amp[STRAIN_GAUGES] = s.strain_gauge_noise_deg * deg
-        amp[ACCELEROMETERS] = s.accelerometer_noise_m_per_s2
+        amplitude, self.encoder_lsb, analogue_full_scale, analogue_lsb, lo_code, hi_code = law.channel_scales(
+            s.encoder_noise_deg, s.tachometer_noise_deg_per_s, s.strain_gauge_noise_deg, s.accelerometer_noise_m_per_s2,
+            s.encoder_counts_per_rev, s.tachometer_full_scale_deg_per_s, s.strain_gauge_full_scale_curvature_per_m,
+            self.segment_lengths, s.accelerometer_full_scale_m_per_s2, 2.0 ** s.adc_bits)
         #: Noise half-widths per channel, SI units, shape (12,).
-        self.noise_amplitude = amp
-
-        #: Encoder LSB, rad.
-        self.encoder_lsb = 2.0 * math.pi / s.encoder_counts_per_rev
-        full_scale = np.zeros(N_SIGNALS)
-        full_scale[ENCODERS] = np.inf
-        full_scale[TACHOMETERS] = s.tachometer_full_scale_deg_per_s * deg
-        # Gauges are digitised as curvature; in angle the full scale scales with the segment length.
-        kappa_fs = np.repeat(s.strain_gauge_full_scale_curvature_per_m, 3)
-        full_scale[STRAIN_GAUGES] = curvature_to_angle(kappa_fs, self.segment_lengths)
-        full_scale[ACCELEROMETERS] = s.accelerometer_full_scale_m_per_s2
-        #: A/D full scale ±FS per channel (inf for the encoders), SI units, shape (12,).
-        self.full_scale = full_scale
+        self.noise_amplitude = amplitude
+        #: Encoder LSB, rad (self.encoder_lsb, above).
+        #: A/D full scale ±FS per channel (inf for the encoders), SI units, shape (12,); gauges are digitised as
+        #: curvature, so in angle the full scale scales with the segment length.
+        self.full_scale = np.concatenate([[np.inf, np.inf], analogue_full_scale])
         #: A/D LSB per analogue channel, SI units, shape (12,) (encoders: nan).
-        self.adc_lsb = np.where(np.isfinite(full_scale), 2.0 * full_scale / 2**s.adc_bits, np.nan)
-        self._code_range = (-(2 ** (s.adc_bits - 1)), 2 ** (s.adc_bits - 1) - 1)
+        self.adc_lsb = np.concatenate([[np.nan, np.nan], analogue_lsb])
+        self._code_range = (lo_code, hi_code)
 
         self._strain_filter = (_LowPassBank(s.strain_gauge_filter_order, s.strain_gauge_cutoff_hz, dt, 6)
                                if s.strain_gauge_filter else None)

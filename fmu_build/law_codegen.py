@@ -38,6 +38,8 @@ resources hold them.
 * ``law_primed_state(unit_state[2], x) -> state[2]`` (:func:`~flexarm.sensor_law.primed_state`);
 * ``law_with_noise(y, amplitude, uniform) -> y'`` (:func:`~flexarm.sensor_law.with_noise`);
 * ``law_quantize(x, lsb, lo_code, hi_code) -> x'`` (:func:`~flexarm.sensor_law.quantize`);
+* at initialisation ``law_channel_scales(settings..., κ_FS[2], L[6], ..., 2^bits) -> (amplitude[12], encoder_lsb,
+  full_scale[10], adc_lsb[10], lo_code, hi_code)`` (:func:`~flexarm.sensor_law.channel_scales`);
 * the Butterworth design at initialisation (:mod:`flexarm.filter_design`): ``law_prewarp_argument(cutoff_hz,
   sample_rate_hz) -> a``, whose tangent the C takes with the portable ``flexarm_tan``, then
   ``law_butterworth_order_<N>(tan a) -> (sos[n×6], unit_state[n×2])`` for N = 1..8, n = (N + 1) / 2 sections.
@@ -53,6 +55,7 @@ import numpy as np
 
 from flexarm import control_law as law
 from flexarm import filter_design, filter_law, sensor_law
+from flexarm.law_ops import as_written
 from flexarm.parameters import N_ELEMENTS
 
 from . import native_codegen
@@ -225,8 +228,23 @@ def sensor_law_functions() -> list[ca.Function]:
         ca.Function("generated_quantize", [x_sx, lsb_sx, lo_sx, hi_sx],
                     [_output(sensor_law.quantize(x, lsb, lo, hi))], ["x", "lsb", "lo_code", "hi_code"],
                     ["quantized"]),
+        channel_scales_function(),
         *butterworth_functions(),
     ]
+
+
+def channel_scales_function() -> ca.Function:
+    """:func:`flexarm.sensor_law.channel_scales`: each channel's noise half-width and quantum at initialisation."""
+    names = ["encoder_noise_deg", "tachometer_noise_deg_per_s", "strain_gauge_noise_deg",
+             "accelerometer_noise_m_per_s2", "encoder_counts_per_rev", "tachometer_full_scale_deg_per_s",
+             "gauge_full_scale_curvature_per_m", "segment_lengths", "accelerometer_full_scale_m_per_s2", "adc_codes"]
+    shapes = {"gauge_full_scale_curvature_per_m": (2,), "segment_lengths": (6,)}
+    inputs = [_symbols(name, shapes.get(name, (1,))) for name in names]
+    args = [elements if name in shapes else elements[0] for name, (_, elements) in zip(names, inputs)]
+    with as_written():  # as the numbers path rounds (no rewriting of its quotients)
+        outputs = sensor_law.channel_scales(*args)
+    return ca.Function("generated_channel_scales", [sym for sym, _ in inputs], [_output(o) for o in outputs], names,
+                       ["amplitude", "encoder_lsb", "full_scale", "adc_lsb", "lo_code", "hi_code"])
 
 
 def butterworth_functions() -> list[ca.Function]:

@@ -328,12 +328,27 @@ def test_the_generated_sensor_law_is_the_library_s_bit_for_bit():
     assert sensor_law.quantize(np.array([0.5 * lsb, 1.5 * lsb]), lsb, -8, 7).tolist() == [0.0, 2 * lsb]
 
 
+def test_the_generated_channel_scales_are_the_library_s_bit_for_bit():
+    """Each channel's noise half-width and quantum from the settings (degrees to radians, the gauges' curvature
+    full scale times their segment, 2 FS / 2^bits, the code range), as the Python sensors compute them."""
+    f = law_codegen.channel_scales_function()
+    rng = np.random.default_rng(5)
+    for bits in (8, 10, 12, 16):
+        args = [*rng.uniform(0.0, 2.0, 4), float(rng.integers(256, 100000)), rng.uniform(100, 1000),
+                rng.uniform(0.1, 10.0, 2), rng.uniform(0.01, 0.2, 6), rng.uniform(10, 200), 2.0 ** bits]
+        want = sensor_law.channel_scales(*args)
+        for w, g in zip(want, f(*args)):
+            np.testing.assert_array_equal(np.array(g).ravel(), np.ravel(w))
+        assert want[4] == -(2 ** (bits - 1)) and want[5] == 2 ** (bits - 1) - 1
+
+
 def test_the_hand_written_sensors_c_does_no_arithmetic_of_the_law():
     """The sensors' C keeps the state; the per-sample arithmetic and the filters' design are the generated law's
     (flexarm/filter_design.py): no complex arithmetic, pole pairing or 2×2 solve by hand."""
     text = (NATIVE / "sensors" / "sensors.c").read_text()
     assert '#include "sensor_law_api.h"' in text and "law_butterworth_order_8" in text
-    for by_hand in (r"\bhypot\s*\(", r"\bCplx\b", r"flexarm_(cos|sin)\s*\(", r"\bpow\s*\(\s*warped"):
+    for by_hand in (r"\bhypot\s*\(", r"\bCplx\b", r"flexarm_(cos|sin)\s*\(", r"\bpow\s*\(", r"\*\s*deg\b",
+                    r"2\.0\s*\*\s*full_scale"):
         assert not re.search(by_hand, text), by_hand
     for by_hand in (r"\bnearbyint\s*\(", r"2\.0\s*\*\s*u\[", r"s\[4\]\s*\*", r"zi\[k\]\[j\]\s*\*"):
         assert not re.search(by_hand, text), by_hand

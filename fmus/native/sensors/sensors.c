@@ -168,7 +168,6 @@ static fmi2Status sensors_initialize(Instance *inst)
 {
     SensorsState *s = inst->state;
     const SensorsData *d = inst->data;
-    const double deg = 3.141592653589793 / 180.0;
     double period = VALUE(inst, IDX_sample_period), nyquist = 0.5 / period;
     static const struct {
         int idx;
@@ -189,22 +188,17 @@ static fmi2Status sensors_initialize(Instance *inst)
     s->adc_quant = VALUE(inst, IDX_adc_quantization) != 0;
     s->strain_filter = VALUE(inst, IDX_strain_gauge_filter) != 0;
     s->acc_filter = VALUE(inst, IDX_accelerometer_filter) != 0;
-    for (int i = 0; i < 2; i++) s->amplitude[i] = VALUE(inst, IDX_encoder_noise_deg) * deg;
-    for (int i = 2; i < 4; i++) s->amplitude[i] = VALUE(inst, IDX_tachometer_noise_deg_per_s) * deg;
-    for (int i = 4; i < 10; i++) s->amplitude[i] = VALUE(inst, IDX_strain_gauge_noise_deg) * deg;
-    for (int i = 10; i < 12; i++) s->amplitude[i] = VALUE(inst, IDX_accelerometer_noise_m_per_s2);
-    s->encoder_lsb = 2.0 * 3.141592653589793 / VALUE(inst, IDX_encoder_counts_per_rev);
-    double bits = pow(2.0, VALUE(inst, IDX_adc_bits));
-    double fs_gauge[2] = {VALUE(inst, IDX_strain_gauge_full_scale_curvature_per_m_link1),
-                          VALUE(inst, IDX_strain_gauge_full_scale_curvature_per_m_link2)};
-    for (int i = 0; i < N_SIGNALS; i++) {
-        double full_scale = i < 2 ? HUGE_VAL
-                            : i < 4 ? VALUE(inst, IDX_tachometer_full_scale_deg_per_s) * deg
-                            : i < 10 ? fs_gauge[(i - 4) / 3] * d->segment_lengths[i - 4]
-                                     : VALUE(inst, IDX_accelerometer_full_scale_m_per_s2);
-        s->adc_lsb[i] = 2.0 * full_scale / bits;
-    }
-    s->code_lo = -(bits / 2), s->code_hi = bits / 2 - 1;
+    const double settings[] = {VALUE(inst, IDX_encoder_noise_deg), VALUE(inst, IDX_tachometer_noise_deg_per_s),
+                               VALUE(inst, IDX_strain_gauge_noise_deg), VALUE(inst, IDX_accelerometer_noise_m_per_s2),
+                               VALUE(inst, IDX_encoder_counts_per_rev), VALUE(inst, IDX_tachometer_full_scale_deg_per_s)};
+    const double gauge_fs[2] = {VALUE(inst, IDX_strain_gauge_full_scale_curvature_per_m_link1),
+                                VALUE(inst, IDX_strain_gauge_full_scale_curvature_per_m_link2)};
+    const double acc_fs = VALUE(inst, IDX_accelerometer_full_scale_m_per_s2);
+    const double codes = ldexp(1.0, (int)VALUE(inst, IDX_adc_bits)); /* an n-bit converter's 2^n codes, exactly */
+    double full_scale[N_SIGNALS - 2];
+    law_channel_scales(&settings[0], &settings[1], &settings[2], &settings[3], &settings[4], &settings[5], gauge_fs,
+                       d->segment_lengths, &acc_fs, &codes, s->amplitude, &s->encoder_lsb, full_scale, s->adc_lsb + 2,
+                       &s->code_lo, &s->code_hi);
     if (s->strain_filter)
         butter_sos((int)VALUE(inst, IDX_strain_gauge_filter_order), VALUE(inst, IDX_strain_gauge_cutoff_hz),
                    1.0 / period, &s->strain);
