@@ -18,11 +18,15 @@ tables' tracking errors beside the delay-free run:
 * ``steady filter, FMU start``: the steady filter with sample 1's torque fed through from sample 0's measurement
   (the filter told the torque held), as the FMUs did before sample 1 took the feedforward;
 * ``transient gain`` (with ``--initial-covariance F``): the time-varying filter from F times the steady prior.
+* ``Smith predictor``: the Kalman predictor's predicted change over the delay added to the measurement itself,
+  m(a - d) + C (x_a - x_post(a - d)) (the classic Smith form): the law then gets sample a - d's noise where the
+  delay-free law gets sample a's, instead of the filtered estimate.
 
     python benchmarks/study_paper_law_delay.py [--delay 2] [--payload 0.275] [--gain-set gamma0] [--noise-seeds 32]
                                                [--initial-covariance 1e4]
 
-With ``--noise-seeds N`` (N >= 2) it ends with a summary over the seeds: each way's mean rms errors with their
+With ``--noise-seeds N`` (N >= 2; the delay-free law, the Kalman predictor and the Smith predictor under noise)
+it ends with a summary over the seeds: each way's mean rms errors with their
 standard errors, and each way against the delay-free law seed by seed (the same noise sequence in both loops).
 
 The acceptance of issue 31 asks every master to give the Gauss-Seidel figures within 5 % or 0.005 deg
@@ -67,7 +71,7 @@ def run(law: TrackingController, design: LqgDesign, model: ArmModel, how: str, d
     predictor = None
     fmu_start = how.endswith(", FMU start")
     how = how.removesuffix(", FMU start")
-    if how in ("Kalman predictor", "filter state", "transient gain", "steady filter"):
+    if how in ("Kalman predictor", "filter state", "transient gain", "steady filter", "Smith predictor"):
         predictor = PredictedTracking(law, design, d)  # the shipped law: the transient-gain filter (PREDICTOR_PRIOR)
     if how == "transient gain":
         with_filter(predictor, law, design, d, initial_covariance)
@@ -85,6 +89,15 @@ def run(law: TrackingController, design: LqgDesign, model: ArmModel, how: str, d
             if fmu_start and a == 1:  # the FMUs' sample 1: fed through from sample 0's measurement, held
                 tau = law.torque_from_measurements(1, measured[0])
                 state = dataclasses.replace(state, du=np.vstack([state.du[:-1], tau - predictor.filter.feedforward(1)]))
+        elif how == "Smith predictor":
+            m = measured[j] if j >= 0 else predictor.desired_measurement(0)
+            x_post, x_now = predictor.filter.estimate(state, a, m)
+            f = predictor.filter
+            residual = m - f._y_d[f._c(max(j, 0))] - f.design.C @ x_post
+            dev = f.design.C @ x_now + residual
+            tau = np.clip(law.feedforward(a) - law.gain_per_measurement(a) @ dev, -law.saturation, law.saturation)
+            du = np.vstack([state.du[1:], tau - f.feedforward(a)])
+            state = type(state)(a + 1, x_post, du, state.xi, True)
         elif predictor is not None:  # "filter state"
             x_post, x_now = predictor.filter.estimate(state, a, measured[j] if j >= 0 else
                                                       predictor.desired_measurement(0))
@@ -123,8 +136,8 @@ def main() -> None:
           "samples")
     print(f"{'':31} {'rms pos, deg':>13} {'rms vel, deg/s':>15} {'peak pos, deg':>14}")
     rows = ["no delay", "delayed", "model prediction", "steady filter", "filter state", "Kalman predictor",
-            "steady filter, FMU start"]
-    noisy = ["no delay", "steady filter", "Kalman predictor"]
+            "steady filter, FMU start", "Smith predictor"]
+    noisy = ["no delay", "Kalman predictor", "Smith predictor"]
     if args.initial_covariance:
         rows.append("transient gain")
         noisy.append("transient gain")

@@ -371,3 +371,19 @@ def test_a_default_plant_off_on_the_rms_velocity_error_says_so(tmp_path, scenari
     assert len(warned) == 1 and f"{dev['rms_velocity_error']:+.1%}" in warned[0], r.warnings
     saved = json.loads((tmp_path / f"{scenario}-warn" / "noise.json").read_text())
     assert warned[0] in saved["warnings"] and saved["loop_stability"]["predicted_metric_deviation"] == dev
+
+
+def test_the_lqg_loop_left_automatic_is_checked_at_the_masters_delay():
+    """`loop_delay_samples` not set is the FMU's start value, automatic: the controller predicts over the delay it
+    measures, so the check builds the loop at the master's delay (it once took the unset value as 0 and reported
+    the Jacobi loop as "not checked: loop_delay_samples = 0 where the jacobi master delays by 2")."""
+    from scenarios.analysis.stability import loop_stability
+
+    paths = {"controller": "build/fmus/controller_lqg.fmu"}
+    params = {"controller": {"gain_set": 2, "schedule_period": 0.2}, "plant": {"integrator": 1, "substeps": 2}}
+    jacobi = loop_stability(paths, "plant", "controller", params, 0.001, 2.058, algorithm="jacobi")
+    assert jacobi["checked"] and jacobi["delay_steps"] == 2, jacobi.get("reason")
+    assert jacobi["growth_per_s"] < 0  # the predicting loop is stable (the run: 0.0010 deg rms)
+    explicit = loop_stability(paths, "plant", "controller", {**params, "controller": {
+        **params["controller"], "loop_delay_samples": 0}}, 0.001, 2.058, algorithm="jacobi")
+    assert not explicit["checked"] and "loop_delay_samples = 0" in explicit["reason"]  # an explicit 0 stays unchecked

@@ -18,7 +18,10 @@ Interface (full table in ``docs/fmu-interface.md``):
   was present at the sample (0: no sample yet; :mod:`flexarm.loop_index`). Inputs that are a master's
   placeholder (index 0 and every true signal exactly 0, fmpy's ``simulate_ssp`` over its first step) are not
   measured: the outputs are 0 with index 0, so the controller sees "no sample yet", and the filters are primed
-  by the first real sample (the noise stream advances as for a measured sample).
+  by the first real sample (the noise stream advances as for a measured sample). A measurement belongs to the
+  plant sample it measures: the inputs of the sample measured at the last communication point again (its index,
+  the same values; a Jacobi master sets the plant's outputs of t_(k-1) at t_k) get that measurement again, not a
+  second sample of them (docs/sensors.md, "Which sample a measurement belongs to").
 
 Defaults: noise off (``noise_enabled`` false), 1 ms sample period; the
 default experiment lasts the committed trajectory's slew.
@@ -44,7 +47,7 @@ import numpy as np
 from flexarm_feedthrough import FeedthroughSlave, whole_samples
 from flexarm_fmu_base import Var, pin_module_namespace, slew_experiment, variable_table
 
-from flexarm.loop_index import is_placeholder
+from flexarm.loop_index import is_placeholder, received_index
 from flexarm.sensors import MEASURED_SIGNALS, TRUE_SIGNALS, SensorBank, SensorSettings
 from flexarm.signals import signals
 
@@ -143,6 +146,10 @@ class FlexarmSensors(FeedthroughSlave):
         super().__init__(**kwargs)
         self.bank: SensorBank | None = None
         self._pre: dict | None = None  # bank checkpoint before the sample of the current communication point
+        # (plant sample, inputs' bytes, measurement) of the communication point's sample (_pending) and of the
+        # last committed one (_last): the same sample with the same values is the same measurement
+        self._pending: tuple | None = None
+        self._last: tuple | None = None
         self._true_vrs = [self._vr[s.name] for s in TRUE_SIGNALS]
         self._index_vr = self._vr[_INDEX_IN.name]
 
@@ -155,6 +162,7 @@ class FlexarmSensors(FeedthroughSlave):
     def setup(self) -> None:
         self.bank = SensorBank(self.settings(), dt=self.value("sample_period"))
         self._pre = None
+        self._pending = self._last = None
 
     def evaluate(self) -> np.ndarray:
         if self._pre is None:
@@ -162,7 +170,14 @@ class FlexarmSensors(FeedthroughSlave):
         else:  # inputs changed after a read at this communication point: measure again from the same state
             self.bank.rewind(self._pre)
         values = self._values
-        measured = self._sample(np.array([values[vr] for vr in self._true_vrs], dtype=float))
+        true = np.array([values[vr] for vr in self._true_vrs], dtype=float)
+        sample, key = received_index(values[self._index_vr]), true.tobytes()
+        last = self._last
+        if sample is not None and last is not None and last[0] == sample and last[1] == key:
+            measured = last[2].copy()  # that sample again: its measurement (the bank stays as committed)
+        else:
+            measured = self._sample(true)
+        self._pending = (sample, key, measured)
         return np.append(measured, values[self._index_vr])  # the index of the plant sample measured
 
     def _sample(self, true: np.ndarray) -> np.ndarray:
@@ -178,6 +193,7 @@ class FlexarmSensors(FeedthroughSlave):
         held = np.array([self._values[vr] for vr in self._true_vrs], dtype=float)
         for _ in range(n - 1):
             self._sample(held)
+        self._last = self._pending if n == 1 else None  # samples of the held inputs since: the next one is new
         self._pre = None
 
     def samples_in_step(self, t: float, h: float) -> int:
@@ -187,7 +203,8 @@ class FlexarmSensors(FeedthroughSlave):
 
     def get_sample_state(self) -> dict:
         return {"bank": _bank_state_as_lists(self.bank.get_state()),
-                "pre": None if self._pre is None else copy.deepcopy(_bank_state_as_lists(self._pre))}
+                "pre": None if self._pre is None else copy.deepcopy(_bank_state_as_lists(self._pre)),
+                "pending": _sample_as_lists(self._pending), "last": _sample_as_lists(self._last)}
 
     def set_sample_state(self, state: dict) -> None:
         settings = self.settings()
@@ -195,8 +212,18 @@ class FlexarmSensors(FeedthroughSlave):
             self.bank = SensorBank(settings, dt=self.value("sample_period"))
         self.bank.set_state(state["bank"])
         self._pre = state["pre"]
+        self._pending, self._last = _sample_from_lists(state["pending"]), _sample_from_lists(state["last"])
 
 
 def _bank_state_as_lists(bank_state: dict) -> dict:
     """A :meth:`SensorBank.get_state` snapshot with the filter arrays as nested lists (JSON, exact)."""
     return {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in bank_state.items()}
+
+
+def _sample_as_lists(sample: tuple | None) -> list | None:
+    """A (plant sample, inputs' bytes, measurement) record as JSON-exact lists (the bytes as their hex)."""
+    return None if sample is None else [sample[0], sample[1].hex(), sample[2].tolist()]
+
+
+def _sample_from_lists(saved: list | None) -> tuple | None:
+    return None if saved is None else (saved[0], bytes.fromhex(saved[1]), np.array(saved[2], dtype=float))

@@ -153,9 +153,9 @@ def loop_stability(paths: dict, plant: str, driver: str, params: dict, step_s: f
     if lqg:
         est = _value(ctrl, "estimator", 1)
         estimator = {1: "kalman", 2: "payload_bank"}.get(est, str(est)) if not isinstance(est, str) else est
-        loop_delay = int(_value(ctrl, "loop_delay_samples", 0))
         from flexarm.loop_index import AUTOMATIC
 
+        loop_delay = int(_value(ctrl, "loop_delay_samples", AUTOMATIC))  # not set: the FMU's start, automatic
         if loop_delay == AUTOMATIC:  # it measures the master's delay and predicts over it (docs/control.md)
             loop_delay = delay
         if estimator != "kalman":

@@ -43,6 +43,9 @@ typedef struct {
     double acc_state[MAX_SECTIONS][2][2];
     int primed;
     double n_samples;
+    /* the plant sample measured at the last communication point (-1: none, or samples taken inside a step since),
+     * with its inputs and its measurement: the same sample with the same values is the same measurement */
+    double last_sample, last_input[N_SIGNALS], last_output[N_SIGNALS];
 } Bank;
 
 typedef struct {
@@ -143,6 +146,25 @@ static void sample_or_skip(const SensorsState *s, Bank *bank, const double *x, d
     bank->n_samples += 1;
 }
 
+/* The sample at a communication point. A measurement belongs to the plant sample it measures: inputs that carry
+ * the index of the sample measured at the last communication point, with the same values, are that sample again
+ * (a Jacobi master sets the plant's outputs of t_(k-1) at t_k), and get its measurement, not a second sample of
+ * it (no filter update, no noise draw). So the measurement of plant sample j is the same in every master, only
+ * the time it reaches the controller differs (docs/sensors.md, "Which sample a measurement belongs to"). */
+static void sample_at_point(const SensorsState *s, Bank *bank, const double *x, double index, double *y)
+{
+    double j;
+    const int indexed = loop_received_index(index, &j);
+    if (indexed && j == bank->last_sample && memcmp(x, bank->last_input, sizeof bank->last_input) == 0) {
+        memcpy(y, bank->last_output, sizeof bank->last_output);
+        return;
+    }
+    sample_or_skip(s, bank, x, index, y);
+    bank->last_sample = indexed ? j : -1.0;
+    memcpy(bank->last_input, x, sizeof bank->last_input);
+    memcpy(bank->last_output, y, sizeof bank->last_output);
+}
+
 /* -- model callbacks ------------------------------------------------------------------------------ */
 static int sensors_load(Instance *inst, char *const *contents, const size_t *sizes)
 {
@@ -206,11 +228,12 @@ static fmi2Status sensors_initialize(Instance *inst)
         butter_sos((int)VALUE(inst, IDX_accelerometer_filter_order), VALUE(inst, IDX_accelerometer_cutoff_hz),
                    1.0 / period, &s->acc);
     pcg64_seed(&s->committed.rng, (uint64_t)VALUE(inst, IDX_noise_seed));
+    s->committed.last_sample = -1.0;
     /* the sample at the start time, from the inputs present */
     double x[N_SIGNALS], y[N_SIGNALS];
     for (int i = 0; i < N_SIGNALS; i++) x[i] = VALUE(inst, TRUE_IDX[i]);
     s->pending = s->committed;
-    sample_or_skip(s, &s->pending, x, VALUE(inst, IDX_sample_index), y);
+    sample_at_point(s, &s->pending, x, VALUE(inst, IDX_sample_index), y);
     for (int i = 0; i < N_SIGNALS; i++) VALUE(inst, MEASURED_IDX[i]) = y[i];
     VALUE(inst, IDX_sample_index_m) = VALUE(inst, IDX_sample_index); /* the plant sample measured */
     return fmi2OK;
@@ -222,7 +245,7 @@ static fmi2Status sensors_sample(Instance *inst)
     double x[N_SIGNALS], y[N_SIGNALS];
     for (int i = 0; i < N_SIGNALS; i++) x[i] = VALUE(inst, TRUE_IDX[i]);
     s->pending = s->committed; /* re-set inputs re-measure from the same state */
-    sample_or_skip(s, &s->pending, x, VALUE(inst, IDX_sample_index), y);
+    sample_at_point(s, &s->pending, x, VALUE(inst, IDX_sample_index), y);
     for (int i = 0; i < N_SIGNALS; i++) VALUE(inst, MEASURED_IDX[i]) = y[i];
     VALUE(inst, IDX_sample_index_m) = VALUE(inst, IDX_sample_index); /* the plant sample measured */
     return fmi2OK;
@@ -243,6 +266,7 @@ static fmi2Status sensors_do_step(Instance *inst, double t, double h)
     double x[N_SIGNALS], y[N_SIGNALS];
     for (int i = 0; i < N_SIGNALS; i++) x[i] = VALUE(inst, TRUE_IDX[i]);
     for (double k = 1; k < n; k++) sample_or_skip(s, &s->pending, x, VALUE(inst, IDX_sample_index), y);
+    if (n > 1) s->pending.last_sample = -1.0; /* samples of the held inputs since: the next one is new */
     s->committed = s->pending;
     return fmi2OK;
 }
