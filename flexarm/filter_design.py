@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from .law_ops import as_written
+from .law_ops import as_written, is_symbol, select
 
 #: Orders the design is generated for (the sensors' settings allow these).
 ORDERS = range(1, 9)
@@ -61,20 +61,8 @@ def butterworth_lowpass(order: int, cutoff_hz: float, sample_rate_hz: float) -> 
     return np.array(sos, dtype=float), np.array(unit_state, dtype=float)
 
 
-def _symbolic(x) -> bool:
-    return not isinstance(x, (float, int, np.floating))
-
-
-def _select(condition, if_true, otherwise):
-    if _symbolic(condition):
-        import casadi as ca
-
-        return ca.if_else(condition, if_true, otherwise)
-    return if_true if condition else otherwise
-
-
 def _abs(x):
-    return _select(x < 0, -x, x)
+    return select(x < 0, -x, x)
 
 
 def _mul(a, b):
@@ -83,11 +71,11 @@ def _mul(a, b):
 
 def _div(a, b):
     """a / b for complex numbers as (re, im): NumPy's division (Smith's method), divided by the larger part."""
-    if not any(_symbolic(v) for v in (*a, *b)):
+    if not any(is_symbol(v) for v in (*a, *b)):
         return _smith(a, b, abs(b[0]) >= abs(b[1]))
     by_re, by_im = _smith(a, b, True), _smith(a, b, False)
     re_larger = _abs(b[0]) >= _abs(b[1])
-    return _select(re_larger, by_re[0], by_im[0]), _select(re_larger, by_re[1], by_im[1])
+    return select(re_larger, by_re[0], by_im[0]), select(re_larger, by_re[1], by_im[1])
 
 
 def _smith(a, b, re_larger: bool):
@@ -117,7 +105,7 @@ def butterworth_sections(order: int, tan_prewarp):
         As :func:`butterworth_lowpass`, as nested lists (of symbols on the generator's path, built as written:
         :func:`flexarm.law_ops.as_written`).
     """
-    if _symbolic(tan_prewarp):
+    if is_symbol(tan_prewarp):
         with as_written():
             return _sections(order, tan_prewarp)
     return _sections(order, tan_prewarp)
@@ -151,9 +139,9 @@ def _sections(order: int, tan_prewarp):
                 continue
             origin_nearer = _abs(0.0 - p1[0]) < _abs(-1.0 - p1[0])
             last_left = k == n_sections - 1 and pick == 1  # the last zero left is taken whatever its distance
-            take = zero_at_origin_free if last_left else _select(origin_nearer, zero_at_origin_free, 0.0)
-            zeros.append(_select(take, 0.0, -1.0))
-            zero_at_origin_free = _select(take, 0.0, zero_at_origin_free)
+            take = zero_at_origin_free if last_left else select(origin_nearer, zero_at_origin_free, 0.0)
+            zeros.append(select(take, 0.0, -1.0))
+            zero_at_origin_free = select(take, 0.0, zero_at_origin_free)
         prod = _mul((-p1[0], -p1[1]), (-p2[0], -p2[1]))
         sos[section] = [1.0, -zeros[1] + -zeros[0], (-zeros[0]) * (-zeros[1]), 1.0, -p2[0] + -p1[0], prod[0]]
     sos[0] = [sos[0][0] * gain, sos[0][1] * gain, sos[0][2] * gain, *sos[0][3:]]
@@ -168,9 +156,9 @@ def _unit_states(sos):
         m00, m01, m10, m11 = 1 + a1, -1.0, a2, 1.0
         r0, r1 = b1 - a1 * b0, b2 - a2 * b0
         swap = _abs(m10) > _abs(m00)
-        m00, m10 = _select(swap, m10, m00), _select(swap, m00, m10)
-        m01, m11 = _select(swap, m11, m01), _select(swap, m01, m11)
-        r0, r1 = _select(swap, r1, r0), _select(swap, r0, r1)
+        m00, m10 = select(swap, m10, m00), select(swap, m00, m10)
+        m01, m11 = select(swap, m11, m01), select(swap, m01, m11)
+        r0, r1 = select(swap, r1, r0), select(swap, r0, r1)
         lower = m10 * (1.0 / m00)
         x1 = (r1 - lower * r0) / (m11 - lower * m01)
         x0 = (r0 - m01 * x1) / m00

@@ -1,11 +1,22 @@
-"""The laws' operations that NumPy cannot apply to CasADi symbols: a clamp and rounding to an integer.
+"""The laws' operations that NumPy cannot apply to CasADi symbols, each with its path for numbers and for symbols.
 
-The laws (:mod:`flexarm.control_law`, :mod:`flexarm.sensor_law`) are written once, in NumPy, and the native FMUs'
-C is generated from them by evaluating them on CasADi symbols (:mod:`fmu_build.law_codegen`). A comparison of
-symbols has no truth value, so these two take another path on symbols, to the same IEEE-754 result for every
-value, NaN and ±inf included: selections by comparison for the clamp, and x − remainder(x, 1) for the rounding
-(IEEE's remainder rounds the quotient half to even, as :func:`numpy.round` and C's nearbyint do) with the sign of
-x kept, so −0.3 rounds to −0.0 as NumPy's does. CasADi is imported only on that path (the generator's).
+The laws (:mod:`flexarm.control_law`, :mod:`flexarm.filter_law`, :mod:`flexarm.sensor_law`,
+:mod:`flexarm.filter_design`) are written once, in NumPy and Python arithmetic, and the native FMUs' C is generated
+from them by evaluating them on CasADi symbols (:mod:`fmu_build.law_codegen`). A comparison of symbols has no truth
+value, a symbol has no NumPy ufunc, and NumPy's reductions sum in an order of their own, so the operations here
+take another path on symbols, to the same IEEE-754 result for every value, NaN and ±inf included:
+
+* selections: :func:`select` (a scalar), :func:`where` (elementwise), :func:`where_all_equal`, the clamp
+  (:func:`clamp`: selections by comparison, the sign from fmax/fmin);
+* rounding to an integer (:func:`round_half_even`: x − remainder(x, 1), IEEE's remainder rounds the quotient half
+  to even as :func:`numpy.round` and C's nearbyint do, with the sign of x kept, so −0.3 rounds to −0.0 as NumPy's);
+* sums in NumPy's order: :func:`mat_vec`, :func:`dot`, :func:`weighted`, :func:`log_sum_exp` (a left fold of
+  logaddexp), :func:`exp`;
+* matrices as CasADi MX operations, so that their loops stay loops in the C: :func:`matmul`, :func:`solve`,
+  :func:`identity_minus`;
+* :func:`as_written`: CasADi's simplification on the fly off while a law is built, so a·(1/b) stays a·(1/b).
+
+CasADi is imported only on the symbols' path (the generator's).
 """
 
 from __future__ import annotations
@@ -17,6 +28,21 @@ import numpy as np
 
 def _symbolic(x) -> bool:
     return np.asarray(x).dtype.kind == "O"
+
+
+def is_symbol(x) -> bool:
+    """True for a scalar that is not a number (a CasADi symbol: the generator's path)."""
+    return not isinstance(x, (float, int, np.floating, np.integer, np.bool_))
+
+
+def select(condition, if_true, otherwise):
+    """`if_true` if `condition` else `otherwise`, for scalars: Python's conditional on numbers, CasADi's
+    ``if_else`` on a symbolic condition."""
+    if is_symbol(condition):
+        import casadi as ca
+
+        return ca.if_else(condition, if_true, otherwise)
+    return if_true if condition else otherwise
 
 
 def clamp(x, lo, hi):

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from .law_ops import clamp, round_half_even
+from .law_ops import clamp, is_symbol, round_half_even
 
 
 def filter_section(sos, state0, state1, x):
@@ -86,7 +86,7 @@ def channel_scales(encoder_noise_deg, tachometer_noise_deg_per_s, strain_gauge_n
         The A/D's code range, −2^(bits−1) .. 2^(bits−1) − 1.
     """
     deg = math.pi / 180.0
-    kind = float if isinstance(adc_codes, (int, float, np.floating)) else object  # numbers, or the generator's symbols
+    kind = object if is_symbol(adc_codes) else float  # the generator's symbols, or numbers
     amplitude = np.array([encoder_noise_deg * deg] * 2 + [tachometer_noise_deg_per_s * deg] * 2
                          + [strain_gauge_noise_deg * deg] * 6 + [accelerometer_noise_m_per_s2] * 2, dtype=kind)
     full_scale = np.array([tachometer_full_scale_deg_per_s * deg] * 2
