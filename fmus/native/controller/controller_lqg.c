@@ -154,14 +154,10 @@ static void lqg_step(const LqgData *d, const LqgState *s, long long k, const dou
     double ff[2], ff_cmd[2];
     lqg_feedforward(d, k, ff, ff_cmd);
     double free_tau[2]; /* flexarm.filter_law.free_torque, control_law.saturate, filter_law.integrated */
-    if (d->integral) { /* the augmented gain [K K_xi] per row: its two blocks */
-        const double *ka = g->k_integral + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_AUG;
-        double k[2 * N_STATE], k_xi[2 * 2];
-        for (int r = 0; r < 2; r++) {
-            memcpy(k + r * N_STATE, ka + r * N_AUG, N_STATE * sizeof *k);
-            memcpy(k_xi + r * 2, ka + r * N_AUG + N_STATE, 2 * sizeof *k_xi);
-        }
-        law_free_torque_integral(ff_cmd, k, x_now, k_xi, s->xi, free_tau);
+    if (d->integral) { /* the augmented gain's two blocks, split at reading */
+        const size_t at = (size_t)i_k * N_WEIGHTS + d->weight;
+        law_free_torque_integral(ff_cmd, g->k_integral + at * 2 * N_STATE, x_now, g->k_xi + at * 2 * 2, s->xi,
+                                 free_tau);
     } else {
         law_free_torque(ff_cmd, g->k + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_STATE, x_now, free_tau);
     }

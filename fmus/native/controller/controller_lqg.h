@@ -19,7 +19,8 @@
 typedef struct {
     int count;
     double *times, *phi, *gamma, *m; /* count; count x 22 x 22; count x 22 x 2; count x 22 x 10 */
-    double *k, *k_integral;          /* count x 4 x 2 x 22; count x 4 x 2 x 24 */
+    double *k;                       /* count x 4 x 2 x 22 */
+    double *k_integral, *k_xi;       /* [K K_xi] split at reading: count x 4 x 2 x 22, count x 4 x 2 x 2 */
 } Design;
 
 /* The payload bank (flexarm.lqg_bank.PayloadBank): the identification filters by mass, then the quiet filter. */
@@ -29,7 +30,8 @@ typedef struct {
     double log_floor, reseed_below, initial_log_p[MAX_FILTERS];
     double *times;                            /* count, s (the quiet filter's, = every filter's) */
     double *c;                                /* n_filters x 10 x 22 */
-    double *phi, *gamma, *m, *k, *k_integral; /* stacked over the filters as Design's */
+    double *phi, *gamma, *m, *k, *k_integral; /* stacked over the filters as Design's (k_integral: all the K
+                                                 blocks, then all the K_xi blocks, lqg_split_integral_gain) */
     double *s_inv, *log_det_s;                /* n_filters x count x 10 x 10; n_filters x count */
     double *psi, *delta_acceleration;         /* n_filters x count x 22 x 11; n_filters x (n_steps + 1) x 11 */
     double *drift;                            /* n_filters x (n_steps + 1) x 22, psi delta_acceleration */
@@ -90,8 +92,9 @@ void lqg_estimate(const LqgData *d, const LqgState *s, long long k, const double
 /* A design resource's noise model (W, V, P_prior0) into `noise`. */
 int lqg_read_noise(Instance *inst, const char *file, const char *text, int count, Noise *noise);
 /* d->gains for samples 0 .. d->n_steps - 1 of d->design (its points d->index) from the prior covariance `factor`
-   times the steady prior at sample 0 (flexarm.lqg_design.transient_gains); -1 (logged) when out of memory or the
-   innovation covariance is not positive definite. */
+   times the steady prior at sample 0 (flexarm.lqg_design.transient_gains); -1 (logged) when out of memory or a
+   gain is not finite (the LDL^T solve of the innovation covariance broke down: singular, or the recursion
+   diverged). */
 int lqg_transient_gains(Instance *inst, LqgData *d, const Noise *noise, double factor);
 /* The plant's reports of the torque it held (see lqg_core.c): a few are enough, a switch comes early. */
 #define LQG_N_FOREIGN 16
@@ -100,6 +103,10 @@ void lqg_with_applied(const LqgData *d, LqgState *s, long long sample, const dou
 void lqg_remember(double foreign[][3], int *n, long long sample, const double torque[2]);
 /* The controller's outputs: the torques and the index outputs (tau_index, loop_delay, loop_delay_assumed). */
 void lqg_set_outputs(Instance *inst, const double tau[2], const double index[3]);
+/* The augmented gains [K K_xi] (rows x 24, as the resources hold them) rearranged in place into their K blocks
+   (rows x 22) followed by their K_xi blocks (rows x 2), once at reading: the law takes them apart. -1: out of
+   memory. */
+int lqg_split_integral_gain(double *k_integral, size_t rows);
 /* An array of n doubles labelled `name` in a resource text, malloc'ed (NULL after logging why not). */
 double *lqg_read_array(Instance *inst, const char *file, const char *text, const char *name, size_t n);
 /* x <- Phi x + Gamma du at design point i. */

@@ -73,12 +73,17 @@ int bank_load(Instance *inst, const char *file, const char *text, LqgData *d)
         if (!b->drift || !b->index) glue_log(inst, fmi2Error, "resources/%s: out of memory for the drift", file);
         return -1;
     }
+    if (lqg_split_integral_gain(b->k_integral, per * N_WEIGHTS * 2)) {
+        glue_log(inst, fmi2Error, "resources/%s: out of memory for 'K_integral'", file);
+        return -1;
+    }
     lqg_schedule_index(b->times, b->count, d->n_steps, d->dt, b->index);
     for (size_t f = 0; f < nf; f++) {
         const size_t at = f * (size_t)b->count;
         b->filters[f] = (Design){b->count, b->times, b->phi + at * N_STATE * N_STATE, b->gamma + at * N_STATE * 2,
                                  b->m + at * N_STATE * N_MEAS, b->k + at * N_WEIGHTS * 2 * N_STATE,
-                                 b->k_integral + at * N_WEIGHTS * 2 * N_AUG};
+                                 b->k_integral + at * N_WEIGHTS * 2 * N_STATE,
+                                 b->k_integral + per * N_WEIGHTS * 2 * N_STATE + at * N_WEIGHTS * 2 * 2};
         for (size_t j = 0; j < rows; j++) /* drift_along_path: psi[index_at(j dt)] @ delta_acceleration[j] */
             law_state_drift(b->psi + (at + (size_t)b->index[j]) * N_STATE * N_ELEMENTS,
                             b->delta_acceleration + (f * rows + j) * N_ELEMENTS, b->drift + (f * rows + j) * N_STATE);
@@ -147,14 +152,9 @@ void bank_step(const LqgData *d, const LqgState *s, long long k, const double m[
     lqg_feedforward(d, k, ff, ff_cmd);
     for (int f = 0; f < nf; f++) { /* each model's feedback on its own estimate (flexarm.filter_law.feedback) */
         const Design *g = &b->filters[f];
-        if (d->integral) { /* the augmented gain [K K_xi] per row: its two blocks */
-            const double *ka = g->k_integral + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_AUG;
-            double k_x[2 * N_STATE], k_xi[2 * 2];
-            for (int r = 0; r < 2; r++) {
-                memcpy(k_x + r * N_STATE, ka + r * N_AUG, N_STATE * sizeof *k_x);
-                memcpy(k_xi + r * 2, ka + r * N_AUG + N_STATE, 2 * sizeof *k_xi);
-            }
-            law_feedback_integral(k_x, x_now[f], k_xi, s->xi, u[f]);
+        if (d->integral) { /* the augmented gain's two blocks, split at reading */
+            const size_t at = (size_t)i_k * N_WEIGHTS + d->weight;
+            law_feedback_integral(g->k_integral + at * 2 * N_STATE, x_now[f], g->k_xi + at * 2 * 2, s->xi, u[f]);
         } else {
             law_feedback(g->k + ((size_t)i_k * N_WEIGHTS + d->weight) * 2 * N_STATE, x_now[f], u[f]);
         }

@@ -41,7 +41,26 @@ int lqg_read_design(Instance *inst, const char *file, const char *text, Design *
     g->m = lqg_read_array(inst, file, text, "M", n * N_STATE * N_MEAS);
     g->k = lqg_read_array(inst, file, text, "K", n * N_WEIGHTS * 2 * N_STATE);
     g->k_integral = lqg_read_array(inst, file, text, "K_integral", n * N_WEIGHTS * 2 * N_AUG);
-    return g->times && g->phi && g->gamma && g->m && g->k && g->k_integral ? 0 : -1;
+    if (!(g->times && g->phi && g->gamma && g->m && g->k && g->k_integral)) return -1;
+    if (lqg_split_integral_gain(g->k_integral, n * N_WEIGHTS * 2)) {
+        glue_log(inst, fmi2Error, "resources/%s: out of memory for 'K_integral'", file);
+        return -1;
+    }
+    g->k_xi = g->k_integral + n * N_WEIGHTS * 2 * N_STATE;
+    return 0;
+}
+
+int lqg_split_integral_gain(double *k_integral, size_t rows)
+{
+    double *k_xi = malloc(rows * 2 * sizeof *k_xi);
+    if (k_xi == NULL) return -1;
+    for (size_t r = 0; r < rows; r++) { /* row r's K block moves down to r * 22, before row r + 1 starts */
+        k_xi[2 * r] = k_integral[r * N_AUG + N_STATE], k_xi[2 * r + 1] = k_integral[r * N_AUG + N_STATE + 1];
+        memmove(k_integral + r * N_STATE, k_integral + r * N_AUG, N_STATE * sizeof *k_integral);
+    }
+    memcpy(k_integral + rows * N_STATE, k_xi, rows * 2 * sizeof *k_xi);
+    free(k_xi);
+    return 0;
 }
 
 /* -- the law -------------------------------------------------------------------------------------------------- */
@@ -172,7 +191,7 @@ int lqg_transient_gains(Instance *inst, LqgData *d, const Noise *noise, double f
             if (!isfinite(gain[q])) {
                 free(gains), free(p);
                 glue_log(inst, fmi2Error, "the predictor's filter: its gain at sample %ld is not finite (the "
-                         "innovation covariance is not positive definite)", j);
+                         "innovation covariance is singular, or the covariance recursion diverged)", j);
                 return -1;
             }
         memcpy(p, p_next, N_STATE * N_STATE * sizeof *p);
