@@ -22,7 +22,9 @@ filter, delay 2) for Table 2's no-payload slew and prints the tracking errors of
     python benchmarks/study_first_step_loss.py [--catch-up 40 80]
 
 The acceptance asks for the Gauss-Seidel figures within 5 % or 0.005 deg (0.05 deg/s), whichever is larger;
-the study prints that band.
+the study prints that band. Not adopted: the controllers start the slew one sample later instead when their first
+step finds the master's placeholder, so no torque is lost (docs/control.md, "The slew starts when the loop is
+live"); this study stays as the measure of what a repair after the loss could do.
 """
 
 from __future__ import annotations

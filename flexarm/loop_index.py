@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 
 __all__ = ["AUTOMATIC", "NO_DELAY", "NO_INDEX_LAG", "NO_SAMPLE", "SAMPLE_PERIOD", "index_of_time", "is_placeholder",
-           "measured_delay", "received_index", "torque_lag"]
+           "measured_delay", "received_index", "slew_start_samples", "torque_lag", "trajectory_index"]
 
 #: The value of an index that names no sample (a master's zero fill, an unwired input).
 NO_SAMPLE = 0
@@ -91,3 +91,28 @@ def is_placeholder(index: float, measurements) -> bool:
     as a measurement of the current sample (an unwired index: the explicit ``loop_delay_samples`` holds).
     """
     return received_index(index) is None and not any(float(m) != 0.0 for m in measurements)
+
+
+def trajectory_index(index: float, start: int) -> float:
+    """`index` (of the master's samples) as an index of the trajectory's samples, for a controller whose slew starts
+    `start` samples after t = 0 (docs/control.md, "The slew starts when the loop is live").
+
+    The master's sample j is the trajectory's j − start. A sample before the start names none (:data:`NO_SAMPLE`);
+    an index that names no sample is returned as it is. With `start` 0 it is `index` itself.
+    """
+    if not start:
+        return index
+    j = received_index(index)
+    if j is None:
+        return index
+    return float(j - start + 1) if j >= start else float(NO_SAMPLE)
+
+
+def slew_start_samples(slew_start_index: float) -> int:
+    """How many samples after t = 0 a controller started the slew, from its output ``slew_start_index`` (the
+    index of the master's sample at which the slew's sample 0 ran: 1 at t = 0). Raises ValueError for a value that
+    names no sample (the output is read after the run, when the controller has fixed it)."""
+    start = received_index(slew_start_index)
+    if start is None:
+        raise ValueError(f"slew_start_index: {slew_start_index!r} names no sample (a whole number >= 1)")
+    return start

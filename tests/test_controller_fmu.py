@@ -80,13 +80,13 @@ def test_inputs_are_the_sensor_outputs_and_outputs_the_plant_inputs(fmus):
     # the loop's sample index and the plant's report of the torque it held (docs/control.md)
     assert inputs == [*MEASURED_SIGNAL_NAMES, "sample_index_m", "tau_lag", "tau1_applied", "tau2_applied"]
     assert [v.name for v in sensors.modelVariables if v.causality == "output"] == inputs[:13]
-    assert outputs == ["tau1", "tau2", "tau_index", "loop_delay", "loop_delay_assumed"]
+    assert outputs == ["tau1", "tau2", "tau_index", "loop_delay", "loop_delay_assumed", "slew_start_index"]
     assert [v.name for v in plant.modelVariables if v.causality == "input"] == outputs[:3]
     assert all(by_name[n].unit == "N.m" for n in outputs[:2]) and all(by_name[n].unit == "1" for n in outputs[2:])
     # direct feedthrough from the ten used measurements, not the accelerometers; the index follows the time alone,
     # the measured delay the index received
     want = {"tau1": list(USED), "tau2": list(USED), "tau_index": [], "loop_delay": ["sample_index_m"],
-            "loop_delay_assumed": []}
+            "loop_delay_assumed": [], "slew_start_index": []}
     for unknown in md.outputs:
         assert [v.name for v in unknown.dependencies] == want[unknown.variable.name]
     assert by_name["schedule_period"].unit == "s"
@@ -165,6 +165,7 @@ def test_outputs_follow_the_inputs_set_at_the_same_point(fmus, unzipped, traject
     k = int(np.argmin(margin[100:-100])) + 100
     ctrl = Slave(fmus["controller"], unzipped["controller"], "ctrl", gain_set="gamma1")
     try:
+        ctrl.get(["tau1", "tau2"])  # read at t = 0, as a master that exchanges values: the slew starts at t = 0
         for _ in range(k):
             ctrl.step()
         y = measurements(desired_states(trajectory)[k])
@@ -185,6 +186,29 @@ def test_outputs_follow_the_inputs_set_at_the_same_point(fmus, unzipped, traject
         np.testing.assert_array_equal(ctrl.get(["tau1", "tau2"]), after)
     finally:
         ctrl.close()
+
+
+@pytest.mark.parametrize("read_first", [True, False])
+def test_a_master_that_exchanged_nothing_gets_the_slew_a_sample_later(fmus, unzipped, trajectory, read_first):
+    """Stepped with its inputs at their start values (0: a master's placeholder) and nothing read before the first
+    fmi2DoStep, as fmpy's simulate_ssp does, the controller knows no torque of its reached the plant over that step:
+    it starts the slew one sample later and says so (slew_start_index 2, the FMI log). A master that read the
+    torques at t = 0 had them to give the plant: the slew starts at t = 0."""
+    ctrl = Slave(fmus["controller"], unzipped["controller"], "late" if not read_first else "read")
+    try:
+        if read_first:
+            ctrl.get(["tau1", "tau2"])
+        rows = []
+        for _ in range(4):
+            ctrl.step()
+            rows.append(ctrl.get(["tau1", "tau2", "tau_index", "slew_start_index"]))
+        rows = np.array(rows)  # after the step from t_(j-1): the torques of the master's sample j, j = 1..4
+    finally:
+        ctrl.close()
+    late = 0 if read_first else 1
+    np.testing.assert_array_equal(rows[:, 3], np.full(4, 1.0 + late))
+    np.testing.assert_array_equal(rows[:, 2], np.arange(2.0, 6.0))  # tau_index names the master's sample
+    np.testing.assert_allclose(rows[:, :2], trajectory.tau[1 - late:5 - late], atol=1e-9)  # the feedforward
 
 
 def closed_loop(fmus, unzipped, trajectory, controller: str, n: int, **params) -> np.ndarray:

@@ -180,7 +180,7 @@ def test_model_structure_declares_what_the_outputs_depend_on(kind):
                 assert deps == set(), (name, out.variable.name)
             elif name == "sensors":
                 assert len(deps) == 1 and deps <= inputs, (name, out.variable.name, deps)  # its true signal
-            elif out.variable.name in ("tau_index", "loop_delay_assumed"):  # the time, the law's setting
+            elif out.variable.name in ("tau_index", "loop_delay_assumed", "slew_start_index"):  # time, settings
                 assert deps == set(), (name, out.variable.name)
             elif out.variable.name == "loop_delay":  # the index received (docs/control.md)
                 assert deps == {"sample_index_m"}, (name, deps)

@@ -82,6 +82,7 @@ class FeedthroughSlave(FlexarmSlave):
         self._output_vr_set = frozenset(self._output_vrs)
         self._stale = True
         self._ready = False
+        self.outputs_read = False  # an output was read since initialisation (a master that exchanges values)
 
     # -- hooks ---------------------------------------------------------------------
     @abstractmethod
@@ -121,6 +122,7 @@ class FeedthroughSlave(FlexarmSlave):
     def initialize(self) -> None:
         self._ready = False
         self._stale = True
+        self.outputs_read = False
         self.setup()
         self._ready = True
 
@@ -158,6 +160,7 @@ class FeedthroughSlave(FlexarmSlave):
                 self._ensure_initialized()  # outputs read in initialisation mode must be consistent
             if self._ready:
                 self._refresh()
+            self.outputs_read = True
         except Exception as exc:  # never let an exception reach pythonfmu (see flexarm_fmu_base)
             self._exception(f"evaluating the outputs at t = {self.time!r} s", exc)
 

@@ -53,7 +53,7 @@ from pythonfmu.enums import Fmi2Status
 from flexarm.control import PEAK_TORQUE, TrackingController
 from flexarm.control_law import saturate
 from flexarm.learned_feedforward import LEARNED_RESOURCE, read_learned_feedforward
-from flexarm.loop_index import NO_SAMPLE, index_of_time, is_placeholder, measured_delay
+from flexarm.loop_index import NO_SAMPLE, index_of_time, is_placeholder, measured_delay, trajectory_index
 from flexarm.lqg import MAX_DELAY_SAMPLES, LqgState, PredictedTracking
 from flexarm.lqr import OMEGA7_CHOICES, canonical_name, default_trajectory_path
 from flexarm.signals import names, signals
@@ -192,6 +192,9 @@ class ControllerSlave(FeedthroughSlave):
         self._switch_end = 0  # 1 + the last sample whose torque the law before the switch published
         self._lag_vr = self._vr["tau_lag"]
         self._applied_vrs = (self._vr["tau1_applied"], self._vr["tau2_applied"])
+        # the master's sample at which the trajectory's sample 0 runs (docs/control.md, "The slew starts when the
+        # loop is live"): 1 when the first fmi2DoStep finds a master's placeholder, else 0; fixed at that step
+        self.start, self._stepped = 0, False
 
     def _config(self) -> tuple:
         omega7 = dict((v, n) for v, n, _ in OMEGA7_ITEMS).get(self.value("omega7_estimate"))
@@ -223,6 +226,7 @@ class ControllerSlave(FeedthroughSlave):
         return (*self._config(), self._correction())
 
     def setup(self) -> None:
+        self.start, self._stepped = 0, False
         self.delay_contradictions = 0
         self.delay, self.predictor, self.state, self._tau, self._foreign, self._switch_end = 0, None, None, None, {}, 0
         key = self._law_key()
@@ -240,8 +244,7 @@ class ControllerSlave(FeedthroughSlave):
         if self.delay > 0:  # predicting over a measured delay: the torques computed at the last fmi2DoStep
             return self._tau
         x = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)  # q1_m .. eps6_m
-        k = self.law.sample_index(self.time)
-        index = self._values[self._index_vr]
+        k, index = self.trajectory_sample(self.time), self.trajectory_index()
         # a master's placeholder (fmpy's first step: no index, all zero) is no measurement of q = 0, and one whose
         # index names an earlier sample (a Jacobi master's first step, before fmi2DoStep has measured the delay)
         # none of sample k: no feedback, as the predicting law has none before its first measurement
@@ -324,9 +327,40 @@ class ControllerSlave(FeedthroughSlave):
             self._sample(self.state.k, held, index)
 
     def index_outputs(self, k: int, index: float, assumed: int) -> list[float]:
-        """``tau_index``, ``loop_delay``, ``loop_delay_assumed`` of the torques of sample k computed from
-        measurements carrying `index` by a law that predicts over `assumed` samples."""
-        return [index_of_time(k * self.law.dt), measured_delay(k, index), float(assumed)]
+        """``tau_index``, ``loop_delay``, ``loop_delay_assumed``, ``slew_start_index`` of the torques of trajectory
+        sample k computed from measurements carrying `index` (of the trajectory's samples) by a law that predicts
+        over `assumed` samples. ``tau_index`` names the master's sample (the plant's clock)."""
+        return [index_of_time((k + self.start) * self.law.dt), measured_delay(k, index), float(assumed),
+                index_of_time(self.start * self.law.dt)]
+
+    def trajectory_sample(self, t: float) -> int:
+        """The trajectory's sample at the master's time t (before the slew's start: its sample 0)."""
+        return max(self.law.sample_index(t) - self.start, 0)
+
+    def trajectory_index(self) -> float:
+        """``sample_index_m`` as an index of the trajectory's samples."""
+        return trajectory_index(self._values[self._index_vr], self.start)
+
+    def starts_late(self, t: float) -> bool:
+        """At the first fmi2DoStep: whether the master exchanged nothing before it (read no output of this FMU since
+        initialisation began, and left its placeholder at the inputs: fmpy's simulate_ssp), so that no torque of
+        this FMU reached the plant over this step. Then the slew starts one sample later, at the next communication
+        point, and this step runs no sample of it (True)."""
+        if self._stepped:
+            return False
+        self._stepped = True
+        measurements = [self._values[vr] for vr in self._used_vrs]
+        if self.outputs_read or self.law.sample_index(t) != 0 or \
+                not is_placeholder(self._values[self._index_vr], measurements):
+            return False
+        self.start = 1
+        if self._tau is not None:  # torques held from initialisation (a delayed law's sample 0): now the next sample's
+            self._tau[2:] = self.index_outputs(0, NO_SAMPLE, int(self._tau[4]))
+        self.log(f"{self.instance_name}: the master exchanged nothing before its first step (no output read, its "
+                 f"placeholder at the inputs of fmi2DoStep(t = {t!r} s): no torque of this FMU reached the plant "
+                 f"over it); the slew starts one sample later, at t = {self.law.dt!r} s (slew_start_index = 2)",
+                 Fmi2Status.ok)
+        return True
 
     def warn_delay(self, t: float, measured: float, assumed: int, setting: str) -> None:
         """Say in the FMI log, once per run, that the loop delay measured at fmi2DoStep contradicts the law's.
@@ -348,11 +382,11 @@ class ControllerSlave(FeedthroughSlave):
 
     def commit(self, t: float, h: float, n: int) -> None:
         # the outputs were just evaluated from the inputs present at fmi2DoStep
-        if not self.predicts:
+        if self.starts_late(t) or not self.predicts:
             return
-        k = self.law.sample_index(t)
+        k = self.law.sample_index(t) - self.start
         held = np.array([self._values[vr] for vr in self._used_vrs], dtype=float)
-        index = self._values[self._index_vr]
+        index = self.trajectory_index()
         applied = self._applied(k, any_lag=self.delay == 0 or k <= self._switch_end)
         self._remember(applied)
         if self.delay > 0:  # samples k + 1 .. k + n; the last one's torques are published
@@ -376,11 +410,13 @@ class ControllerSlave(FeedthroughSlave):
         return {"delay_contradictions": self.delay_contradictions, "delay": self.delay,
                 "state": None if self.state is None else self.state.as_dict(),
                 "tau": None if self._tau is None else self._tau.tolist(),
-                "foreign": {str(s): v for s, v in self._foreign.items()}, "switch_end": self._switch_end}
+                "foreign": {str(s): v for s, v in self._foreign.items()}, "switch_end": self._switch_end,
+                "start": self.start, "stepped": self._stepped}
 
     def set_sample_state(self, state: dict) -> None:
         if self.law is None or self._key != self._law_key():
             self.setup()
+        self.start, self._stepped = int(state.get("start", 0)), bool(state.get("stepped", False))
         self.delay_contradictions = int(state.get("delay_contradictions", 0))
         self.delay = int(state.get("delay", 0))
         self.predictor = None if self.delay == 0 else _predictor(own_data_dir(self.resources), self.MODE,

@@ -144,6 +144,7 @@ class FlexarmControllerLQG(ControllerSlave):
         self._key, self.delay = key, delay
 
     def setup(self) -> None:
+        self.start, self._stepped = 0, False
         self.delay_contradictions, self._unwired_warned, self._foreign = 0, False, {}
         self._switch_end = 0  # automatic: 1 + the last sample whose torque the law before the switch published
         requested = int(self.value("loop_delay_samples"))
@@ -181,8 +182,8 @@ class FlexarmControllerLQG(ControllerSlave):
     def evaluate(self) -> np.ndarray:
         if self.law.delay > 0:
             return self._tau
-        k = self.law.sample_index(self.time)
-        measurements, index = self._measurements(), self._values[self._index_vr]
+        k = self.trajectory_sample(self.time)
+        measurements, index = self._measurements(), self.trajectory_index()
         if is_placeholder(index, measurements):  # fmpy's first step: no sample yet, not a measurement of q = 0
             measurements = self._desired(k)
         tau, self._pending = self.law.step(self._with_applied(self.state, self._applied(k)), k, measurements)
@@ -192,9 +193,11 @@ class FlexarmControllerLQG(ControllerSlave):
         return self.law.feedforward(s)
 
     def commit(self, t: float, h: float, n: int) -> None:
+        if self.starts_late(t):  # the master's placeholder at the first step: the slew starts at the next one
+            return
         held = self._measurements()  # the inputs present at fmi2DoStep, held inside the step
-        index = self._values[self._index_vr]
-        k = self.law.sample_index(t)
+        index = self.trajectory_index()
+        k = self.law.sample_index(t) - self.start
         self._warn_unwired(t, index, held)
         # automatic: the torques held over the samples up to the switch were the law's before it (its own reports too)
         applied = self._applied(k, any_lag=self.automatic and (self.law.delay == 0 or k <= self._switch_end))
@@ -264,7 +267,7 @@ class FlexarmControllerLQG(ControllerSlave):
                 "tau": None if self._tau is None else self._tau.tolist(), "delay": self.delay,
                 "delay_contradictions": self.delay_contradictions, "unwired_warned": self._unwired_warned,
                 "foreign": {str(s): v for s, v in self._foreign.items()},
-                "switch_end": self._switch_end}
+                "switch_end": self._switch_end, "start": self.start, "stepped": self._stepped}
 
     def set_sample_state(self, state: dict) -> None:
         delay = int(state.get("delay", self.delay))
@@ -280,3 +283,4 @@ class FlexarmControllerLQG(ControllerSlave):
         self._unwired_warned = bool(state.get("unwired_warned", False))
         self._switch_end = int(state.get("switch_end", 0))
         self._foreign = {int(s): list(v) for s, v in state.get("foreign", {}).items()}
+        self.start, self._stepped = int(state.get("start", 0)), bool(state.get("stepped", False))

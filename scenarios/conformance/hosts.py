@@ -132,13 +132,28 @@ def run_libcosim(ssp: Path) -> Trace:
 
 
 def run_simulate_ssp(ssp: Path) -> Trace:
-    """fmpy's simulate_ssp with no parameter set: its row k holds the values after step k (time t_k + h)."""
+    """fmpy's simulate_ssp with no parameter set: its row k holds the values after step k (time t_k + h).
+
+    It exchanges nothing before its first step, so our controllers start the slew one sample later
+    (``slew_start_index`` 2, docs/control.md "The slew starts when the loop is live"): the trace's time is the
+    slew's, t − (slew_start_index − 1) h, which the figures compare with the trajectory."""
     from fmpy.ssp.simulation import simulate_ssp
 
     n, h = experiment(ssp)
     result = simulate_ssp(str(ssp), stop_time=n * h - h / 2, step_size=h)
     cols = [result[f"plant.{v}"] for v in STATE] + [result["controller.tau1"], result["controller.tau2"]]
-    return _trace(np.asarray(result["time"]) + h, np.column_stack(cols))
+    return _trace(np.asarray(result["time"]) + h - slew_start(result, "controller.slew_start_index", h),
+                  np.column_stack(cols))
+
+
+def slew_start(result, column: str, h: float) -> float:
+    """The time (s) at which a run's controller started the slew, from its ``slew_start_index`` output (its last
+    value: fixed at the first step); 0 for a controller without that output (a stranger's)."""
+    from flexarm.loop_index import slew_start_samples
+
+    if column not in result.dtype.names:
+        return 0.0
+    return slew_start_samples(float(np.asarray(result[column])[-1])) * h
 
 
 def run_ecos(ssp: Path) -> Trace:

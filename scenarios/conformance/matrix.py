@@ -52,15 +52,14 @@ JACOBI_MASTERS = ("ours_jacobi", "libcosim", "ecos", "simulate_ssp", "hostile_ja
 
 
 def known_to_differ(lqg: bool) -> tuple[str, ...]:
-    """The masters in which an archive is known to miss the tolerance today (issue 31, open): fmpy's
-    ``simulate_ssp`` with either controller (its first millisecond holds no torque: a real impulse on the arm,
-    benchmarks/study_first_step_loss.py); with the paper's law (no ``loop_delay_samples``: `lqg` False) also every
-    Jacobi master, on the noise cases: the law predicting over the measured delay gives the noise-free cases'
-    Gauss-Seidel figures, but with noise the two steppings feed one noise sequence to different torques, two
-    realisations some per cent apart (docs/control.md). (The LQG's integral cases without payload also miss in the
-    Jacobi masters, by 8-10 % of rms velocity error; CI's subset does not run them, the published matrix shows
-    them.)"""
-    return ("simulate_ssp",) if lqg else JACOBI_MASTERS
+    """The masters in which an archive is known to miss the tolerance today (issue 31, open): the Jacobi masters,
+    fmpy's ``simulate_ssp`` included (its late start makes its run the Jacobi one, one sample later: docs/control.md,
+    "The slew starts when the loop is live"). With the paper's law (`lqg` False), on the noise cases: each stepping
+    feeds the same noise of each plant sample to a different law (the measurement itself, or the prediction over
+    the delay), two realisations some per cent apart (``benchmarks/study_paper_law_delay.py --noise-seeds``); with
+    the LQG, on its integral cases without payload, by 8-10 % of rms velocity error (CI's subset runs neither; the
+    published matrix shows them)."""
+    return JACOBI_MASTERS
 
 
 #: What ``--write`` runs and publishes: every case in the native kind; in the Python kind (the same laws, held to

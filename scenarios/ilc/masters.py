@@ -27,7 +27,8 @@ from scenarios.run.setup import desired_states
 MASTERS = ("ours", "libcosim", "ecos")
 #: Further masters a report shows beside them: our master stepping Jacobi (what libcosim and Ecos should give, the
 #: stepping's own effect apart from theirs), OMSimulator (Gauss-Seidel, when installed:
-#: :func:`scenarios.conformance.hosts.omsimulator`) and fmpy's ``simulate_ssp`` (its first step without torque).
+#: :func:`scenarios.conformance.hosts.omsimulator`) and fmpy's ``simulate_ssp`` (no exchange before its first step:
+#: the controller starts the slew a sample later, docs/control.md).
 MORE_MASTERS = ("ours_jacobi", "omsimulator", "simulate_ssp")
 #: Column names.
 MASTER_NAMES = {"ours": "our master", "ours_jacobi": "our master, Jacobi", "libcosim": "libcosim", "ecos": "Ecos",

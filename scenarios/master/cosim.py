@@ -27,9 +27,11 @@ in integer nanoseconds (t_k = k·h_ns / 1e9, step t_k+1 − t_k).
 ``fmpy/ssp/simulation.py``) does, so that the two can be compared bit for bit:
 Jacobi exchange as above, but no exchange during initialisation (every
 connected input is 0 over the first step), and time accumulated in doubles
-(t_k+1 = t_k + h, step h). ``simulate_ssp`` records the values read after
-each step, labelled with the time the step started: its row k is our sample
-k + 1.
+(t_k+1 = t_k + h, step h). Like ``simulate_ssp`` it reads nothing before
+the first step (a controller that sees no read and its placeholder there
+starts the slew a sample later: docs/control.md), so its result has no
+sample at t = 0: n rows, the values after each step, at t_1 .. t_n
+(``simulate_ssp`` labels its row k with the time the step started, t_k).
 
 A :class:`Master` loads its FMUs once and can run many times (``fmi2Reset``
 between runs), which is what sweeps do; :func:`run` is the one-shot form.
@@ -310,7 +312,8 @@ class Master:
         record : list of (instance, variable)
             Real variables to record at every communication point.
         n_steps : int
-            Number of communication steps; `n_steps` + 1 samples are recorded. No default: the run
+            Number of communication steps; `n_steps` + 1 samples are recorded (fmpy-ssp: `n_steps`, none at
+            t = 0). No default: the run
             length comes from the trajectory (:func:`scenarios.run.setup.run_length`).
         step_size : float
             Communication step, s.
@@ -350,10 +353,10 @@ class Master:
         data = np.full((n + 1, len(record)), np.nan)
         ops, sources = self._plan(record)  # names unknown records before anything runs
         first_ops = ops
-        if self.algorithm == "fmpy-ssp":  # the first step with every connected input at 0
+        fmpy = self.algorithm == "fmpy-ssp"
+        if fmpy:  # the first step with every connected input at 0, and nothing read before it
             links = [op.__self__ for op in ops if getattr(op, "__func__", None) is Link.write]
-            first_ops = [op for op in ops if getattr(op, "__func__", None) is not Link.write]
-            first_ops += [functools.partial(link.write, True) for link in links]
+            first_ops = [functools.partial(link.write, True) for link in links]
         # data[k] is gathered from the ports' buffers: one fancy-index per port.
         gathers = {}
         for col, (port, pos) in enumerate(sources):
@@ -376,10 +379,10 @@ class Master:
                     for op in (ops if k else first_ops):
                         op()
                     row = data[k]
-                    for port, cols, pos in gathers:
+                    for port, cols, pos in gathers if k or not fmpy else ():  # fmpy: no sample at t = 0
                         row[cols] = port.values[pos]
                     gathered = k
-                    if not np.abs(row).max(initial=0.0) < divergence_limit:  # False for NaN and inf too
+                    if (k or not fmpy) and not np.abs(row).max(initial=0.0) < divergence_limit:  # NaN, inf too
                         bad = names[int(np.argmax(~(np.abs(row) < divergence_limit)))]
                         outcome = Outcome("unbounded", f"{bad} = {row[names.index(bad)]:.6g} left the bounds "
                                           f"(|value| < {divergence_limit:g}) at t = {time[k]:.6g} s",
@@ -401,7 +404,8 @@ class Master:
                 data[gathered + 1:] = np.nan  # a partly gathered row is no sample
                 outcome = Outcome.from_error(exc, f"step {k} (t = {time[k]:.3f} s)")
             interrupted.raise_pending(f"at step {k} (t = {time[max(k, 0)]:.6g} s)")
-        return {"time": time, "signals": {name: data[:, i] for i, name in enumerate(names)},
+        first = 1 if fmpy else 0  # fmpy: the values after each step only
+        return {"time": time[first:], "signals": {name: data[first:, i] for i, name in enumerate(names)},
                 "outcome": outcome, "status": outcome.status, "message": outcome.message,
                 "log": list(self.messages), "steps_done": max(k, 0)}
 

@@ -44,3 +44,25 @@ def loop_delay_warnings(out: dict, record: list[tuple[str, str]]) -> list[str]:
             f"the sample indices was {measured[i]:g} ({measured_name} vs {assumed_name}) at {len(bad)} of "
             f"{len(measured)} communication points, the last at t = {out['time'][i]:.6g} s: its torques were "
             "computed for a master stepping otherwise (set loop_delay_samples = -1, automatic)"]
+
+
+#: The controller output that says when it started the slew (docs/control.md, "The slew starts when the loop is live").
+SLEW_START_OUTPUT = "slew_start_index"
+
+
+def slew_start_record(descriptions: dict, driver: str) -> list[tuple[str, str]]:
+    """The torques' source's ``slew_start_index`` output, when it has one (a user's controller need not)."""
+    have = {v.name for v in descriptions[driver].modelVariables if v.causality == "output"}
+    return [(driver, SLEW_START_OUTPUT)] if SLEW_START_OUTPUT in have else []
+
+
+def slew_start(out: dict, record: list[tuple[str, str]]) -> int:
+    """Samples after t = 0 at which the controller started the slew (0 without the output; the signal removed)."""
+    from flexarm.loop_index import slew_start_samples
+
+    if not record:
+        return 0
+    (inst, name), = record
+    values = out["signals"].pop(f"{inst}.{name}")
+    done = values[np.isfinite(values)]
+    return slew_start_samples(float(done[-1])) if len(done) else 0

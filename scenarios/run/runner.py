@@ -27,7 +27,7 @@ from scenarios.master.fmu_proxy import DEFAULT_STEP_TIMEOUT_S
 from scenarios.metrics import METRICS, saturation_warnings, table_metrics
 from scenarios.run.connect import StepRefused, connected, probe_cases
 from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, _say_numba_compile
-from scenarios.run.loop_delay import loop_delay_record, loop_delay_warnings
+from scenarios.run.loop_delay import loop_delay_record, loop_delay_warnings, slew_start, slew_start_record
 from scenarios.run.outdir import check_writable, run_folder
 from scenarios.run.plan import PlannedCase, RunPlan, plan_run, read_run_data
 from scenarios.run.setup import FmuSetPlan, desired_states, desired_trajectory, prepare, verify_data_chain
@@ -49,9 +49,11 @@ def simulate(setup: FmuSetPlan, m: master.Master, parameters, progress=None,
     :attr:`scenarios.run.plan.PlannedCase.parameters`): the master's result and the table metrics (None unless
     the outcome is ok)."""
     delay = loop_delay_record(setup.descriptions, setup.driver)
-    out = m.run(parameters, setup.record + setup.seen + delay, setup.n_steps,
+    start_record = slew_start_record(setup.descriptions, setup.driver)
+    out = m.run(parameters, setup.record + setup.seen + delay + start_record, setup.n_steps,
                 setup.scenario.step_size, divergence_limit, progress=progress)
     out.setdefault("warnings", []).extend(loop_delay_warnings(out, delay))
+    start = slew_start(out, start_record)
     if out["status"] != "ok":
         return out, None
     sig, p, d = out["signals"], setup.plant, setup.driver
@@ -59,9 +61,14 @@ def simulate(setup: FmuSetPlan, m: master.Master, parameters, progress=None,
     omega = np.column_stack([sig[f"{p}.omega{i}"] for i in range(1, N_EL + 1)])
     tau = np.column_stack([sig[f"{d}.tau1"], sig[f"{d}.tau2"]])
     desired = setup.desired
-    if len(desired["theta"]) != len(theta):  # a master that reports other time points
+    if len(desired["theta"]) != len(theta) or start:  # other time points, or the slew started late
         traj = setup.trajectory if setup.trajectory is not None else desired_trajectory()
-        desired = desired_states(traj, out["time"])
+        desired = desired_states(traj, out["time"] - start * setup.scenario.step_size)
+    if start:
+        late = start * setup.scenario.step_size
+        out["warnings"].append(f"{d} started the slew {start} sample(s) late, at t = {late:g} s (slew_start_index): "
+                               "the master exchanged nothing before its first step, so the plant held no torque "
+                               "over it; the errors compare the arm with the slew from then")
     from flexarm.parameters import load_parameters
 
     out.setdefault("warnings", []).extend(saturation_warnings(tau, load_parameters().peak_torque))

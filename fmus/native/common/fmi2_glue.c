@@ -138,6 +138,7 @@ static void reset_values(Instance *inst)
     memset(inst->state, 0, MODEL_INFO.state_size ? MODEL_INFO.state_size : 1);
     inst->time = 0.0;
     inst->outputs_stale = 1;
+    inst->outputs_read = 0;
 }
 
 /* Check one value for variable i; 0 if it may be applied (logs the error otherwise). */
@@ -236,6 +237,7 @@ static fmi2Status get_values(fmi2Component c, const fmi2ValueReference vr[], siz
     if (needs_outputs) {
         fmi2Status s = refresh_outputs(inst);
         if (s > fmi2Warning) return s;
+        inst->outputs_read = 1;
     }
     for (size_t k = 0; k < nvr; k++) x[k] = inst->values[find_var(vr[k])];
     return fmi2OK;
@@ -350,6 +352,7 @@ fmi2Status fmi2EnterInitializationMode(fmi2Component c)
     if (inst == NULL) return fmi2Error;
     inst->fmi_state = S_INIT;
     inst->outputs_stale = 1;
+    inst->outputs_read = 0;
     return fmi2OK;
 }
 

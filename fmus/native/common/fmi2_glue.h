@@ -78,6 +78,7 @@ typedef struct Instance {
     double *values;         /* one per variable */
     unsigned char *invalid; /* 1 while a rejected value is pending for an input (doStep refuses) */
     int outputs_stale;      /* feedthrough: inputs changed since the last sample */
+    int outputs_read;       /* an output was read since initialisation began (a master that exchanges values) */
     void *state;            /* model state, ModelInfo.state_size bytes */
     void *data;             /* model constants from the resources (not part of the FMU state) */
     double *starts;         /* start values: the table's, or a case's (glue_load_start_values) */

@@ -58,4 +58,13 @@ static inline int loop_is_placeholder(double index, const double *m, int n)
     return 1;
 }
 
+/* flexarm.loop_index.trajectory_index: the master's index as the trajectory's for a slew started `start` samples
+   late; a sample before the start names none. start 0: index itself. */
+static inline double loop_trajectory_index(double index, double start)
+{
+    double j;
+    if (start == 0.0 || !loop_received_index(index, &j)) return index;
+    return j >= start ? j - start + 1.0 : LOOP_NO_SAMPLE;
+}
+
 #endif

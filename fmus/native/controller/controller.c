@@ -256,7 +256,9 @@ typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
     int delay_contradictions; /* what the log says once per run */
     int delay;                /* the measured loop delay the law predicts over (0: none measured, the paper's law) */
     LqgState committed;       /* delay > 0: the predictor after the last sample run */
-    double held[2], held_index[3]; /* delay > 0: the torques of the last sample run and their index outputs */
+    double held[2], held_index[4]; /* delay > 0: the torques of the last sample run and their index outputs */
+    double start; /* the master's sample at which the trajectory's sample 0 runs (lqg_starts_late): 0 or 1 */
+    int stepped;  /* the first fmi2DoStep has been (the start is fixed there) */
     double foreign[LQG_N_FOREIGN][3];  /* sample, torques the plant reported holding (lqg_plant_applied) */
     int n_foreign;
     long long switch_end; /* 1 + the last sample whose torque the law before the switch published */
@@ -287,13 +289,13 @@ static fmi2Status controller_sample(Instance *inst)
         lqg_set_outputs(inst, st->held, st->held_index);
         return fmi2OK;
     }
-    long k = lround(inst->time / d->dt);
+    long k = lround(inst->time / d->dt) - (long)st->start; /* the trajectory's sample */
     if (k < 0) k = 0;
     int kc = k < d->n_steps ? (int)k : d->n_steps;
     double ff[2], tau[2], m[N_MEAS];
     feedforward(d, k, ff);
     for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
-    const double index = VALUE(inst, IDX_sample_index_m);
+    const double index = loop_trajectory_index(VALUE(inst, IDX_sample_index_m), st->start);
     const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
 #if CONTROLLER_FEEDBACK
     /* fmpy's first step: no sample yet, not a measurement of q = 0; an index naming an earlier sample (a Jacobi
@@ -307,8 +309,9 @@ static fmi2Status controller_sample(Instance *inst)
     (void)kc;
     law_saturate(ff, limit, tau);
 #endif
-    const double out[3] = {loop_index_of_time((double)k * d->dt), /* the torques' sample */
-                           loop_measured_delay((double)k, index), 0.0}; /* the paper's law: no delay */
+    const double out[4] = {loop_index_of_time(((double)k + st->start) * d->dt), /* the torques' sample (master's) */
+                           loop_measured_delay((double)k, index), 0.0, /* the paper's law: no delay */
+                           loop_index_of_time(st->start * d->dt)};
     lqg_set_outputs(inst, tau, out);
     return fmi2OK;
 }
@@ -354,9 +357,10 @@ static void delayed_sample(Instance *inst, const double *m_present, double index
     LqgState next;
     predicted_step(inst, &st->committed, k, m, st->held, &next);
     st->committed = next;
-    st->held_index[0] = loop_index_of_time((double)k * d->dt);
+    st->held_index[0] = loop_index_of_time(((double)k + st->start) * d->dt);
     st->held_index[1] = loop_measured_delay((double)k, index);
     st->held_index[2] = (double)st->delay;
+    st->held_index[3] = loop_index_of_time(st->start * d->dt);
     lqg_set_outputs(inst, st->held, st->held_index);
 }
 
@@ -417,10 +421,20 @@ static fmi2Status controller_do_step(Instance *inst, double t, double h)
                  GLUE_STEP_TOLERANCE);
         return fmi2Error;
     }
-#if CONTROLLER_FEEDBACK
     if (n == 0) return fmi2OK; /* no sample instant in the step: nothing changes */
     ControllerState *st = inst->state;
-    const double k = nearbyint(t / d->dt), index = VALUE(inst, IDX_sample_index_m);
+    if (!st->stepped) { /* the first step: a master's placeholder at the inputs starts the slew a sample later */
+        double present[N_MEAS];
+        for (int j = 0; j < N_MEAS; j++) present[j] = VALUE(inst, MEAS[j]);
+        st->stepped = 1;
+        if (lqg_starts_late(inst, t, d->dt, present)) {
+            st->start = 1;
+            return fmi2OK; /* no sample of the slew in this step */
+        }
+    }
+#if CONTROLLER_FEEDBACK
+    const double k = nearbyint(t / d->dt) - st->start;
+    const double index = loop_trajectory_index(VALUE(inst, IDX_sample_index_m), st->start);
     if ((st->delay > 0 || loop_measured_delay(k, index) >= 1.0) && d->lqg.gains == NULL &&
         predictor_ready(inst))
         return fmi2Error; /* the predictor's design and time-varying filter, once per configuration */
@@ -449,8 +463,6 @@ static fmi2Status controller_do_step(Instance *inst, double t, double h)
     const double measured = loop_measured_delay(k, index);
     if (measured >= 1.0) /* the master sets the measurements after it reads the torques: predict over the delay */
         switch_delay(inst, t, (long long)k, measured + n < MAX_DELAY ? (int)(measured + n) : MAX_DELAY, n, m, index);
-#else
-    (void)t;
 #endif
     return fmi2OK; /* the paper's law: the torque is a function of the time and the inputs */
 }

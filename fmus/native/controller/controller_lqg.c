@@ -55,7 +55,9 @@ typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
     LqgState committed; /* after the last sample run */
     LqgState pending;   /* d = 0: after the sample the outputs show (derived from committed and the inputs) */
     double held[2];     /* d > 0: the torques of the last sample run, N.m */
-    double held_index[3]; /* d > 0: their tau_index, loop_delay, loop_delay_assumed */
+    double held_index[4]; /* d > 0: their tau_index, loop_delay, loop_delay_assumed, slew_start_index */
+    double start;       /* the master's sample at which the trajectory's sample 0 runs (lqg_starts_late): 0 or 1 */
+    int stepped;        /* the first fmi2DoStep has been (the start is fixed there) */
     int delay;          /* loop_delay_samples = -1 (automatic): the delay the law predicts over (0 until measured) */
     int delay_contradictions, unwired_warned; /* what the log says once per run */
     double foreign[LQG_N_FOREIGN][3]; /* sample, torques: the plant held another torque than this law's (tau_lag != 0) */
@@ -221,13 +223,16 @@ static void law_step(const LqgData *d, const LqgState *s, long long k, const dou
     else lqg_step(d, s, k, m, limit, tau, next);
 }
 
-/* The index outputs of the torques of sample k from measurements carrying `index`, by a law predicting over `assumed`. */
-static void index_outputs(Instance *inst, long long k, double index, int assumed, double out[3])
+/* The index outputs of the torques of trajectory sample k from measurements carrying `index` (of the trajectory's
+   samples), by a law predicting over `assumed`; tau_index names the master's sample. */
+static void index_outputs(Instance *inst, long long k, double index, int assumed, double out[4])
 {
     const LqgData *d = inst->data;
-    out[0] = loop_index_of_time((double)k * d->dt);
+    const FmuState *st = inst->state;
+    out[0] = loop_index_of_time(((double)k + st->start) * d->dt);
     out[1] = loop_measured_delay((double)k, index);
     out[2] = (double)assumed;
+    out[3] = loop_index_of_time(st->start * d->dt);
 }
 
 /* d > 0: run sample committed.k from the measurements m carrying `index` and hold its torques. Before sample d
@@ -264,16 +269,16 @@ static fmi2Status lqg_sample(Instance *inst)
         glue_log(inst, fmi2Error, "evaluating the outputs at t = %.17g s: t: must be a finite time >= 0 s", t);
         return fmi2Error;
     }
-    double k = nearbyint(t / d->dt);
+    double k = nearbyint(t / d->dt) - st->start; /* the trajectory's sample */
     if (k != (double)st->committed.k) {
         glue_log(inst, fmi2Error, "evaluating the outputs at t = %.17g s: k: the controller is at sample %lld, got "
                  "sample %.0f (one call per sample; controller_lqg starts at t = 0)", t, st->committed.k, k);
         return fmi2Error;
     }
-    double m[N_MEAS], tau[2], out[3];
+    double m[N_MEAS], tau[2], out[4];
     const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
     for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
-    const double index = VALUE(inst, IDX_sample_index_m);
+    const double index = loop_trajectory_index(VALUE(inst, IDX_sample_index_m), st->start);
     /* fmpy's first step: no sample yet, not a measurement of q = 0 */
     const double *used = loop_is_placeholder(index, m, N_MEAS) ? d->desired + lqg_clamp(d, (long long)k) * N_MEAS : m;
     LqgState base = st->committed;
@@ -380,27 +385,38 @@ static fmi2Status lqg_do_step(Instance *inst, double t, double h)
     if (n == 0) return fmi2OK; /* no sample instant in the step: nothing changes */
     double m[N_MEAS];
     for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]); /* present at fmi2DoStep, held in the step */
-    const double index = VALUE(inst, IDX_sample_index_m);
+    if (!st->stepped) { /* the first step: a master's placeholder at the inputs starts the slew a sample later */
+        st->stepped = 1;
+        if (lqg_starts_late(inst, t, d->dt, m)) {
+            st->start = 1;
+            if (d->delay > 0) /* sample 0's torques, held since initialisation, now run at the next sample */
+                index_outputs(inst, 0, LOOP_NO_SAMPLE, d->delay, st->held_index), lqg_set_outputs(inst, st->held,
+                                                                                                 st->held_index);
+            return fmi2OK; /* no sample of the slew in this step */
+        }
+    }
+    const double kt = nearbyint(t / d->dt) - st->start; /* the trajectory's sample at t */
+    const double index = loop_trajectory_index(VALUE(inst, IDX_sample_index_m), st->start);
     warn_unwired(inst, t, index, m);
     double applied[2];
     /* automatic: the torques held over the samples up to the switch were the law's before it (its own reports too) */
     const int before_switch = VALUE(inst, IDX_loop_delay_samples) == LOOP_AUTOMATIC
-                              && (d->delay == 0 || nearbyint(t / d->dt) <= (double)st->switch_end);
-    const int foreign = lqg_plant_applied(inst, (long long)nearbyint(t / d->dt), before_switch, applied);
-    if (foreign) lqg_remember(st->foreign, &st->n_foreign, (long long)nearbyint(t / d->dt) - 1, applied);
+                              && (d->delay == 0 || kt <= (double)st->switch_end);
+    const int foreign = lqg_plant_applied(inst, (long long)kt, before_switch, applied);
+    if (foreign) lqg_remember(st->foreign, &st->n_foreign, (long long)kt - 1, applied);
     if (d->delay > 0) {
-        if (nearbyint(t / d->dt) + 1 != (double)st->committed.k) {
+        if (kt + 1 != (double)st->committed.k) {
             glue_log(inst, fmi2Error, "fmi2DoStep: current_time: %.17g s is sample %.0f, but the controller computed "
-                     "sample %lld last (one fmi2DoStep per communication point, from t = 0)", t,
-                     nearbyint(t / d->dt), st->committed.k - 1);
+                     "sample %lld last (one fmi2DoStep per communication point, from t = 0)", t, kt,
+                     st->committed.k - 1);
             return fmi2Error;
         }
-        if (foreign) lqg_with_applied(d, &st->committed, (long long)nearbyint(t / d->dt) - 1, applied);
+        if (foreign) lqg_with_applied(d, &st->committed, (long long)kt - 1, applied);
         for (double i = 0; i < n; i++) delayed_sample(inst, m, index);
         warn_delay(inst, t, st->held_index[1], d->delay);
         return fmi2OK;
     }
-    const double k = nearbyint(t / d->dt), measured = loop_measured_delay(k, index);
+    const double k = kt, measured = loop_measured_delay(k, index);
     if (VALUE(inst, IDX_loop_delay_samples) == LOOP_AUTOMATIC && measured >= 1.0) {
         /* the master sets the measurements after it reads the torques: predict over the measured delay */
         /* the torques published after this step of n samples are measured + n samples late (2n in a Jacobi

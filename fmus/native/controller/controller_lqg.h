@@ -101,8 +101,14 @@ int lqg_transient_gains(Instance *inst, LqgData *d, const Noise *noise, double f
 int lqg_plant_applied(Instance *inst, long long k, int any_lag, double torque[2]);
 void lqg_with_applied(const LqgData *d, LqgState *s, long long sample, const double torque[2]);
 void lqg_remember(double foreign[][3], int *n, long long sample, const double torque[2]);
-/* The controller's outputs: the torques and the index outputs (tau_index, loop_delay, loop_delay_assumed). */
-void lqg_set_outputs(Instance *inst, const double tau[2], const double index[3]);
+/* The controller's outputs: the torques and the index outputs (tau_index, loop_delay, loop_delay_assumed,
+   slew_start_index). */
+void lqg_set_outputs(Instance *inst, const double tau[2], const double index[4]);
+/* At the first fmi2DoStep (at t = 0): 1, logged, when the master read no output of this FMU since initialisation
+   began and the inputs are its placeholder (it exchanged nothing before the step, so no torque of this FMU reached
+   the plant over it): the slew then starts one sample later
+   (flexarm_controller_base.ControllerSlave.starts_late, docs/control.md "The slew starts when the loop is live"). */
+int lqg_starts_late(Instance *inst, double t, double dt, const double m[N_MEAS]);
 /* The augmented gains [K K_xi] (rows x 24, as the resources hold them) rearranged in place into their K blocks
    (rows x 22) followed by their K_xi blocks (rows x 2), once at reading: the law takes them apart. -1: out of
    memory. */

@@ -11,6 +11,7 @@
 
 #include "control_law_api.h"
 #include "controller_lqg.h"
+#include "loop_index.h"
 #include "model_vars.h"
 
 double *lqg_read_array(Instance *inst, const char *file, const char *text, const char *name, size_t n)
@@ -140,13 +141,25 @@ void lqg_with_applied(const LqgData *d, LqgState *s, long long sample, const dou
 }
 
 /* Keep (sample, torque) in the last LQG_N_FOREIGN reports (`*n` of them so far, oldest dropped). */
-void lqg_set_outputs(Instance *inst, const double tau[2], const double index[3])
+void lqg_set_outputs(Instance *inst, const double tau[2], const double index[4])
 {
     VALUE(inst, IDX_tau1) = tau[0];
     VALUE(inst, IDX_tau2) = tau[1];
     VALUE(inst, IDX_tau_index) = index[0];
     VALUE(inst, IDX_loop_delay) = index[1];
     VALUE(inst, IDX_loop_delay_assumed) = index[2];
+    VALUE(inst, IDX_slew_start_index) = index[3];
+}
+
+int lqg_starts_late(Instance *inst, double t, double dt, const double m[N_MEAS])
+{
+    if (inst->outputs_read || nearbyint(t / dt) != 0.0 ||
+        !loop_is_placeholder(VALUE(inst, IDX_sample_index_m), m, N_MEAS))
+        return 0;
+    glue_log(inst, fmi2OK, "the master exchanged nothing before its first step (no output read, its placeholder at "
+             "the inputs of fmi2DoStep(t = %.17g s): no torque of this FMU reached the plant over it); the slew starts "
+             "one sample later, at t = %.17g s (slew_start_index = 2)", t, dt);
+    return 1;
 }
 
 void lqg_remember(double foreign[][3], int *n, long long sample, const double torque[2])
