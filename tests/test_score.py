@@ -115,6 +115,12 @@ def test_score_of_an_unstable_pd_diverges_and_its_page_renders_offline(pd_fmu, t
     folder = tmp_path / "PDInDoStep"
     doc = json.loads((folder / "score.json").read_text())
     for key, rec in doc["cases"].items():
+        if key == "noise_jacobi" and rec["status"] == "saturated":
+            # with noise in a Jacobi master the loop's growth turns linear as the shoulder torque saturates (the
+            # verdict's LATE_SHARE); which of the two the samples show first depends on the noise realisation
+            # reaching the loop (it moved with the sensors' sample identity): saturated, never ok
+            assert "at its motor's limit" in rec["message"], rec["message"]
+            continue
         if key.startswith(("none", "noise")):  # no payload: the instability is all there is
             assert rec["status"] == "diverging" and rec["growth_rate_per_s"] > 0.5, (key, rec["message"])
             assert f"{key}: diverging (the velocity error envelope grows at" in out
