@@ -236,3 +236,17 @@ def test_a_logged_warning_leaves_the_step_ok_in_both_kinds(kind_fmus, tmp_path):
     assert len(warned) == 1, proc.stderr[-4000:]
     with np.load(tmp_path / "out.npz") as z:
         assert z["run0_step_status"].shape == (30, 3) and not z["run0_step_status"].any()
+
+
+def test_the_slew_start_a_controller_reports_is_taken_or_refused():
+    """The runner compares the arm with the slew as the controller started it (its slew_start_index): 1 is t = 0,
+    2 one sample later; a value that names no sample (0, a fraction) is refused (no figures), never read as 0."""
+    from scenarios.run.loop_delay import slew_start
+
+    record = [("controller", "slew_start_index")]
+    for values, want in (([1.0, 1.0], 0), ([1.0, 2.0, 2.0, np.nan], 1)):
+        assert slew_start({"signals": {"controller.slew_start_index": np.array(values)}}, record) == want
+    assert slew_start({"signals": {}}, []) == 0  # a controller without the output: t = 0
+    for bad in (0.0, 2.5, -1.0):
+        with pytest.raises(ValueError, match="slew_start_index"):
+            slew_start({"signals": {"controller.slew_start_index": np.array([1.0, bad])}}, record)

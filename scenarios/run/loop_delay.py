@@ -57,7 +57,8 @@ def slew_start_record(descriptions: dict, driver: str) -> list[tuple[str, str]]:
 
 
 def slew_start(out: dict, record: list[tuple[str, str]]) -> int:
-    """Samples after t = 0 at which the controller started the slew (0 without the output; the signal removed)."""
+    """Samples after t = 0 at which the controller started the slew (0 without the output; the signal removed).
+    Raises ValueError when the controller's last value names no sample (a controller that lies: no figures)."""
     from flexarm.loop_index import slew_start_samples
 
     if not record:

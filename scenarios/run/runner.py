@@ -53,7 +53,14 @@ def simulate(setup: FmuSetPlan, m: master.Master, parameters, progress=None,
     out = m.run(parameters, setup.record + setup.seen + delay + start_record, setup.n_steps,
                 setup.scenario.step_size, divergence_limit, progress=progress)
     out.setdefault("warnings", []).extend(loop_delay_warnings(out, delay))
-    start = slew_start(out, start_record)
+    try:
+        start = slew_start(out, start_record)
+    except ValueError as exc:  # a controller that says no sample: which slew it ran is unknown, so no figures
+        if out["status"] == "ok":
+            out["outcome"] = master.Outcome("error", f"{setup.driver}: {exc}; the errors cannot be judged against "
+                                            "a slew whose start the controller does not give")
+            out["status"], out["message"] = "error", out["outcome"].message
+        return out, None
     if out["status"] != "ok":
         return out, None
     sig, p, d = out["signals"], setup.plant, setup.driver
