@@ -184,7 +184,10 @@ class FlexarmControllerLQG(ControllerSlave):
             return self._tau
         k = self.trajectory_sample(self.time)
         measurements, index = self._measurements(), self.trajectory_index()
-        if is_placeholder(index, measurements):  # fmpy's first step: no sample yet, not a measurement of q = 0
+        # fmpy's first step: no sample yet, not a measurement of q = 0; automatic, an index naming an earlier sample
+        # (a Jacobi master's first steps, before fmi2DoStep switches to the measured delay): no measurement of sample
+        # k (an explicit 0 is honoured: the law it names runs on what it gets, and the FMU warns)
+        if is_placeholder(index, measurements) or (self.automatic and measured_delay(k, index) >= 1):
             measurements = self._desired(k)
         tau, self._pending = self.law.step(self._with_applied(self.state, self._applied(k)), k, measurements)
         return np.concatenate([tau, self.index_outputs(k, index, 0)])
