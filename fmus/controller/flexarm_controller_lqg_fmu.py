@@ -187,9 +187,13 @@ class FlexarmControllerLQG(ControllerSlave):
         # fmpy's first step: no sample yet, not a measurement of q = 0; automatic, an index naming an earlier sample
         # (a Jacobi master's first steps, before fmi2DoStep switches to the measured delay): no measurement of sample
         # k (an explicit 0 is honoured: the law it names runs on what it gets, and the FMU warns)
+        # (such inputs are those of an earlier communication point: the plant's report of the torque it held
+        # is as old, so it is no report on sample k - 1 either)
         if is_placeholder(index, measurements) or (self.automatic and measured_delay(k, index) >= 1):
-            measurements = self._desired(k)
-        tau, self._pending = self.law.step(self._with_applied(self.state, self._applied(k)), k, measurements)
+            measurements, applied = self._desired(k), None
+        else:
+            applied = self._applied(k)
+        tau, self._pending = self.law.step(self._with_applied(self.state, applied), k, measurements)
         return np.concatenate([tau, self.index_outputs(k, index, 0)])
 
     def _nominal_feedforward(self, s: int) -> np.ndarray:

@@ -281,13 +281,15 @@ static fmi2Status lqg_sample(Instance *inst)
     const double index = loop_trajectory_index(VALUE(inst, IDX_sample_index_m), st->start);
     /* fmpy's first step: no sample yet, not a measurement of q = 0; automatic, an index naming an earlier sample (a
        Jacobi master's first steps, before fmi2DoStep switches to the measured delay): no measurement of sample k (an
-       explicit 0 is honoured: the law it names runs on what it gets, and the FMU warns) */
+       explicit 0 is honoured: the law it names runs on what it gets, and the FMU warns); such inputs are those of an
+       earlier communication point, so the plant's report of the torque it held is no report on sample k - 1 either */
     const int earlier = VALUE(inst, IDX_loop_delay_samples) == LOOP_AUTOMATIC && loop_measured_delay(k, index) >= 1.0;
-    const double *used = loop_is_placeholder(index, m, N_MEAS) || earlier
-                         ? d->desired + lqg_clamp(d, (long long)k) * N_MEAS : m;
+    const int stale = loop_is_placeholder(index, m, N_MEAS) || earlier;
+    const double *used = stale ? d->desired + lqg_clamp(d, (long long)k) * N_MEAS : m;
     LqgState base = st->committed;
     double applied[2];
-    if (lqg_plant_applied(inst, (long long)k, 0, applied)) lqg_with_applied(d, &base, (long long)k - 1, applied);
+    if (!stale && lqg_plant_applied(inst, (long long)k, 0, applied))
+        lqg_with_applied(d, &base, (long long)k - 1, applied);
     law_step(d, &base, (long long)k, used, limit, tau, &st->pending);
     index_outputs(inst, (long long)k, index, 0, out);
     lqg_set_outputs(inst, tau, out);
