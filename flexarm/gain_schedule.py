@@ -46,6 +46,8 @@ from .trajectory.io import REGENERATE_COMMAND as CHAIN_COMMAND
 DEFAULT_GAIN_DIR = DATA_DIR / "gains"
 #: Schedule labels and their spacing in s (None: one set at mid-slew).
 SCHEDULES = {"200ms": 0.2, "20ms": 0.02, "single": None}
+#: The controller FMUs' ``schedule_period`` (s) of each schedule: its spacing, 0 for one set.
+SCHEDULE_PERIOD_PARAMETER = {label: 0.0 if spacing is None else spacing for label, spacing in SCHEDULES.items()}
 #: Linearisation forms: the paper's τ̄ = 0 (eq. 11) or about the feedforward torque.
 LINEARIZATIONS = ("paper", "feedforward")
 FILE_FORMAT = "flexarm-gain-schedule/1"

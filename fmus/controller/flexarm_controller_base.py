@@ -52,6 +52,7 @@ from pythonfmu.enums import Fmi2Status
 
 from flexarm.control import PEAK_TORQUE, TrackingController
 from flexarm.control_law import saturate
+from flexarm.gain_schedule import SCHEDULE_PERIOD_PARAMETER
 from flexarm.learned_feedforward import LEARNED_RESOURCE, read_learned_feedforward
 from flexarm.loop_index import NO_SAMPLE, index_of_time, is_placeholder, measured_delay, trajectory_index
 from flexarm.lqg import MAX_DELAY_SAMPLES, LqgState, PredictedTracking
@@ -63,7 +64,7 @@ USED_INPUTS = names("controller", "input", "feedback")
 #: Accepted for plug-compatibility with the sensors FMU, not used by the law (catalogue group "unused").
 UNUSED_INPUTS = names("controller", "input", "unused")
 #: ``schedule_period`` value (s) -> :data:`flexarm.lqr.SCHEDULES` label.
-SCHEDULE_PERIODS = {0.2: "200ms", 0.02: "20ms", 0.0: "single"}
+SCHEDULE_PERIODS = {period: label for label, period in SCHEDULE_PERIOD_PARAMETER.items()}
 #: ``gain_set`` choices: value, :mod:`flexarm.lqr` weights name, description.
 GAIN_SET_ITEMS = (
     (1, "gamma1", "LQR weights gamma = 1 (paper Table 1)"),
@@ -125,7 +126,8 @@ def schedule_label(period: float) -> str:
     for p, label in SCHEDULE_PERIODS.items():
         if abs(period - p) <= 1e-12:
             return label
-    raise ValueError(f"schedule_period: {period!r} s is not one of 0.2, 0.02 or 0 (one gain set)")
+    raise ValueError(f"schedule_period: {period!r} s is not one of "
+                     + ", ".join(f"{p:g}" for p in SCHEDULE_PERIODS) + " (0: one gain set)")
 
 
 @functools.lru_cache(maxsize=16)
@@ -181,20 +183,38 @@ class ControllerSlave(FeedthroughSlave):
         self._key = None
         self._used_vrs = [self._vr[n] for n in USED_INPUTS]
         self._index_vr = self._vr["sample_index_m"]
-        self.delay_contradictions = 0  # fmi2DoSteps whose measured loop delay contradicted the law's (warn_delay)
         # the measured loop delay (docs/control.md, "The loop measures its own delay"): 0 until a step shows one;
         # then the law predicts over it (flexarm.lqg.PredictedTracking), its state and held outputs here
         self.delay = 0
         self.predictor: PredictedTracking | None = None
         self.state: LqgState | None = None
         self._tau: np.ndarray | None = None
-        self._foreign: dict[int, list[float]] = {}  # sample -> the torque the plant held over it (as reported)
-        self._switch_end = 0  # 1 + the last sample whose torque the law before the switch published
         self._lag_vr = self._vr["tau_lag"]
         self._applied_vrs = (self._vr["tau1_applied"], self._vr["tau2_applied"])
-        # the master's sample at which the trajectory's sample 0 runs (docs/control.md, "The slew starts when the
-        # loop is live"): 1 when the first fmi2DoStep finds a master's placeholder, else 0; fixed at that step
-        self.start, self._stepped = 0, False
+        self.reset_loop()
+
+    def reset_loop(self) -> None:
+        """Forget what a run learnt about the loop (at every initialisation; the FMU state holds it, loop_state).
+
+        ``start``: the master's sample at which the trajectory's sample 0 runs (docs/control.md, "The slew starts
+        when the loop is live"), 1 when the first fmi2DoStep finds a master's placeholder, else 0;
+        ``delay_contradictions``: fmi2DoSteps whose measured loop delay contradicted the law's (warn_delay);
+        ``_foreign``: sample -> the torque the plant held over it, as reported, where that was not this law's;
+        ``_switch_end``: 1 + the last sample whose torque the law before the switch to a measured delay published.
+        """
+        self.start, self.delay_contradictions, self._switch_end = 0, 0, 0
+        self._foreign: dict[int, list[float]] = {}
+
+    def loop_state(self) -> dict:
+        """What :meth:`reset_loop` forgets, for the FMU state (JSON)."""
+        return {"start": self.start, "delay_contradictions": self.delay_contradictions,
+                "foreign": {str(s): v for s, v in self._foreign.items()}, "switch_end": self._switch_end}
+
+    def set_loop_state(self, state: dict) -> None:
+        """Restore what :meth:`loop_state` saved."""
+        self.start, self.delay_contradictions = int(state.get("start", 0)), int(state.get("delay_contradictions", 0))
+        self._foreign = {int(s): list(v) for s, v in state.get("foreign", {}).items()}
+        self._switch_end = int(state.get("switch_end", 0))
 
     def _config(self) -> tuple:
         omega7 = dict((v, n) for v, n, _ in OMEGA7_ITEMS).get(self.value("omega7_estimate"))
@@ -226,9 +246,8 @@ class ControllerSlave(FeedthroughSlave):
         return (*self._config(), self._correction())
 
     def setup(self) -> None:
-        self.start, self._stepped = 0, False
-        self.delay_contradictions = 0
-        self.delay, self.predictor, self.state, self._tau, self._foreign, self._switch_end = 0, None, None, None, {}, 0
+        self.reset_loop()
+        self.delay, self.predictor, self.state, self._tau = 0, None, None, None
         key = self._law_key()
         if self.law is not None and key == self._key:
             return
@@ -346,12 +365,10 @@ class ControllerSlave(FeedthroughSlave):
         initialisation began, and left its placeholder at the inputs: fmpy's simulate_ssp), so that no torque of
         this FMU reached the plant over this step. Then the slew starts one sample later, at the next communication
         point, and this step runs no sample of it (True)."""
-        if self._stepped:
+        if self.law.sample_index(t) != 0:  # (the only fmi2DoStep at t = 0 is the first, or one of a state before it)
             return False
-        self._stepped = True
         measurements = [self._values[vr] for vr in self._used_vrs]
-        if self.outputs_read or self.law.sample_index(t) != 0 or \
-                not is_placeholder(self._values[self._index_vr], measurements):
+        if self.outputs_read or not is_placeholder(self._values[self._index_vr], measurements):
             return False
         self.start = 1
         if self._tau is not None:  # torques held from initialisation (a delayed law's sample 0): now the next sample's
@@ -407,21 +424,15 @@ class ControllerSlave(FeedthroughSlave):
 
     def get_sample_state(self) -> dict:
         # with no delay measured the torque is a function of the time and the inputs
-        return {"delay_contradictions": self.delay_contradictions, "delay": self.delay,
-                "state": None if self.state is None else self.state.as_dict(),
-                "tau": None if self._tau is None else self._tau.tolist(),
-                "foreign": {str(s): v for s, v in self._foreign.items()}, "switch_end": self._switch_end,
-                "start": self.start, "stepped": self._stepped}
+        return {"delay": self.delay, "state": None if self.state is None else self.state.as_dict(),
+                "tau": None if self._tau is None else self._tau.tolist(), **self.loop_state()}
 
     def set_sample_state(self, state: dict) -> None:
         if self.law is None or self._key != self._law_key():
             self.setup()
-        self.start, self._stepped = int(state.get("start", 0)), bool(state.get("stepped", False))
-        self.delay_contradictions = int(state.get("delay_contradictions", 0))
+        self.set_loop_state(state)
         self.delay = int(state.get("delay", 0))
         self.predictor = None if self.delay == 0 else _predictor(own_data_dir(self.resources), self.MODE,
                                                                  self._law_key(), self.delay)
         self.state = None if state.get("state") is None else LqgState.from_dict(state["state"])
         self._tau = None if state.get("tau") is None else np.array(state["tau"], dtype=float)
-        self._foreign = {int(s): list(v) for s, v in state.get("foreign", {}).items()}
-        self._switch_end = int(state.get("switch_end", 0))

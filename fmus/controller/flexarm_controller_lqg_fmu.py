@@ -116,11 +116,6 @@ class FlexarmControllerLQG(ControllerSlave):
         self._tau = None  # delay > 0: the outputs held until the next doStep (torques, then the index outputs)
         self.delay = 0  # the delay the law in force predicts over (loop_delay_samples, or the measured one)
         self._unwired_warned = False
-        #: sample -> the torque the plant held over it where that was not this controller's (tau_lag != 0)
-        self._foreign: dict[int, list[float]] = {}
-        self._switch_end = 0
-        self._lag_vr = self._vr["tau_lag"]
-        self._applied_vrs = (self._vr["tau1_applied"], self._vr["tau2_applied"])
 
     def _config(self) -> tuple:
         name, schedule, tau1_max, tau2_max, _omega7 = super()._config()
@@ -144,9 +139,8 @@ class FlexarmControllerLQG(ControllerSlave):
         self._key, self.delay = key, delay
 
     def setup(self) -> None:
-        self.start, self._stepped = 0, False
-        self.delay_contradictions, self._unwired_warned, self._foreign = 0, False, {}
-        self._switch_end = 0  # automatic: 1 + the last sample whose torque the law before the switch published
+        self.reset_loop()
+        self._unwired_warned = False
         requested = int(self.value("loop_delay_samples"))
         if requested < AUTOMATIC:
             raise ValueError(f"loop_delay_samples: {requested!r} is not -1 (automatic) or 0..{MAX_DELAY_SAMPLES}")
@@ -272,9 +266,7 @@ class FlexarmControllerLQG(ControllerSlave):
         as_dict = lambda s: None if s is None else s.as_dict()  # noqa: E731
         return {"lqg": as_dict(self.state), "pending": as_dict(self._pending),
                 "tau": None if self._tau is None else self._tau.tolist(), "delay": self.delay,
-                "delay_contradictions": self.delay_contradictions, "unwired_warned": self._unwired_warned,
-                "foreign": {str(s): v for s, v in self._foreign.items()},
-                "switch_end": self._switch_end, "start": self.start, "stepped": self._stepped}
+                "unwired_warned": self._unwired_warned, **self.loop_state()}
 
     def set_sample_state(self, state: dict) -> None:
         delay = int(state.get("delay", self.delay))
@@ -286,8 +278,5 @@ class FlexarmControllerLQG(ControllerSlave):
             self.state = from_dict(state["lqg"])
         self._pending = from_dict(state.get("pending"))
         self._tau = None if state.get("tau") is None else np.array(state["tau"], dtype=float)
-        self.delay_contradictions = int(state.get("delay_contradictions", 0))
         self._unwired_warned = bool(state.get("unwired_warned", False))
-        self._switch_end = int(state.get("switch_end", 0))
-        self._foreign = {int(s): list(v) for s, v in state.get("foreign", {}).items()}
-        self.start, self._stepped = int(state.get("start", 0)), bool(state.get("stepped", False))
+        self.set_loop_state(state)

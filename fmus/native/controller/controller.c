@@ -43,14 +43,13 @@
 #include "learned_ff.h"
 #include "learned_ff_data.h"
 #include "loop_index.h"
+#include "lqg_resources.h"
 #include "model_vars.h"
 
 #define N_SETS 4
-static const char *const LQG_FILES[3] = {"lqg_200ms.txt", "lqg_20ms.txt", "lqg_single.txt"};
-static const int MEAS[N_MEAS] = {IDX_q1_m, IDX_q2_m, IDX_qd1_m, IDX_qd2_m, IDX_eps1_m,
-                                 IDX_eps2_m, IDX_eps3_m, IDX_eps4_m, IDX_eps5_m, IDX_eps6_m};
-static const char *const SCHEDULE_LABELS[3] = {"200ms", "20ms", "single"};
-static const double SCHEDULE_PERIODS[3] = {0.2, 0.02, 0.0};
+static const char *const LQG_FILES[N_SCHEDULES] = {SCHEDULE_FILE_LIST};
+static const char *const SCHEDULE_LABELS[N_SCHEDULES] = {SCHEDULE_LABEL_LIST};
+static const double SCHEDULE_PERIODS[N_SCHEDULES] = {SCHEDULE_PERIOD_LIST};
 
 typedef struct {
     int count;
@@ -63,7 +62,7 @@ typedef struct {
     double *feedforward;  /* (n_steps + 1) x 2 */
     double *desired;      /* (n_steps + 1) x 10 */
     double estimator[2][N_STATE * N_MEAS];
-    Schedule schedules[N_SETS][3];
+    Schedule schedules[N_SETS][N_SCHEDULES];
     /* derived for the configuration `key` */
     double key[5];
     int *gain_index;      /* n_steps + 1 */
@@ -73,7 +72,7 @@ typedef struct {
     long n_correction;
     const Schedule *schedule; /* the gains in force (feedback variants) */
     LqgData lqg;          /* the predictor over a measured delay: trajectory, designs (feedback variants) */
-    Noise noise[3];       /* each design's noise model: the predictor's time-varying filter */
+    Noise noise[N_SCHEDULES];       /* each design's noise model: the predictor's time-varying filter */
     double predictor_prior; /* its prior covariance at sample 0, times the steady one (flexarm.lqg.PREDICTOR_PRIOR) */
     int predictor_schedule; /* the schedule in force: the predictor's design */
 } ControllerData;
@@ -102,7 +101,7 @@ static int load_predictor(Instance *inst, LqgData *p, Noise *noise, double *prio
     const char *const when = "fmi2DoStep (the predictor over the measured loop delay)";
     size_t size;
     if (p->index == NULL) {
-        const char *file = "lqg_trajectory.txt";
+        const char *file = LQG_TRAJECTORY_FILE;
         char *text = glue_read_resource(inst, file, when, &size);
         double n;
         int rc = text == NULL || glue_read_doubles(inst, file, text, "n_steps", &n, 1) ||
@@ -136,8 +135,7 @@ static int load_predictor(Instance *inst, LqgData *p, Noise *noise, double *prio
 }
 
 /* Read by load_predictor when first needed, not at fmi2Instantiate. */
-static const char *const ON_DEMAND[] = {"lqg_trajectory.txt", "lqg_200ms.txt", "lqg_20ms.txt", "lqg_single.txt",
-                                        NULL};
+static const char *const ON_DEMAND[] = {LQG_TRAJECTORY_FILE, SCHEDULE_FILE_LIST, NULL};
 
 static void controller_unload(Instance *inst)
 {
@@ -146,9 +144,9 @@ static void controller_unload(Instance *inst)
     free(d->feedforward), free(d->desired), free(d->gain_index), free(d->gain_per_meas), free(d->offsets);
     free(d->correction);
     for (int i = 0; i < N_SETS; i++)
-        for (int s = 0; s < 3; s++) free(d->schedules[i][s].times), free(d->schedules[i][s].gains);
+        for (int s = 0; s < N_SCHEDULES; s++) free(d->schedules[i][s].times), free(d->schedules[i][s].gains);
     free(d->lqg.feedforward), free(d->lqg.desired), free(d->lqg.index);
-    for (int s = 0; d->lqg.designs != NULL && s < 3; s++) lqg_free_design(&d->lqg.designs[s]), free(d->noise[s].w);
+    for (int s = 0; d->lqg.designs != NULL && s < N_SCHEDULES; s++) lqg_free_design(&d->lqg.designs[s]), free(d->noise[s].w);
     free(d->lqg.designs), free(d->lqg.gains);
     free(d);
     inst->data = NULL;
@@ -183,7 +181,7 @@ static int controller_load(Instance *inst, char *const *contents, const size_t *
         goto fail;
 #if CONTROLLER_FEEDBACK
     for (int i = 0; i < N_SETS; i++)
-        for (int s = 0; s < 3; s++)
+        for (int s = 0; s < N_SCHEDULES; s++)
             if (read_schedule(inst, MODEL_INFO.resources[gains].file, contents[gains], i + 1, s, &d->schedules[i][s]))
                 goto fail;
     d->lqg.designs = calloc(3, sizeof *d->lqg.designs); /* each read by load_predictor when first needed */
@@ -215,7 +213,7 @@ static fmi2Status load_correction(Instance *inst)
 
 static int schedule_of(double period)
 {
-    for (int s = 0; s < 3; s++)
+    for (int s = 0; s < N_SCHEDULES; s++)
         if (fabs(period - SCHEDULE_PERIODS[s]) <= 1e-12) return s;
     return -1;
 }
@@ -258,7 +256,6 @@ typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
     LqgState committed;       /* delay > 0: the predictor after the last sample run */
     double held[2], held_index[4]; /* delay > 0: the torques of the last sample run and their index outputs */
     double start; /* the master's sample at which the trajectory's sample 0 runs (lqg_starts_late): 0 or 1 */
-    int stepped;  /* the first fmi2DoStep has been (the start is fixed there) */
     double foreign[LQG_N_FOREIGN][3];  /* sample, torques the plant reported holding (lqg_plant_applied) */
     int n_foreign;
     long long switch_end; /* 1 + the last sample whose torque the law before the switch published */
@@ -294,7 +291,7 @@ static fmi2Status controller_sample(Instance *inst)
     int kc = k < d->n_steps ? (int)k : d->n_steps;
     double ff[2], tau[2], m[N_MEAS];
     feedforward(d, k, ff);
-    for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
+    lqg_measurements(inst, m);
     const double index = loop_trajectory_index(VALUE(inst, IDX_sample_index_m), st->start);
     const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
 #if CONTROLLER_FEEDBACK
@@ -423,15 +420,7 @@ static fmi2Status controller_do_step(Instance *inst, double t, double h)
     }
     if (n == 0) return fmi2OK; /* no sample instant in the step: nothing changes */
     ControllerState *st = inst->state;
-    if (!st->stepped) { /* the first step: a master's placeholder at the inputs starts the slew a sample later */
-        double present[N_MEAS];
-        for (int j = 0; j < N_MEAS; j++) present[j] = VALUE(inst, MEAS[j]);
-        st->stepped = 1;
-        if (lqg_starts_late(inst, t, d->dt, present)) {
-            st->start = 1;
-            return fmi2OK; /* no sample of the slew in this step */
-        }
-    }
+    if (lqg_starts_late(inst, t, d->dt, &st->start)) return fmi2OK; /* no sample of the slew in this step */
 #if CONTROLLER_FEEDBACK
     const double k = nearbyint(t / d->dt) - st->start;
     const double index = loop_trajectory_index(VALUE(inst, IDX_sample_index_m), st->start);
@@ -439,7 +428,7 @@ static fmi2Status controller_do_step(Instance *inst, double t, double h)
         predictor_ready(inst))
         return fmi2Error; /* the predictor's design and time-varying filter, once per configuration */
     double m[N_MEAS], applied[2];
-    for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]); /* present at fmi2DoStep, held in the step */
+    lqg_measurements(inst, m); /* present at fmi2DoStep, held in the step */
     const int foreign = lqg_plant_applied(inst, (long long)k, st->delay == 0 || k <= (double)st->switch_end, applied);
     if (foreign) lqg_remember(st->foreign, &st->n_foreign, (long long)k - 1, applied);
     if (st->delay > 0) { /* samples k + 1 .. k + n; the last one's torques are published */

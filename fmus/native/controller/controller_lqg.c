@@ -40,15 +40,13 @@
 #include "learned_ff.h"
 #include "learned_ff_data.h"
 #include "loop_index.h"
+#include "lqg_resources.h"
 
-#define N_SCHEDULES 3
-static const char *const SCHEDULE_FILES[N_SCHEDULES] = {"lqg_200ms.txt", "lqg_20ms.txt", "lqg_single.txt"};
-static const double SCHEDULE_PERIODS[N_SCHEDULES] = {0.2, 0.02, 0.0};
-#define BANK_FILE "lqg_bank_200ms.txt"
+static const char *const SCHEDULE_FILES[N_SCHEDULES] = {SCHEDULE_FILE_LIST};
+static const double SCHEDULE_PERIODS[N_SCHEDULES] = {SCHEDULE_PERIOD_LIST};
+#define BANK_FILE LQG_BANK_FILE
 #define ESTIMATOR_KALMAN 1
 #define ESTIMATOR_PAYLOAD_BANK 2
-static const int MEAS[N_MEAS] = {IDX_q1_m, IDX_q2_m, IDX_qd1_m, IDX_qd2_m, IDX_eps1_m,
-                                 IDX_eps2_m, IDX_eps3_m, IDX_eps4_m, IDX_eps5_m, IDX_eps6_m};
 
 
 typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
@@ -57,7 +55,6 @@ typedef struct { /* the FMU state (flat: copied by fmi2Get/SetFMUstate) */
     double held[2];     /* d > 0: the torques of the last sample run, N.m */
     double held_index[4]; /* d > 0: their tau_index, loop_delay, loop_delay_assumed, slew_start_index */
     double start;       /* the master's sample at which the trajectory's sample 0 runs (lqg_starts_late): 0 or 1 */
-    int stepped;        /* the first fmi2DoStep has been (the start is fixed there) */
     int delay;          /* loop_delay_samples = -1 (automatic): the delay the law predicts over (0 until measured) */
     int delay_contradictions, unwired_warned; /* what the log says once per run */
     double foreign[LQG_N_FOREIGN][3]; /* sample, torques: the plant held another torque than this law's (tau_lag != 0) */
@@ -88,7 +85,7 @@ static int lqg_load(Instance *inst, char *const *contents, const size_t *sizes)
     if (d->designs == NULL) goto fail;
     for (size_t r = 0; r < MODEL_INFO.n_resources; r++) {
         const char *file = MODEL_INFO.resources[r].file, *text = contents[r];
-        if (strcmp(file, "lqg_trajectory.txt") == 0) {
+        if (strcmp(file, LQG_TRAJECTORY_FILE) == 0) {
             double n;
             if (glue_read_doubles(inst, file, text, "n_steps", &n, 1) ||
                 glue_read_doubles(inst, file, text, "dt", &d->dt, 1))
@@ -101,7 +98,7 @@ static int lqg_load(Instance *inst, char *const *contents, const size_t *sizes)
         }
     }
     if (d->index == NULL) {
-        glue_log(inst, fmi2Error, "fmi2Instantiate: resource lqg_trajectory.txt missing from the build");
+        glue_log(inst, fmi2Error, "fmi2Instantiate: resource " LQG_TRAJECTORY_FILE " missing from the build");
         goto fail;
     }
     d->key[0] = -1;
@@ -112,7 +109,7 @@ fail:
 }
 
 /* Read by configure when first in force (a run reads and hashes only the design and bank it uses). */
-static const char *const ON_DEMAND[] = {"lqg_200ms.txt", "lqg_20ms.txt", "lqg_single.txt", BANK_FILE, NULL};
+static const char *const ON_DEMAND[] = {SCHEDULE_FILE_LIST, BANK_FILE, NULL};
 
 /* The design of schedule s and, with `bank`, the payload bank: read on first use; 0, or -1 after logging why. */
 static int load_in_force(Instance *inst, int s, int bank)
@@ -277,7 +274,7 @@ static fmi2Status lqg_sample(Instance *inst)
     }
     double m[N_MEAS], tau[2], out[4];
     const double limit[2] = {VALUE(inst, IDX_tau1_max), VALUE(inst, IDX_tau2_max)};
-    for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]);
+    lqg_measurements(inst, m);
     const double index = loop_trajectory_index(VALUE(inst, IDX_sample_index_m), st->start);
     /* fmpy's first step: no sample yet, not a measurement of q = 0; automatic, an index naming an earlier sample (a
        Jacobi master's first steps, before fmi2DoStep switches to the measured delay): no measurement of sample k (an
@@ -390,16 +387,12 @@ static fmi2Status lqg_do_step(Instance *inst, double t, double h)
     }
     if (n == 0) return fmi2OK; /* no sample instant in the step: nothing changes */
     double m[N_MEAS];
-    for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, MEAS[j]); /* present at fmi2DoStep, held in the step */
-    if (!st->stepped) { /* the first step: a master's placeholder at the inputs starts the slew a sample later */
-        st->stepped = 1;
-        if (lqg_starts_late(inst, t, d->dt, m)) {
-            st->start = 1;
-            if (d->delay > 0) /* sample 0's torques, held since initialisation, now run at the next sample */
-                index_outputs(inst, 0, LOOP_NO_SAMPLE, d->delay, st->held_index), lqg_set_outputs(inst, st->held,
-                                                                                                 st->held_index);
-            return fmi2OK; /* no sample of the slew in this step */
-        }
+    lqg_measurements(inst, m); /* present at fmi2DoStep, held in the step */
+    if (lqg_starts_late(inst, t, d->dt, &st->start)) {
+        if (d->delay > 0) /* sample 0's torques, held since initialisation, now run at the next sample */
+            index_outputs(inst, 0, LOOP_NO_SAMPLE, d->delay, st->held_index), lqg_set_outputs(inst, st->held,
+                                                                                             st->held_index);
+        return fmi2OK; /* no sample of the slew in this step */
     }
     const double kt = nearbyint(t / d->dt) - st->start; /* the trajectory's sample at t */
     const double index = loop_trajectory_index(VALUE(inst, IDX_sample_index_m), st->start);

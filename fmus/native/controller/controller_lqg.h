@@ -104,11 +104,14 @@ void lqg_remember(double foreign[][3], int *n, long long sample, const double to
 /* The controller's outputs: the torques and the index outputs (tau_index, loop_delay, loop_delay_assumed,
    slew_start_index). */
 void lqg_set_outputs(Instance *inst, const double tau[2], const double index[4]);
-/* At the first fmi2DoStep (at t = 0): 1, logged, when the master read no output of this FMU since initialisation
-   began and the inputs are its placeholder (it exchanged nothing before the step, so no torque of this FMU reached
-   the plant over it): the slew then starts one sample later
-   (flexarm_controller_base.ControllerSlave.starts_late, docs/control.md "The slew starts when the loop is live"). */
-int lqg_starts_late(Instance *inst, double t, double dt, const double m[N_MEAS]);
+/* The measurements at the inputs (q1_m .. eps6_m), in the order of the law's sensor map. */
+void lqg_measurements(Instance *inst, double m[N_MEAS]);
+/* At the first fmi2DoStep (at t = 0): 1, logged, with *start = 1, when the master read no output of this FMU since
+   initialisation began and the inputs are its placeholder (it exchanged nothing before the step, so no torque of
+   this FMU reached the plant over it): the slew then starts one sample later
+   (flexarm_controller_base.ControllerSlave.starts_late, docs/control.md "The slew starts when the loop is live").
+   Otherwise 0, *start unchanged. */
+int lqg_starts_late(Instance *inst, double t, double dt, double *start);
 /* The augmented gains [K K_xi] (rows x 24, as the resources hold them) rearranged in place into their K blocks
    (rows x 22) followed by their K_xi blocks (rows x 2), once at reading: the law takes them apart. -1: out of
    memory. */

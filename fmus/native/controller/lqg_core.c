@@ -140,7 +140,6 @@ void lqg_with_applied(const LqgData *d, LqgState *s, long long sample, const dou
     s->du[row][0] = torque[0] - nominal[0], s->du[row][1] = torque[1] - nominal[1];
 }
 
-/* Keep (sample, torque) in the last LQG_N_FOREIGN reports (`*n` of them so far, oldest dropped). */
 void lqg_set_outputs(Instance *inst, const double tau[2], const double index[4])
 {
     VALUE(inst, IDX_tau1) = tau[0];
@@ -151,17 +150,28 @@ void lqg_set_outputs(Instance *inst, const double tau[2], const double index[4])
     VALUE(inst, IDX_slew_start_index) = index[3];
 }
 
-int lqg_starts_late(Instance *inst, double t, double dt, const double m[N_MEAS])
+void lqg_measurements(Instance *inst, double m[N_MEAS])
 {
-    if (inst->outputs_read || nearbyint(t / dt) != 0.0 ||
-        !loop_is_placeholder(VALUE(inst, IDX_sample_index_m), m, N_MEAS))
-        return 0;
+    static const int vr[N_MEAS] = {IDX_q1_m, IDX_q2_m, IDX_qd1_m, IDX_qd2_m, IDX_eps1_m,
+                                   IDX_eps2_m, IDX_eps3_m, IDX_eps4_m, IDX_eps5_m, IDX_eps6_m};
+    for (int j = 0; j < N_MEAS; j++) m[j] = VALUE(inst, vr[j]);
+}
+
+int lqg_starts_late(Instance *inst, double t, double dt, double *start)
+{
+    /* (the only fmi2DoStep at t = 0 is the first, or one from a state saved before it) */
+    if (inst->outputs_read || nearbyint(t / dt) != 0.0) return 0;
+    double m[N_MEAS];
+    lqg_measurements(inst, m);
+    if (!loop_is_placeholder(VALUE(inst, IDX_sample_index_m), m, N_MEAS)) return 0;
+    *start = 1.0;
     glue_log(inst, fmi2OK, "the master exchanged nothing before its first step (no output read, its placeholder at "
              "the inputs of fmi2DoStep(t = %.17g s): no torque of this FMU reached the plant over it); the slew starts "
              "one sample later, at t = %.17g s (slew_start_index = 2)", t, dt);
     return 1;
 }
 
+/* Keep (sample, torque) in the last LQG_N_FOREIGN reports (`*n` of them so far, oldest dropped). */
 void lqg_remember(double foreign[][3], int *n, long long sample, const double torque[2])
 {
     if (*n == LQG_N_FOREIGN) {
