@@ -324,12 +324,12 @@ class SensorBank:
     def skip(self) -> np.ndarray:
         """A sample with nothing to measure (a master's placeholder before its first exchange).
 
-        The noise stream advances by its draws of one sample, so that every later sample's noise is the one of
-        its index, as in a run that measured this sample; the filters keep their state (unprimed until the first
-        real sample primes them). Returns zeros, shape (12,): the placeholder passed on, never a measurement.
+        Nothing is drawn and nothing counted: the noise of the n-th real measurement is the n-th draw, so the
+        plant's sample j gets the same noise in a master that sends placeholders first (fmpy's ``simulate_ssp``)
+        as in one that exchanged values in initialisation. The filters keep their state (unprimed until the
+        first real sample primes them). Returns zeros, shape (12,): the placeholder passed on, never a
+        measurement.
         """
-        self._rng.random(N_SIGNALS)
-        self.n_samples += 1
         return np.zeros(N_SIGNALS)
 
     def measure_state(self, model: ArmModel, z, tau) -> np.ndarray:

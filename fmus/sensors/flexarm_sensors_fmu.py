@@ -17,8 +17,9 @@ Interface (full table in ``docs/fmu-interface.md``):
 * ``sample_index`` in, ``sample_index_m`` out: the index of the plant sample measured, passed on as it
   was present at the sample (0: no sample yet; :mod:`flexarm.loop_index`). Inputs that are a master's
   placeholder (index 0 and every true signal exactly 0, fmpy's ``simulate_ssp`` over its first step) are not
-  measured: the outputs are 0 with index 0, so the controller sees "no sample yet", and the filters are primed
-  by the first real sample (the noise stream advances as for a measured sample). A measurement belongs to the
+  measured: the outputs are 0 with index 0, so the controller sees "no sample yet", the filters are primed by
+  the first real sample, and nothing is drawn (the n-th real measurement gets the n-th draws, in every
+  master). A measurement belongs to the
   plant sample it measures: the inputs of the sample measured at the last communication point again (its index,
   the same values; a Jacobi master sets the plant's outputs of t_(k-1) at t_k) get that measurement again, not a
   second sample of them (docs/sensors.md, "Which sample a measurement belongs to").

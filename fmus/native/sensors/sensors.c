@@ -133,17 +133,15 @@ static void measure(const SensorsState *s, Bank *bank, const double *x, double *
     bank->n_samples += 1;
 }
 
-/* flexarm.sensors.SensorBank.skip: a master's placeholder (no index, every input exactly 0) is not measured: the
- * noise stream advances by one sample's draws, the filters keep their state, the outputs are 0. */
+/* flexarm.sensors.SensorBank.skip: a master's placeholder (no index, every input exactly 0) is not measured: no
+ * noise draw (the n-th real measurement gets the n-th draws), the filters keep their state, the outputs are 0. */
 static void sample_or_skip(const SensorsState *s, Bank *bank, const double *x, double index, double *y)
 {
     if (!loop_is_placeholder(index, x, N_SIGNALS)) {
         measure(s, bank, x, y);
         return;
     }
-    for (int i = 0; i < N_SIGNALS; i++) (void)pcg64_random(&bank->rng);
     memset(y, 0, N_SIGNALS * sizeof *y);
-    bank->n_samples += 1;
 }
 
 /* The sample at a communication point. A measurement belongs to the plant sample it measures: inputs that carry
