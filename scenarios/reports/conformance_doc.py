@@ -1,6 +1,6 @@
 """``python -m scenarios conformance``: the conformance matrix (:mod:`scenarios.conformance.matrix`) run, printed, and
 with ``--write`` published into ``docs/conformance.json`` and the table of ``docs/masters-and-ssp.md`` (a block the
-results page renders from the JSON).
+results page renders from the JSON); with it, the noise cases over many seeds (:mod:`scenarios.conformance.seeds`).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import json
 import sys
 
 from flexarm.provenance import write_atomic
-from scenarios.conformance import hosts
+from scenarios.conformance import hosts, seeds
 from scenarios.conformance.matrix import (
     BLOCK,
     DOC_PATH,
@@ -21,17 +21,28 @@ from scenarios.conformance.matrix import (
     REFERENCE,
     SCENARIOS,
     check,
+    inputs,
     judge,
     render,
     run_matrix,
 )
 from scenarios.reports.page_blocks import block, splice_blocks
+from scenarios.run.fmus import DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR
 
 
 @block(BLOCK)
 def matrix_block(runs) -> str:
     """The generated table of docs/masters-and-ssp.md, from docs/conformance.json (no run)."""
     return render(json.loads(JSON_PATH.read_text()))
+
+
+@block(seeds.BLOCK)
+def noise_seeds_block(runs) -> str:
+    """The noise cases over many seeds, from docs/conformance.json (no run)."""
+    doc = json.loads(JSON_PATH.read_text())
+    if "noise_seeds" not in doc:
+        return "(not run: `python -m scenarios conformance --noise-seeds --write`)"
+    return seeds.render(doc["noise_seeds"])
 
 
 def write(doc: dict) -> None:
@@ -43,6 +54,8 @@ def write(doc: dict) -> None:
     text = DOC_PATH.read_text()
     blocks = {m.group(1): m.group(2).strip("\n") for m in _MARKED.finditer(text)}
     blocks[BLOCK] = render(doc)
+    if "noise_seeds" in doc:
+        blocks[seeds.BLOCK] = seeds.render(doc["noise_seeds"])
     write_atomic(DOC_PATH, splice_blocks(text, blocks, str(DOC_PATH)))
 
 
@@ -59,8 +72,33 @@ def main(argv: list[str] | None = None) -> int:
                            "docs/ (no selection allowed)")
     mode.add_argument("--check", action="store_true", help="check the committed matrix against this checkout")
     mode.add_argument("--render", action="store_true", help="re-render the table from docs/conformance.json")
+    ap.add_argument("--noise-seeds", action="store_true",
+                    help=f"only the noise cases over seeds {seeds.SEEDS[0]}..{seeds.SEEDS[-1]} in our master, both "
+                         "steppings (with --write: into docs/conformance.json, the matrix as committed); --write "
+                         "alone runs them after the matrix")
     args = ap.parse_args(argv)
     selection = args.scenario or args.case or args.kind or args.master
+    if args.noise_seeds:
+        if args.case or args.kind or args.master or args.check or args.render:
+            print("conformance: --noise-seeds runs every noise case of the scenarios (--scenario) on the native "
+                  "FMUs in our master; --case, --kind, --master, --check and --render do not apply", file=sys.stderr)
+            return 2
+        if args.write and args.scenario:
+            print("conformance: --noise-seeds --write runs every scenario of the matrix", file=sys.stderr)
+            return 2
+        data = seeds.run_seeds(args.scenario or SCENARIOS)
+        print(seeds.render(data))
+        if args.write:
+            doc = json.loads(JSON_PATH.read_text())
+            now = inputs(["native"], DEFAULT_FMU_DIR, DEFAULT_NATIVE_FMU_DIR, SCENARIOS)
+            stale = sorted(k for k in now if now[k] != doc["inputs"].get(k))
+            if stale:
+                print(f"conformance: the committed matrix ran on other inputs than this checkout's "
+                      f"({', '.join(stale)}): run `python -m scenarios conformance --write`, which runs the noise "
+                      "seeds too", file=sys.stderr)
+                return 1
+            write({**doc, "noise_seeds": data})
+        return 0
     if args.write and selection:
         print("conformance: --write runs the published matrix; --scenario, --case, --kind and --master print a part",
               file=sys.stderr)
@@ -82,6 +120,7 @@ def main(argv: list[str] | None = None) -> int:
                      subset=PUBLISHED if args.write else None)
     print(render(doc))
     if args.write:
+        doc["noise_seeds"] = seeds.run_seeds(SCENARIOS)
         write(doc)
     bad = [1 for r in doc["rows"] for m in masters if m != REFERENCE
            and not judge(r["masters"][m], r["masters"][REFERENCE])]
