@@ -52,3 +52,4 @@ def test_a_run_over_two_seeds(tmp_path):
     assert again["rows"] == data["rows"]  # seeded: bit for bit
     text = seeds.render(data)
     assert "table2/noise | position, deg" in text and "of 4 figures" in text
+    assert sum(seeds.verdicts(data).values()) == 4

@@ -93,20 +93,28 @@ def paired(gauss_seidel, jacobi, floor: float) -> dict:
             "tolerance": tol, "verdict": verdict}
 
 
+def verdicts(data: dict) -> dict[str, int]:
+    """How many figures of `data` are within, outside and undecided (:func:`paired`)."""
+    counts = {"within": 0, "outside": 0, "undecided": 0}
+    for r in data["rows"]:
+        for f in FIGURES:
+            counts[paired(r["gauss-seidel"][f], r["jacobi"][f], FLOORS[f])["verdict"]] += 1
+    return counts
+
+
 def render(data: dict) -> str:
     """The Markdown table: per noise case and figure, each stepping's mean over the seeds, the paired difference
     with its interval, the tolerance and the verdict (:func:`paired`)."""
     n = len(data["seeds"])
     lines = ["| case | figure | Gauss-Seidel, mean | Jacobi, mean | Jacobi − Gauss-Seidel, ± 2 s.e. | tolerance | |",
              "|---|---|---|---|---|---|---|"]
-    counts = {"within": 0, "outside": 0, "undecided": 0}
     for r in data["rows"]:
         for f, label in zip(FIGURES, ("position, deg", "velocity, deg/s")):
             p = paired(r["gauss-seidel"][f], r["jacobi"][f], FLOORS[f])
-            counts[p["verdict"]] += 1
             verdict = p["verdict"] if p["verdict"] == "within" else f"**{p['verdict']}**"
             lines.append(f"| {r['scenario']}/{r['case']} | {label} | {p['gauss_seidel']:.4g} | {p['jacobi']:.4g} | "
                          f"{p['difference']:+.2g} ± {Z * p['standard_error']:.2g} | {p['tolerance']:.2g} | {verdict} |")
+    counts = verdicts(data)
     lines += ["", f"{data['kind'].capitalize()} FMUs, our master, noise seeds {data['seeds'][0]}..{data['seeds'][-1]} "
               f"({n} pairs, the same noise on the same plant samples in both steppings): of {sum(counts.values())} "
               f"figures, {counts['within']} within the tolerance, {counts['outside']} outside, "
@@ -114,4 +122,4 @@ def render(data: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["BLOCK", "SEEDS", "noise_cases", "paired", "render", "run_seeds"]
+__all__ = ["BLOCK", "SEEDS", "noise_cases", "paired", "render", "run_seeds", "verdicts"]
