@@ -175,7 +175,7 @@ def _write(payload_mass: float, folder: Path, progress) -> dict:
     params = load_parameters(payload_mass=payload_mass)
     shutil.copy2(DEFAULT_PARAMETER_FILE, folder / DEFAULT_PARAMETER_FILE.name)
     progress(f"payload data: re-planning the slew for {payload_mass:g} kg (FATROP: its solver made, then two solves)")
-    with heartbeat("payload data: re-planning", emit=progress):  # about half a minute of CasADi, silent
+    with heartbeat("payload data: re-planning", emit=progress):  # about 10 CPU-s of FATROP, silent
         result = replan_minimum_time(params, load_trajectory(), verbose=False)
     replay = annotate_with_replay(result, params)
     traj_file = folder / "trajectory.npz"

@@ -14,6 +14,7 @@ Modules, by concern:
 ``solve``     the staged solve (:func:`solve_minimum_time`), FATROP's re-plan (:func:`replan_minimum_time`),
               1 ms sampling, sensitivity.
 ``stage_form`` the NLP in stage form for FATROP (the re-plan).
+``compiled``  a solver on interval functions compiled to C, made once per machine and cached.
 ``report``    replay in the plant, constraint checks, plot, command line.
 
 Reading a trajectory (``from flexarm.trajectory import load_trajectory``)

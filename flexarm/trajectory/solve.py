@@ -145,9 +145,10 @@ def replan_minimum_time(params: ArmParameters, warm_start: TrajectoryResult | Co
 
     The same NLP as :func:`solve_minimum_time` in stage form (:mod:`flexarm.trajectory.stage_form`): the
     free-t_f solve, then t_f rounded up to a whole ms and solved again. It needs no multipliers, so a
-    trajectory read from a file (the committed one) is a start. Each re-plan makes its own solver (about 12
-    CPU-s; :func:`flexarm.trajectory.stage_form.stage_form` says why none is kept), unless `form` gives one
-    made for it.
+    trajectory read from a file (the committed one) is a start. Each re-plan gets its own solver
+    (:func:`flexarm.trajectory.stage_form.stage_form` says why none is kept: loaded from the compiled-solver cache
+    in under a CPU-second, or made interpreted in about 10 without a C compiler), unless `form` gives one made
+    for it.
 
     Parameters
     ----------

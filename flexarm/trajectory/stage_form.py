@@ -18,7 +18,8 @@ What makes it cheap to make: each interval is one call of a small SX function in
 Jacobian penalty set so that its AD takes each interval's own symbolic Jacobian and Hessian
 (:func:`_with_interval_derivatives`). Written out as one SX graph, making the derivatives cost 26 CPU-s of
 symbolic AD; as a ``Function.map`` the AD took one directional derivative per colour through the map (a
-Hessian 0.49 s, against 0.08 s here). ``benchmarks/study_fatrop_mapped.py`` prints the three.
+Hessian 0.49 s, against 0.08 s here). ``benchmarks/study_fatrop_mapped.py`` prints the three. Compiled
+(:mod:`flexarm.trajectory.compiled`), those interval functions and derivatives are C, and the made solver is cached.
 """
 
 from __future__ import annotations
@@ -200,52 +201,81 @@ def _with_interval_derivatives(f: ca.Function) -> ca.Function:
     Jacobian, and the gradient's single reverse sweep stays a reverse sweep.
     """
     ins = [ca.SX.sym(f.name_in(i), f.sparsity_in(i)) for i in range(f.n_in())]
-    return ca.Function(f.name(), ins, f.call(ins), f.name_in(), f.name_out(),
-                       {"jac_penalty": 0.05, "reverse_options": {"jac_penalty": 0.0},
-                        "jacobian_options": {"jac_penalty": 0.0}})
+    return ca.Function(f.name(), ins, f.call(ins), f.name_in(), f.name_out(), INTERVAL_AD_OPTIONS)
+
+
+#: How CasADi's AD treats a call of an interval function (:func:`_with_interval_derivatives`), interpreted or
+#: compiled (:mod:`flexarm.trajectory.compiled`).
+INTERVAL_AD_OPTIONS = {"jac_penalty": 0.05, "reverse_options": {"jac_penalty": 0.0},
+                       "jacobian_options": {"jac_penalty": 0.0}}
 
 
 def stage_form(params: ArmParameters, n_intervals: int = 200, degree: int = 5,
                regularisation: float = DEFAULT_REGULARISATION, torque_rate_limit: float = TORQUE_RATE_LIMIT,
-               line_tolerance: float = LINE_TOLERANCE, max_iter: int = 300) -> StageForm:
+               line_tolerance: float = LINE_TOLERANCE, max_iter: int = 300, compiled: bool = True) -> StageForm:
     """A FATROP solver of the stage-form NLP, for one re-plan (its two solves).
 
     The payload, the mass and stiffness coefficients, the torque limits and the line are parameters (``params`` only
-    fixes the structure: the stiffness pattern). Making it costs about 12 CPU-s (N = 200, d = 5). A solver serves
-    one re-plan and is not kept: FATROP keeps state between solves on one solver, and a re-plan for another payload
-    on the solver of an earlier one stalled (0.275 kg, then 0.2 kg: not converged after 8 CPU-minutes, where a
-    fresh solver takes 28 CPU-s).
+    fixes the structure: the stiffness pattern). With `compiled` (and a C compiler) the interval functions are
+    compiled to C and the made solver is cached (:mod:`flexarm.trajectory.compiled`): the first call on a machine
+    compiles and makes it (about 40 CPU-s), later calls load it (under 1 CPU-s), and each solve evaluates the
+    compiled derivatives. Otherwise CasADi's virtual machine evaluates them and each call makes the solver anew
+    (about 10 CPU-s, N = 200, d = 5). The two give the same iterates to rounding. A solver serves one re-plan:
+    FATROP keeps state between solves on one solver, and a re-plan for another payload on the solver of an earlier
+    one stalled (0.275 kg, then 0.2 kg: not converged after 8 CPU-minutes, where a fresh solver takes 28 CPU-s).
     """
-    red = ReducedModel.build(params, FLEX_GROUPS)
+    from . import compiled as compiled_solvers
+
     N, d = int(n_intervals), int(degree)
-    nlp, dims, lbg, ubg = stage_nlp(params, N, d, regularisation, torque_rate_limit, line_tolerance)
-    solver = ca.nlpsol("replan", "fatrop", nlp, {"expand": False, "structure_detection": "manual", **dims,
-                                                 "print_time": False,
-                                                 "fatrop": {**FATROP_OPTIONS, "max_iter": int(max_iter)}})
-    return StageForm(solver, N, d, red.n, lbg, ubg)
+    functions, dims, lbg, ubg, n = _stage_parts(params, N, d, regularisation, torque_rate_limit, line_tolerance)
+    options = {"expand": False, "structure_detection": "manual", **dims, "print_time": False,
+               "fatrop": {**FATROP_OPTIONS, "max_iter": int(max_iter)}}
+
+    def make(interval_functions) -> ca.Function:
+        return ca.nlpsol("replan", "fatrop", _stage_nlp(interval_functions, N, n), options)
+
+    solver = None
+    if compiled:
+        solver = compiled_solvers.load_or_make("replan", functions, make, repr(sorted(options.items())),
+                                               fixed_inputs=("p",), external_options=INTERVAL_AD_OPTIONS)
+    return StageForm(make(functions) if solver is None else solver, N, d, n, lbg, ubg)
 
 
-def stage_nlp(params: ArmParameters, n_intervals: int, degree: int, regularisation: float = DEFAULT_REGULARISATION,
-              torque_rate_limit: float = TORQUE_RATE_LIMIT, line_tolerance: float = LINE_TOLERANCE):
-    """The stage-form NLP (an MX graph: one call per interval) with FATROP's dimensions: (nlp, dims, lbg, ubg)."""
+def _stage_parts(params: ArmParameters, N: int, d: int, regularisation: float, torque_rate_limit: float,
+                 line_tolerance: float):
+    """The interval functions (interval, last), FATROP's dimensions, the constraint bounds and the angle count."""
     red = ReducedModel.build(params, FLEX_GROUPS)
-    N, d, n = int(n_intervals), int(degree), red.n
-    nx, nu = 2 * n + 3, n * d + 2
+    n = red.n
+    nx = 2 * n + 3
     n_p = 1 + len(red.coefficient_vector()) + 2 + n + 4
     common = (regularisation, torque_rate_limit, line_tolerance)
     interval, lo, hi = _interval_function(red, N, d, n_p, False, *common)
     last, lo_last, hi_last = _interval_function(red, N, d, n_p, True, *common)
+    dims = {"N": N, "nx": [nx] * (N + 1), "nu": [n * d + 2] * N + [0],
+            "ng": [len(lo) - nx] * (N - 1) + [len(lo_last) - nx, 0]}
+    return ((interval, last), dims, np.concatenate([np.tile(lo, N - 1), lo_last]),
+            np.concatenate([np.tile(hi, N - 1), hi_last]), n)
+
+
+def _stage_nlp(functions, N: int, n: int) -> dict:
+    """The stage-form NLP, an MX graph with one call of ``functions`` = (interval, last) per interval."""
+    interval, last = functions
+    nx, nu, n_p = interval.size1_in(0), interval.size1_in(1), interval.size1_in(3)
     w, p = ca.MX.sym("w", N * (nx + nu) + nx), ca.MX.sym("p", n_p)
     XU = ca.reshape(w[:N * (nx + nu)], nx + nu, N)
     X, U = XU[:nx, :], XU[nx:, :]
     X_next = ca.horzcat(X[:, 1:], w[N * (nx + nu):])
     calls = [(last if k == N - 1 else interval)(X[:, k], U[:, k], X_next[:, k], p) for k in range(N)]
-    nlp = {"x": w, "p": p, "f": p[0] * w[2 * n + 2] + sum(c for _, c in calls),
-           "g": ca.vertcat(*(g for g, _ in calls))}
-    dims = {"N": N, "nx": [nx] * (N + 1), "nu": [nu] * N + [0],
-            "ng": [len(lo) - nx] * (N - 1) + [len(lo_last) - nx, 0]}
-    return (nlp, dims, np.concatenate([np.tile(lo, N - 1), lo_last]),
-            np.concatenate([np.tile(hi, N - 1), hi_last]))
+    return {"x": w, "p": p, "f": p[0] * w[2 * n + 2] + sum(c for _, c in calls),
+            "g": ca.vertcat(*(g for g, _ in calls))}
+
+
+def stage_nlp(params: ArmParameters, n_intervals: int, degree: int, regularisation: float = DEFAULT_REGULARISATION,
+              torque_rate_limit: float = TORQUE_RATE_LIMIT, line_tolerance: float = LINE_TOLERANCE):
+    """The stage-form NLP (an MX graph: one call per interval) with FATROP's dimensions: (nlp, dims, lbg, ubg)."""
+    N, d = int(n_intervals), int(degree)
+    functions, dims, lbg, ubg, n = _stage_parts(params, N, d, regularisation, torque_rate_limit, line_tolerance)
+    return _stage_nlp(functions, N, n), dims, lbg, ubg
 
 
 def solve_stage_form(form: StageForm, params: ArmParameters, start: np.ndarray, elbow: int = 1,
