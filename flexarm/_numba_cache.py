@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import os
 import re
-import sys
 from pathlib import Path
+
+from .user_cache import user_cache_folder
 
 #: A private module name of an FMU build: ``_<name>_<fmu>_<first 12 hex digits of the build digest>``.
 _BUILD_PACKAGE = re.compile(r"^_\w+_[0-9a-f]{12}$")
@@ -26,13 +27,7 @@ def cache_root() -> Path:
     ``%LOCALAPPDATA%``) + ``flexarm-fmi/numba``."""
     if os.environ.get("NUMBA_CACHE_DIR"):
         return Path(os.environ["NUMBA_CACHE_DIR"]) / "flexarm-fmus"
-    if sys.platform == "win32":
-        base = Path(os.environ.get("LOCALAPPDATA") or Path.home() / "AppData" / "Local")
-    elif sys.platform == "darwin":
-        base = Path.home() / "Library" / "Caches"
-    else:
-        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    return base / "flexarm-fmi" / "numba"
+    return user_cache_folder("numba")
 
 
 def keep_cache_per_build() -> None:

@@ -36,6 +36,7 @@ from pathlib import Path
 import casadi as ca
 
 from ..progress import heartbeat, say
+from ..user_cache import user_cache_folder
 
 #: C compiler options: -O1 compiles the re-plan's functions in about 30 CPU-s; -O2 is slower to compile for no
 #: measured gain in a re-plan (benchmarks/bench_trajectory.py prints the re-plan's evaluation time).
@@ -45,20 +46,11 @@ DISABLE_VARIABLE, CACHE_VARIABLE = "FLEXARM_COMPILED_SOLVERS", "FLEXARM_SOLVER_C
 
 
 def cache_folder() -> Path:
-    """``$FLEXARM_SOLVER_CACHE``, else the user's cache folder + ``flexarm-fmi/solvers``.
-
-    The user's cache folder is found as :func:`flexarm._numba_cache.cache_root` finds it (not shared: that module is
-    packed into the Python plant FMU, whose bytes an edit would change).
-    """
+    """``$FLEXARM_SOLVER_CACHE``, else the user's cache folder (:func:`flexarm.user_cache.user_cache_folder`) +
+    ``solvers``."""
     if os.environ.get(CACHE_VARIABLE):
         return Path(os.environ[CACHE_VARIABLE])
-    if sys.platform == "win32":
-        base = Path(os.environ.get("LOCALAPPDATA") or Path.home() / "AppData" / "Local")
-    elif sys.platform == "darwin":
-        base = Path.home() / "Library" / "Caches"
-    else:
-        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    return base / "flexarm-fmi" / "solvers"
+    return user_cache_folder("solvers")
 
 
 def c_compiler() -> str | None:
