@@ -65,7 +65,15 @@ def _stamp(load_before, commit, now, repeats) -> dict:
                         "python": platform.python_version(), "system": platform.platform()},
             "load_average_before": list(load_before), "load_average_after": list(os.getloadavg()),
             # Python's compiled-module cache: without it every start compiles the modules again (about 0.1 s)
-            "bytecode_cache": not os.environ.get("PYTHONDONTWRITEBYTECODE")}
+            "bytecode_cache": not os.environ.get("PYTHONDONTWRITEBYTECODE"),
+            # the master's stepping loop: in C (scenarios/master/step_loop.py) unless no compiler or turned off
+            "master_loop": "c" if _master_loop() is not None else "python"}
+
+
+def _master_loop():
+    from scenarios.master.step_loop import loop_function
+
+    return loop_function()
 
 
 def main(argv=None) -> int:

@@ -1,8 +1,9 @@
-"""The platform's folder for a user's caches, where flexarm-fmi keeps what it builds once per machine."""
+"""What flexarm-fmi builds once per machine: the platform's folder for a user's caches, and the C compiler."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -17,3 +18,12 @@ def user_cache_folder(*parts: str) -> Path:
     else:
         base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
     return base.joinpath("flexarm-fmi", *parts)
+
+
+def c_compiler() -> str | None:
+    """The C compiler's path: ``$CC``, else ``cc``, ``gcc`` or ``clang`` on the PATH; None without one."""
+    for name in ([os.environ["CC"]] if os.environ.get("CC") else []) + ["cc", "gcc", "clang"]:
+        found = shutil.which(name)
+        if found:
+            return found
+    return None

@@ -26,7 +26,6 @@ from __future__ import annotations
 import hashlib
 import os
 import platform
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -36,6 +35,7 @@ from pathlib import Path
 import casadi as ca
 
 from ..progress import heartbeat, say
+from ..user_cache import c_compiler as find_c_compiler
 from ..user_cache import user_cache_folder
 
 #: C compiler options: -O1 compiles the re-plan's functions in about 30 CPU-s; -O2 is slower to compile for no
@@ -54,14 +54,10 @@ def cache_folder() -> Path:
 
 
 def c_compiler() -> str | None:
-    """The C compiler's path (``$CC``, else ``cc``, ``gcc``, ``clang`` on the PATH), or None."""
+    """The C compiler (:func:`flexarm.user_cache.c_compiler`), or None when compiled solvers are turned off."""
     if os.environ.get(DISABLE_VARIABLE, "1") == "0":
         return None
-    for name in ([os.environ["CC"]] if os.environ.get("CC") else []) + ["cc", "gcc", "clang"]:
-        found = shutil.which(name)
-        if found:
-            return found
-    return None
+    return find_c_compiler()
 
 
 def entry_key(name: str, functions: Sequence[ca.Function], solver_options: str, compiler: str) -> str:

@@ -41,10 +41,13 @@ A run ends with one typed :class:`Outcome` (see docs/outcomes.md): ``ok``;
 ``error`` (an FMU returned fmi2Error/fmi2Fatal: which FMU, which function,
 the status and the FMU's own logged message, taken from the FMI status the
 logger callback receives); or ``interrupted`` (Ctrl-C: :meth:`Master.run`
-raises :class:`RunInterrupted` after the current step, never inside FMU code).
+raises :class:`RunInterrupted` after the current step, or with the loop in C
+at the next progress point, a hundredth of the run; never inside FMU code).
 Values move between FMUs through preallocated ctypes buffers: per step one
 ``fmi2GetReal`` per FMU (connections and records together) and one
-``fmi2SetReal`` per connected pair of FMUs.
+``fmi2SetReal`` per connected pair of FMUs. For FMUs in this process the loop
+runs in C when a compiler is at hand (:mod:`scenarios.master.step_loop`: the
+same calls in the same order, bit for bit the same run).
 Everything the master loads is freed, also when a step fails.
 """
 
@@ -374,8 +377,16 @@ class Master:
                 outcome = Outcome.from_error(exc, "initialisation (nothing ran)")
                 n = -1  # skip the loop
             steppers = [(u.do_step, u.slave.component, u) for u in (self.units[name] for name in self.order)]
+            compiled = self._compiled_loop(ops, gathers, data, time, steps, divergence_limit) if n > 0 else None
             try:
                 for k in range(n + 1):
+                    if compiled is not None and k:  # points k .. the next progress point in C, the same calls
+                        k, gathered, stop, error = self._run_compiled(compiled, k, n, every_pct, names, time,
+                                                                      progress, interrupted)
+                        if error is not None:
+                            raise error
+                        outcome = stop or outcome
+                        break
                     for op in (ops if k else first_ops):
                         op()
                     row = data[k]
@@ -408,6 +419,41 @@ class Master:
         return {"time": time[first:], "signals": {name: data[first:, i] for i, name in enumerate(names)},
                 "outcome": outcome, "status": outcome.status, "message": outcome.message,
                 "log": list(self.messages), "steps_done": max(k, 0)}
+
+    def _compiled_loop(self, ops, gathers, data, time, steps, limit):
+        """The C loop of this run's plan (:mod:`scenarios.master.step_loop`), or None: no compiler, turned off,
+        or an FMU in its own process (its functions are Python's)."""
+        from . import step_loop
+
+        units = [self.units[name] for name in self.order]
+        fn = None if any(u.isolated for u in units) else step_loop.loop_function()
+        return None if fn is None else step_loop.CompiledLoop(fn, ops, units, gathers, data, time, steps, limit)
+
+    @staticmethod
+    def _run_compiled(compiled, k: int, n: int, every_pct: int, names, time, progress, interrupted):
+        """Points k .. n in C, a progress point at a time (its callback and Ctrl-C between): (the last point,
+        the last row gathered, an unbounded Outcome or None, the failing FMU's FMUError or None)."""
+        from .step_loop import STEP_FAILED, STEP_UNBOUNDED
+
+        while True:
+            end = min(n + 1, (k // every_pct + 1) * every_pct)  # stepping after end - 1 makes end steps done
+            status = compiled.run(k, end, n)
+            last, gathered = int(compiled.out[0]), int(compiled.out[5])
+            if status == STEP_FAILED:
+                return last, gathered, None, compiled.failure()
+            if status == STEP_UNBOUNDED:
+                row = compiled.data[last]
+                bad = names[int(compiled.out[1])]
+                return last, gathered, Outcome(
+                    "unbounded", f"{bad} = {row[names.index(bad)]:.6g} left the bounds (|value| < "
+                    f"{compiled.limit:g}) at t = {time[last]:.6g} s", time=float(time[last]), signal=bad), None
+            if end == n + 1:
+                return n, gathered, None, None
+            if progress is not None and (end % every_pct == 0 or end == n):
+                progress(end, n)
+            k = end
+            if interrupted.is_set():
+                return k, gathered, None, None
 
     def probe(self, parameters: dict[str, dict] | None, step_size: float) -> Outcome:
         """Initialise with `parameters` and take one communication step of `step_size`, recording nothing.

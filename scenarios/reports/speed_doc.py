@@ -45,7 +45,10 @@ def render(data: dict) -> str:
               f"{data['date'][:10]} at commit `{data['commit'][:12]}` on {m['cpus']} CPUs ({m['processor']}, Python "
               f"{m['python']}), load average {data['load_average_before'][0]:.1f} before and "
               f"{data['load_average_after'][0]:.1f} after; Python's compiled-module cache "
-              + ("on." if data.get("bytecode_cache", True) else "off (PYTHONDONTWRITEBYTECODE set).")]
+              + ("on" if data.get("bytecode_cache", True) else "off (PYTHONDONTWRITEBYTECODE set)")
+              + {"c": "; the master's stepping loop in C (`scenarios/master/step_loop.py`).",
+                 "python": "; the master's stepping loop in Python (no C compiler, or `FLEXARM_MASTER_LOOP=python`)."
+                 }.get(data.get("master_loop"), ".")]
     return "\n".join(lines)
 
 
