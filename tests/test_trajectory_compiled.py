@@ -110,3 +110,13 @@ def test_the_replan_solver_compiled_evaluates_what_the_interpreted_one_does():
         a = [np.asarray(ca.DM(v).nonzeros()) for v in fast.solver.get_function(name)(*args)]
         b = [np.asarray(ca.DM(v).nonzeros()) for v in slow.solver.get_function(name)(*args)]
         assert _close(a, b), name
+
+
+def test_an_unwritable_cache_folder_means_the_interpreted_solver(tmp_path, monkeypatch):
+    blocked = tmp_path / "a file, not a folder"
+    blocked.write_text("")
+    monkeypatch.setenv(compiled.CACHE_VARIABLE, str(blocked))
+    monkeypatch.delenv(compiled.DISABLE_VARIABLE, raising=False)
+    lines = []
+    assert compiled.load_or_make("toy", [_toy()], _derivatives, "options", ("p",), progress=lines.append) is None
+    assert any("cannot be written" in line for line in lines)

@@ -139,20 +139,28 @@ def load_or_make(name: str, functions: Sequence[ca.Function], make: Callable[[li
             return ca.Function.load(str(solver_file))
         except RuntimeError as exc:  # a file from another CasADi build, or damaged: made again below
             progress(f"{solver_file} did not load ({str(exc).splitlines()[0][:200]}); making it again")
-    folder.mkdir(parents=True, exist_ok=True)
-    if not library.exists():
-        _compile(functions, fixed_inputs, library, compiler, progress)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        if not library.exists():
+            _compile(functions, fixed_inputs, library, compiler, progress)
+    except OSError as exc:  # an unwritable cache folder: the interpreted solver, as without a compiler
+        progress(f"the compiled-solver cache {folder} cannot be written ({exc}); the {name} solver runs "
+                 f"interpreted (set ${CACHE_VARIABLE} to a writable folder)")
+        return None
     externals = [ca.external(f.name(), str(library), dict(external_options or {})) for f in functions]
     progress(f"making the {name} solver on the compiled functions, once for this machine (about 10 CPU-s)")
     with heartbeat(f"making the {name} solver", emit=progress):
         solver = make(externals)
-    fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".casadi", dir=folder)
-    os.close(fd)
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".casadi", dir=folder)
+        os.close(fd)
         solver.save(tmp)
         os.replace(tmp, solver_file)
+        progress(f"cached in {folder}")
+    except (OSError, RuntimeError) as exc:  # a full disk: this process still has its solver
+        progress(f"the {name} solver was not cached in {folder} ({exc}); it is made again next time")
     finally:
-        if os.path.exists(tmp):
+        if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
-    progress(f"cached in {folder}")
     return solver
