@@ -91,15 +91,18 @@ def portable(obj, folder: str | Path, root: str | Path = SOURCE_ROOT):
                 text = re.sub(re.escape(prefix) + r"(?![\w.\-])", name, text)
         return _FOREIGN_DIRS.sub("…/", text)
 
-    if isinstance(obj, str):
-        return clean(obj)
-    if isinstance(obj, Path):
-        return clean(str(obj))
-    if isinstance(obj, Mapping):  # a dict, or a plan's read-only view of one
-        return {clean(k) if isinstance(k, str) else k: portable(v, folder, root) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [portable(v, folder, root) for v in obj]
-    return obj
+    def walk(value):  # the prefixes are found once per call, not once per value (each a Path.resolve)
+        if isinstance(value, str):
+            return clean(value)
+        if isinstance(value, Path):
+            return clean(str(value))
+        if isinstance(value, Mapping):  # a dict, or a plan's read-only view of one
+            return {clean(k) if isinstance(k, str) else k: walk(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [walk(v) for v in value]
+        return value
+
+    return walk(obj)
 
 
 def write_csv(path: str | Path, columns: dict[str, np.ndarray]) -> None:
