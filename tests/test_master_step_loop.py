@@ -93,3 +93,29 @@ def test_an_fmu_that_fails_mid_run_ends_both_loops_alike(monkeypatch, tmp_path):
     assert runs[0]["status"] == "error" and runs[0]["outcome"].fmu_status == "fatal"
     _same(runs[0], runs[1])
     assert str(runs[0]["outcome"].as_dict()) == str(runs[1]["outcome"].as_dict())
+
+
+def test_fmu_functions_wrapped_in_python_run_the_python_loop(monkeypatch, native_dir):
+    """A master whose FMU functions are not the library's (a test's or a tool's wrapper around fmi2DoStep) must
+    call the wrapper: the C loop would call the library behind it. The run is then the Python loop's."""
+    from scenarios.master import units
+
+    raw, wrapped_calls = units.fmu2_raw_functions, []
+
+    def wrapping(slave):
+        get_real, set_real, do_step = raw(slave)
+
+        def step(component, t, h, new_step):
+            wrapped_calls.append(t)
+            return do_step(component, t, h, new_step)
+        return get_real, set_real, step
+
+    reference, _ = _run(monkeypatch, "python", native_dir, "table2", "gauss-seidel", {}, 50)
+    monkeypatch.setattr(units, "fmu2_raw_functions", wrapping)
+    monkeypatch.setenv(step_loop.LOOP_VARIABLE, "c")
+    c_calls = _counting_c_calls(monkeypatch)
+    setup = prepare(load_scenario("table2"), native_dir, build=False)
+    with setup.open_master() as m:
+        result = m.run(setup.case_parameters({}), setup.record, 50)
+    assert c_calls == [] and len(wrapped_calls) == 3 * 50
+    _same(reference, result)

@@ -422,11 +422,11 @@ class Master:
 
     def _compiled_loop(self, ops, gathers, data, time, steps, limit):
         """The C loop of this run's plan (:mod:`scenarios.master.step_loop`), or None: no compiler, turned off,
-        or an FMU in its own process (its functions are Python's)."""
+        or an FMU whose functions are not the library's (one in its own process, one wrapped in Python)."""
         from . import step_loop
 
         units = [self.units[name] for name in self.order]
-        fn = None if any(u.isolated for u in units) else step_loop.loop_function()
+        fn = None if not all(step_loop.calls_c(u) for u in units) else step_loop.loop_function()
         return None if fn is None else step_loop.CompiledLoop(fn, ops, units, gathers, data, time, steps, limit)
 
     @staticmethod

@@ -12,7 +12,8 @@ problem, which the master then reports as before. The loop's results are the Pyt
 The C file is compiled once per machine with the C compiler (``$CC``, ``cc``, ``gcc`` or ``clang``) into the user's
 cache folder (:func:`flexarm.user_cache.user_cache_folder`), under the SHA-256 of the source, the compiler and the
 platform. Without a compiler, with ``FLEXARM_MASTER_LOOP=python``, for FMUs isolated in their own processes, and for
-the first communication point of an ``fmpy-ssp`` run (its zeros), the Python loop runs.
+the first communication point of an ``fmpy-ssp`` run (its zeros), and for FMU functions wrapped in Python, the
+Python loop runs.
 """
 
 from __future__ import annotations
@@ -87,6 +88,13 @@ def loop_function():
     fn.argtypes = [_i64, _i64, _i64, _p, _p, _i64, _p, _i64, _p, _i64, _p, _p, _i64, ctypes.c_double, _p]
     _LIBRARY[0] = fn
     return fn
+
+
+def calls_c(unit) -> bool:
+    """Whether `unit`'s fmi2GetReal, fmi2SetReal and fmi2DoStep are C functions the loop can call: not for an FMU
+    in its own process (Python proxies), nor for functions wrapped in Python (a test's failing fmi2DoStep)."""
+    return not unit.isolated and all(isinstance(f, ctypes._CFuncPtr) for f in (unit.get_real, unit.set_real,
+                                                                                unit.do_step))
 
 
 def _address(buffer) -> int:
