@@ -111,6 +111,10 @@ def _replan_fatrop(loaded, committed, payload: float, interpreted: bool = True):
                 results[label] = r
                 if not built:
                     break
+    entries = [e for e in compiled.cache_folder().glob("*") if e.is_dir()]
+    if entries:
+        sizes = ", ".join(f"{e.name} {sum(f.stat().st_size for f in e.iterdir()) / 1e6:.0f} MB" for e in entries)
+        print(f"compiled-solver cache {compiled.cache_folder()}: {sizes}", flush=True)
     if "interpreted" in results:
         _compare("compiled against interpreted re-plan", results["compiled"], results["interpreted"])
     return results["compiled"]

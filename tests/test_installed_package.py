@@ -54,3 +54,23 @@ def test_commands_that_rewrite_committed_files_refuse_outside_a_checkout(site, t
     assert "Traceback" not in proc.stderr
     after = {k: v for k, v in _snapshot(site).items() if "__pycache__" not in k}
     assert after == {k: v for k, v in before.items() if "__pycache__" not in k}  # nothing written
+
+
+def test_every_data_file_of_the_packages_is_installed_with_them():
+    """A file the packages read at run time (a C source compiled on first use, a scenario, data) must be in
+    pyproject.toml's package-data, or ``pip install .`` leaves it out: scenarios/master/step_loop.c was."""
+    import fnmatch
+    import tomllib
+
+    declared = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    missing = []
+    for package in PACKAGES:
+        patterns = declared.get(package, [])
+        for path in sorted((REPO / package).rglob("*")):
+            if not path.is_file() or path.suffix in (".py", ".pyc") or "__pycache__" in path.parts:
+                continue
+            rel = path.relative_to(REPO / package).as_posix()
+            # setuptools' glob: '*' does not cross a folder
+            if not any(fnmatch.fnmatch(rel, p) and rel.count("/") == p.count("/") for p in patterns):
+                missing.append(f"{package}/{rel}")
+    assert missing == []
