@@ -110,32 +110,47 @@ def write_csv(path: str | Path, columns: dict[str, np.ndarray]) -> None:
     a comment: :data:`UNITS_PREFIX`), then one row per sample at full float precision."""
     names = list(columns)
     data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
-    lines = [",".join(names), UNITS_PREFIX + ",".join(unit_of(n) for n in names)]
-    lines += csv_rows(data)
-    write_atomic(path, "\n".join(lines) + "\n")
+    head = ",".join(names) + "\n" + UNITS_PREFIX + ",".join(unit_of(n) for n in names) + "\n"
+    body = csv_body(data)
+
+    def write(f) -> None:  # two writes, not one concatenated copy of a file of megabytes
+        f.write(head.encode())
+        f.write(body)
+
+    write_atomic(path, write)
 
 
-def csv_rows(data: np.ndarray) -> list[str]:
-    """The rows of a 2-D float array as CSV lines, each number the shortest decimal that reads back as the
-    same double (``1e-05`` may read ``0.00001``, ``1e+100`` ``1e100``); ``nan``, ``inf``, ``-inf`` as Python
-    writes them.
+def csv_body(data: np.ndarray) -> bytes:
+    """The rows of a 2-D float array as CSV lines (ASCII, each ended by a newline), each number the shortest
+    decimal that reads back as the same double (``1e-05`` may read ``0.00001``, ``1e+100`` ``1e100``);
+    ``nan``, ``inf``, ``-inf`` as Python writes them.
 
     orjson formats a finite double by the same shortest-round-trip rule as ``repr``, many times faster
-    (``benchmarks/bench_results_writing.py`` prints both), so writing a run's results costs less than
-    simulating it (issue 34). It writes a non-finite number as ``null``: such rows are formatted by ``repr``.
+    (``benchmarks/bench_results_writing.py`` prints both), and the rows stay bytes from there to the file, so
+    writing a run's results costs less than simulating it (issue 34). orjson writes a non-finite number as
+    ``null``: such rows are formatted by ``repr``.
     """
     data = np.ascontiguousarray(data, dtype=np.float64)
     if data.ndim != 2:
         raise ValueError(f"data: must be a 2-D array, got shape {data.shape}")
     if data.shape[0] == 0:
-        return []
+        return b""
     if data.shape[1] == 0:
-        return [""] * data.shape[0]
-    text = orjson.dumps(data, option=orjson.OPT_SERIALIZE_NUMPY).decode("ascii")
-    rows = text[2:-2].split("],[")
-    for i in np.flatnonzero(~np.isfinite(data).all(axis=1)):
-        rows[i] = ",".join(map(repr, data[i].tolist()))
-    return rows
+        return b"\n" * data.shape[0]
+    text = orjson.dumps(data, option=orjson.OPT_SERIALIZE_NUMPY)[2:-2]  # [[1.5,2.0],[...]] without [[ and ]]
+    bad = np.flatnonzero(~np.isfinite(data).all(axis=1))
+    if bad.size == 0:
+        return text.replace(b"],[", b"\n") + b"\n"
+    rows = text.split(b"],[")
+    for i in bad:
+        rows[i] = ",".join(map(repr, data[i].tolist())).encode()
+    return b"\n".join(rows) + b"\n"
+
+
+def csv_rows(data: np.ndarray) -> list[str]:
+    """The rows of :func:`csv_body` as strings, without their newlines."""
+    body = csv_body(data).decode("ascii")
+    return body.split("\n")[:-1] if body else []
 
 
 def read_units(path: str | Path) -> dict[str, str]:
