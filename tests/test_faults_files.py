@@ -271,6 +271,39 @@ def test_an_fmu_replaced_in_place_is_read_anew_not_from_the_description_cache(tm
         fmu_files.read_description(path)
 
 
+def test_an_fmu_is_unpacked_with_what_runs_it_and_not_its_sources_or_other_platforms(tmp_path, monkeypatch):
+    """unpack extracts the model description, the resources and this platform's binaries (issue 34, start-up):
+    a native FMU's sources and its other platforms' binaries stay in the archive, and the FMU still runs."""
+    import zipfile
+
+    import fmpy
+    from native_fmus import native_fmus
+
+    monkeypatch.setenv(fmu_files.UNPACK_ENV, str(tmp_path))
+    fmu = native_fmus()["plant"]
+    with zipfile.ZipFile(fmu) as zf:
+        members = zf.namelist()
+    assert any(m.startswith("sources/") for m in members) and any(m.startswith("binaries/win64/") for m in members)
+    folder = fmu_files.unpack(fmu)
+    got = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
+    want = sorted(m for m in members if not m.endswith("/") and fmu_files.needed_at_run_time(m))
+    assert got == want and "modelDescription.xml" in got
+    assert any(g.startswith(f"binaries/{fmpy.platform}/") for g in got)
+    assert not any(g.startswith(("sources/", "binaries/win64/", "binaries/darwin64/")) for g in got)
+    md = fmu_files.read_description(fmu)
+    slave = fmpy.fmi2.FMU2Slave(guid=md.guid, unzipDirectory=str(folder),
+                                modelIdentifier=md.coSimulation.modelIdentifier, instanceName="plant")
+    slave.instantiate()
+    slave.setupExperiment(startTime=0.0)
+    slave.enterInitializationMode()
+    slave.exitInitializationMode()
+    slave.doStep(currentCommunicationPoint=0.0, communicationStepSize=1e-3)  # fmpy raises on a failed step
+    theta1 = next(v.valueReference for v in md.modelVariables if v.name == "theta1")
+    assert np.isfinite(slave.getReal([theta1])[0])
+    slave.terminate()
+    slave.freeInstance()
+
+
 def test_stale_tmp_files_in_a_sweep_folder_are_removed(tmp_path):
     sweep = tmp_path / "tmpfiles.toml"
     sweep.write_text("[sweep]\nname='tmpfiles'\nscenario='table2'\nsamples=20\n[axes]\nplant.payload_mass=[0.0]\n")
