@@ -65,13 +65,25 @@ def test_compiled_derivatives_are_the_interpreted_ones_and_a_second_process_load
     assert len(list(cache.iterdir())) == 1
 
 
-def test_a_changed_function_or_option_is_a_new_entry(cache):
+def test_a_changed_function_or_option_is_a_new_entry_and_the_cache_keeps_those_used_last(cache):
+    import os
+    import time
+
     first = compiled.load_or_make("toy", [_toy()], _derivatives, "options", ("p",), progress=lambda _: None)
     other = compiled.load_or_make("toy", [_toy(2.0)], _derivatives, "options", ("p",), progress=lambda _: None)
-    compiled.load_or_make("toy", [_toy()], _derivatives, "other options", ("p",), progress=lambda _: None)
-    assert len(list(cache.iterdir())) == 3
+    assert len(list(cache.iterdir())) == 2
     assert not _close(_values(first, 1), _values(other, 1))  # the scaled term reached the compiled code
     assert _close(_values(other, 1), _values(_derivatives([_toy(2.0)]), 1))
+    entries = {e: (e / "toy.casadi").stat().st_mtime for e in cache.iterdir()}
+    first_entry = min(entries, key=entries.get)
+    for e in entries:  # the first made is the one used last: a load renews its time
+        os.utime(e / "toy.casadi", (time.time() - 100, time.time() - 100))
+    compiled.load_or_make("toy", [_toy()], _derivatives, "options", ("p",), progress=lambda _: None)
+    lines = []
+    compiled.load_or_make("toy", [_toy()], _derivatives, "other options", ("p",), progress=lines.append)
+    kept = set(cache.iterdir())
+    assert len(kept) == compiled.KEEP_ENTRIES and first_entry in kept  # _toy(2.0)'s entry, used least lately, went
+    assert any(line.startswith("removed") for line in lines)
 
 
 def test_a_damaged_entry_is_made_again(cache):

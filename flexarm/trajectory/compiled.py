@@ -18,7 +18,8 @@ long again as a re-plan's first stage. Here:
 Without a C compiler (``$CC``, else ``cc``, ``gcc`` or ``clang`` on the PATH) :func:`load_or_make` returns None and
 the caller makes the interpreted solver, as before; ``FLEXARM_COMPILED_SOLVERS=0`` asks for that too.
 Writes are atomic (a temporary name, then a rename), so concurrent processes that build the same entry do not read
-each other's half-written files.
+each other's half-written files. An entry is about 110 MB, so the cache keeps the :data:`KEEP_ENTRIES` entries of
+each solver used last (a load marks its entry used) and removes older ones when it makes a new one.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from __future__ import annotations
 import hashlib
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -43,6 +45,11 @@ from ..user_cache import user_cache_folder
 CFLAGS = ("-O1", "-fPIC", "-shared")
 #: The environment variable that turns compiled solvers off ("0") and the one that moves the cache.
 DISABLE_VARIABLE, CACHE_VARIABLE = "FLEXARM_COMPILED_SOLVERS", "FLEXARM_SOLVER_CACHE"
+
+
+#: Entries kept per solver name: this version's and one more (two checkouts of different versions do not remake
+#: each other's); older ones, by last use, are removed when a new entry is made.
+KEEP_ENTRIES = 2
 
 
 def cache_folder() -> Path:
@@ -136,7 +143,9 @@ def load_or_make(name: str, functions: Sequence[ca.Function], make: Callable[[li
     solver_file, library = folder / f"{name}.casadi", folder / f"{name}{_library_suffix()}"
     if solver_file.exists() and library.exists():
         try:
-            return ca.Function.load(str(solver_file))
+            solver = ca.Function.load(str(solver_file))
+            _mark_used(solver_file)
+            return solver
         except RuntimeError as exc:  # a file from another CasADi build, or damaged: made again below
             progress(f"{solver_file} did not load ({str(exc).splitlines()[0][:200]}); making it again")
     try:
@@ -158,9 +167,35 @@ def load_or_make(name: str, functions: Sequence[ca.Function], make: Callable[[li
         solver.save(tmp)
         os.replace(tmp, solver_file)
         progress(f"cached in {folder}")
+        for old in prune(name, keep=folder):
+            progress(f"removed {old}, an older {name} solver (the cache keeps the {KEEP_ENTRIES} used last)")
     except (OSError, RuntimeError) as exc:  # a full disk: this process still has its solver
         progress(f"the {name} solver was not cached in {folder} ({exc}); it is made again next time")
     finally:
         if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
     return solver
+
+
+def _mark_used(solver_file: Path) -> None:
+    try:
+        os.utime(solver_file)
+    except OSError:  # a read-only cache: its entries are never pruned by this process either
+        pass
+
+
+def prune(name: str, keep: Path | None = None) -> list[Path]:
+    """Remove the `name` solver's cache entries beyond the :data:`KEEP_ENTRIES` used last (the modification time
+    of their solver file, which a load renews); `keep` is never removed. Returns the removed folders."""
+    root = cache_folder()
+    try:
+        entries = [f.parent for f in root.glob(f"*/{name}.casadi") if f.parent != keep]
+        entries.sort(key=lambda e: (e / f"{name}.casadi").stat().st_mtime, reverse=True)
+    except OSError:
+        return []
+    removed = []
+    for entry in entries[KEEP_ENTRIES - (keep is not None):]:
+        shutil.rmtree(entry, ignore_errors=True)
+        if not entry.exists():
+            removed.append(entry)
+    return removed
