@@ -215,3 +215,35 @@ def test_in_fmpy_simulate_ssp_the_slew_is_the_jacobi_slew_one_sample_later(kind_
     np.testing.assert_array_equal(late[0], jacobi[0])  # the arm has not moved over the first, torqueless step
     assert np.abs(late[-1] - jacobi[-1]).max() > 1e-4  # by the end of 300 samples the slew has moved: a shift shows
     np.testing.assert_allclose(late, jacobi[:-1], rtol=0, atol=SHIFT_TOLERANCE[scenario])
+
+
+def test_whether_the_master_read_the_outputs_is_part_of_the_fmu_state(kind_fmus):
+    """The first step's late start (slew_start_index 2: the master exchanged nothing before it) depends on whether
+    an output was read since initialisation. A state saved before any read, restored (directly or serialised)
+    after a read and a step, gives the first step of a master that reads nothing again, as a fresh instance does."""
+    _, fmus = kind_fmus
+    fresh = _Slave(fmus["controller"], "controller")
+    try:
+        fresh.slave.exitInitializationMode()
+        fresh.slave.doStep(currentCommunicationPoint=0.0, communicationStepSize=1e-3)
+        unread = fresh.get("slew_start_index", "tau1", "tau2")
+    finally:
+        fresh.close()
+    assert unread[0] == 2.0
+    controller = _Slave(fmus["controller"], "controller")
+    try:
+        controller.slave.exitInitializationMode()
+        saved = controller.slave.getFMUState()
+        serialised = controller.slave.serializeFMUState(saved)
+        for restore in (lambda: controller.slave.setFMUState(saved),
+                        lambda: controller.slave.setFMUState(controller.slave.deserializeFMUState(serialised))):
+            restore()  # back to t = 0, before any read
+            controller.get("tau_index")  # a master that exchanges values: the slew starts at t = 0
+            controller.slave.doStep(currentCommunicationPoint=0.0, communicationStepSize=1e-3)
+            assert controller.get("slew_start_index") == [1.0]
+            restore()
+            controller.slave.doStep(currentCommunicationPoint=0.0, communicationStepSize=1e-3)
+            assert controller.get("slew_start_index", "tau1", "tau2") == unread
+        controller.slave.freeFMUState(saved)
+    finally:
+        controller.close()

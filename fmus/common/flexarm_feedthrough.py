@@ -135,12 +135,13 @@ class FeedthroughSlave(FlexarmSlave):
         self._stale = True
 
     def get_internal_state(self) -> dict:
-        return {"stale": self._stale, "ready": self._ready,
+        return {"stale": self._stale, "ready": self._ready, "outputs_read": self.outputs_read,
                 "sample": self.get_sample_state() if self._ready else None}
 
     def set_internal_state(self, state: dict) -> None:
         self._stale = bool(state["stale"])
         self._ready = bool(state["ready"])
+        self.outputs_read = bool(state["outputs_read"])  # what the master did before the state: part of it
         if self._ready:
             self.set_sample_state(state["sample"])
 

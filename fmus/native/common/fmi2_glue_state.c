@@ -16,12 +16,12 @@ typedef struct {
     uint64_t identity; /* state_identity() of the FMU that made it */
     uint64_t size;     /* bytes of the whole snapshot, snapshot_size() */
     uint64_t checksum; /* FNV-1a 64 of identity, size and every byte after this field */
-    int32_t fmi_state, outputs_stale;
+    int32_t fmi_state, outputs_stale, outputs_read, reserved; /* reserved: 0, keeps `time` aligned */
     double time;
     /* followed by values[n_vars], invalid[n_vars], state[state_size] */
 } Snapshot;
 
-#define SERIAL_TAG "FNXSTAT2"
+#define SERIAL_TAG "FNXSTAT3"
 #define SERIAL_TAG_SIZE 8
 #define FNV_OFFSET 1469598103934665603ull
 
@@ -58,6 +58,8 @@ static void take_snapshot(const Instance *inst, Snapshot *snap)
     snap->size = snapshot_size();
     snap->fmi_state = inst->fmi_state;
     snap->outputs_stale = inst->outputs_stale;
+    snap->outputs_read = inst->outputs_read; /* what the master did before this state: part of it */
+    snap->reserved = 0;
     snap->time = inst->time;
     memcpy(p, inst->values, MODEL_INFO.n_vars * sizeof(double));
     memcpy(p + MODEL_INFO.n_vars * sizeof(double), inst->invalid, MODEL_INFO.n_vars);
@@ -72,6 +74,7 @@ static const char *snapshot_problem(const Snapshot *snap)
     if (snap->size != snapshot_size()) return "its size does not match this FMU's states";
     if (snap->checksum != snapshot_checksum(snap, snapshot_size())) return "its checksum does not match (corrupt)";
     if (snap->fmi_state < 0 || snap->fmi_state >= S_COUNT || (snap->outputs_stale != 0 && snap->outputs_stale != 1) ||
+        (snap->outputs_read != 0 && snap->outputs_read != 1) || snap->reserved != 0 ||
         !isfinite(snap->time))
         return "its FMI state, flags or time are out of range";
     const unsigned char *invalid = (const unsigned char *)(snap + 1) + MODEL_INFO.n_vars * sizeof(double);
@@ -85,6 +88,7 @@ static void restore_snapshot(Instance *inst, const Snapshot *snap)
     const unsigned char *p = (const unsigned char *)(snap + 1);
     inst->fmi_state = snap->fmi_state;
     inst->outputs_stale = snap->outputs_stale;
+    inst->outputs_read = snap->outputs_read;
     inst->time = snap->time;
     memcpy(inst->values, p, MODEL_INFO.n_vars * sizeof(double));
     memcpy(inst->invalid, p + MODEL_INFO.n_vars * sizeof(double), MODEL_INFO.n_vars);

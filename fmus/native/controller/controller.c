@@ -47,7 +47,9 @@
 #include "model_vars.h"
 
 #define N_SETS 4
+#if CONTROLLER_FEEDBACK
 static const char *const LQG_FILES[N_SCHEDULES] = {SCHEDULE_FILE_LIST};
+#endif
 static const char *const SCHEDULE_LABELS[N_SCHEDULES] = {SCHEDULE_LABEL_LIST};
 static const double SCHEDULE_PERIODS[N_SCHEDULES] = {SCHEDULE_PERIOD_LIST};
 
@@ -93,6 +95,7 @@ static int read_schedule(Instance *inst, const char *file, const char *text, int
     return glue_read_doubles(inst, file, text, label, out->gains, (size_t)out->count * 2 * N_STATE);
 }
 
+#if CONTROLLER_FEEDBACK /* the predictor and its resources: the feedback variants only */
 /* The predictor's trajectory and the design of schedule s (resources of the feedback variants,
    fmu_build/native_resources.py), read at the first delay measured (MODEL_INFO.on_demand: a run with none reads
    and hashes none of them); 0, or -1 after logging why. */
@@ -136,6 +139,7 @@ static int load_predictor(Instance *inst, LqgData *p, Noise *noise, double *prio
 
 /* Read by load_predictor when first needed, not at fmi2Instantiate. */
 static const char *const ON_DEMAND[] = {LQG_TRAJECTORY_FILE, SCHEDULE_FILE_LIST, NULL};
+#endif
 
 static void controller_unload(Instance *inst)
 {
