@@ -37,7 +37,7 @@ import numpy as np
 
 from . import control_law, filter_law
 from .gain_schedule import as_trajectory, desired_states, sample_time
-from .lqg_design import LqgDesign, transient_gains
+from .lqg_design import LqgDesign, TransientGains
 from .model import N_STATE
 from .trajectory.io import SAMPLE_TIME
 
@@ -172,9 +172,10 @@ class LqgController:
         self._K_xi = design.K_integral[:, w, :, N_STATE:] if integral_action else None
         self._index = np.array([design.index_at(k * self.dt) for k in range(self.n_steps + 1)])
         self._y_d = self.z @ design.C.T  # desired measurements (the sensor map is linear)
-        #: The filter's gain of samples 0 .. n_steps − 1 (None: the design's steady gain of each point).
-        self.gains = None if initial_covariance is None else transient_gains(design, self._index[:-1],
-                                                                           initial_covariance)
+        #: The filter's gain of samples 0 .. n_steps − 1, made as the run reaches them (None: the design's steady
+        #: gain of each point).
+        self.gains = None if initial_covariance is None else TransientGains(design, self._index[:-1],
+                                                                          initial_covariance)
         self._Cq = design.C[0:2]
 
     # -- trajectory lookup --------------------------------------------------------------

@@ -451,12 +451,47 @@ def transient_gains(design: LqgDesign, points, initial_covariance: float) -> np.
     Returns
     -------
     ndarray, shape (n, 22, 10)
+        All of them (:class:`TransientGains` makes them as a run asks for them).
     """
-    if not np.isfinite(initial_covariance) or initial_covariance <= 0:
-        raise ValueError(f"initial_covariance: a factor > 0, got {initial_covariance!r}")
-    C, V = design.C, design.V
-    P = initial_covariance * design.P_prior[points[0]]
-    gains = np.empty((len(points), *C.T.shape))
-    for j, i in enumerate(points):
-        gains[j], P = covariance_step(P, C, V, design.Phi[i], design.W[i])
-    return gains
+    gains = TransientGains(design, points, initial_covariance)
+    return np.array([gains[j] for j in range(len(gains))]).reshape(len(gains), *design.C.T.shape)
+
+
+class TransientGains:
+    """:func:`transient_gains` made as they are asked for: ``gains[j]`` runs the covariance recursion through
+    sample j the first time, in sample order, so a run spreads the recursion over its samples instead of
+    stalling at the first one for the whole slew (the native predictor does the same, ``lqg_gains_through``).
+    The numbers are :func:`transient_gains`'s, bit for bit.
+
+    Parameters
+    ----------
+    design : LqgDesign
+    points : sequence of int, shape (n,)
+        The design point of each sample.
+    initial_covariance : float
+        The factor, > 0.
+    """
+
+    def __init__(self, design: LqgDesign, points, initial_covariance: float):
+        if not np.isfinite(initial_covariance) or initial_covariance <= 0:
+            raise ValueError(f"initial_covariance: a factor > 0, got {initial_covariance!r}")
+        self._design, self._points = design, np.asarray(points, dtype=int)
+        self._P = initial_covariance * design.P_prior[self._points[0]] if len(self._points) else None
+        self._gains = np.empty((len(self._points), *design.C.T.shape))
+        #: Samples whose gain is made so far (0 .. made − 1).
+        self.made = 0
+
+    def __len__(self) -> int:
+        return len(self._points)
+
+    def __getitem__(self, j) -> np.ndarray:
+        """The gain of sample j, shape (22, 10) (made through j first if need be)."""
+        j = int(j)
+        if not 0 <= j < len(self._points):
+            raise IndexError(f"sample {j}: the gains cover samples 0 .. {len(self._points) - 1}")
+        C, V = self._design.C, self._design.V
+        while self.made <= j:
+            i = self._points[self.made]
+            self._gains[self.made], self._P = covariance_step(self._P, C, V, self._design.Phi[i], self._design.W[i])
+            self.made += 1
+        return self._gains[j]

@@ -66,3 +66,29 @@ def test_prediction_refuses_what_it_cannot_do(law):
         PredictedTracking(law, LqgDesign.load("200ms"), 11)
     with pytest.raises(LqgError, match="schedule"):
         PredictedTracking(law, LqgDesign.load("20ms"), 2)
+
+
+def test_the_predictors_gains_are_made_as_the_run_reaches_them_with_the_same_numbers(law):
+    """The time-varying filter's gains (flexarm.lqg_design.TransientGains) are made sample by sample as the
+    predictor asks for them, not all at its first sample (a 2 s slew's recursion stalled that one sample by tens of
+    ms, which a real-time master cannot absorb), and they are transient_gains's numbers bit for bit."""
+    from flexarm.filter_law import covariance_step
+    from flexarm.lqg import PREDICTOR_PRIOR
+    from flexarm.lqg_design import TransientGains, transient_gains
+
+    design = LqgDesign.load("200ms")
+    predictor = PredictedTracking(law, design, 2)
+    gains = predictor.filter.gains
+    assert isinstance(gains, TransientGains) and gains.made == 0 and len(gains) == law.n_steps
+    state = predictor.initial_state()
+    for k in range(10):
+        _, state = predictor.step(state, k, predictor.desired_measurement(0))
+    assert 1 <= gains.made <= 10  # the samples the filter has corrected (k - 2), not the slew's
+    points = predictor.filter._index[:-1]
+    p = PREDICTOR_PRIOR * design.P_prior[points[0]]  # the recursion written out (lqg_design.transient_gains)
+    for j in range(40):
+        want, p = covariance_step(p, design.C, design.V, design.Phi[points[j]], design.W[points[j]])
+        assert np.array_equal(gains[j], want), j
+    assert gains.made == 40 and np.array_equal(transient_gains(design, points[:40], PREDICTOR_PRIOR)[39], gains[39])
+    with pytest.raises(IndexError, match="samples 0 .. "):
+        gains[len(gains)]

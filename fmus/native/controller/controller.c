@@ -151,7 +151,7 @@ static void controller_unload(Instance *inst)
         for (int s = 0; s < N_SCHEDULES; s++) free(d->schedules[i][s].times), free(d->schedules[i][s].gains);
     free(d->lqg.feedforward), free(d->lqg.desired), free(d->lqg.index);
     for (int s = 0; d->lqg.designs != NULL && s < N_SCHEDULES; s++) lqg_free_design(&d->lqg.designs[s]), free(d->noise[s].w);
-    free(d->lqg.designs), free(d->lqg.gains);
+    free(d->lqg.designs), lqg_free_gains(&d->lqg);
     free(d);
     inst->data = NULL;
 }
@@ -238,7 +238,7 @@ static fmi2Status configure(Instance *inst)
     const Schedule *sch = &d->schedules[(int)key[0] - 1][s];
     d->schedule = sch;
     d->predictor_schedule = s; /* the predictor's filter, of the same schedule: read and made at the switch */
-    free(d->lqg.gains), d->lqg.gains = NULL, d->lqg.n_gains = 0;
+    lqg_free_gains(&d->lqg);
     const double *est = d->estimator[(int)key[2] - 1];
     free(d->gain_per_meas);
     d->gain_per_meas = malloc((size_t)sch->count * 2 * N_MEAS * sizeof(double));
@@ -431,6 +431,8 @@ static fmi2Status controller_do_step(Instance *inst, double t, double h)
     if ((st->delay > 0 || loop_measured_delay(k, index) >= 1.0) && d->lqg.gains == NULL &&
         predictor_ready(inst))
         return fmi2Error; /* the predictor's design and time-varying filter, once per configuration */
+    if (lqg_gains_through(inst, &d->lqg, (long long)(k + n)))
+        return fmi2Error; /* the filter's gains through the last sample of this step (made once per configuration) */
     double m[N_MEAS], applied[2];
     lqg_measurements(inst, m); /* present at fmi2DoStep, held in the step */
     const int foreign = lqg_plant_applied(inst, (long long)k, st->delay == 0 || k <= (double)st->switch_end, applied);

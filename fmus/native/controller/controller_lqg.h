@@ -54,14 +54,16 @@ typedef struct {
     double *correction; /* n_correction x 2: the learned feedforward correction (NULL: none), N.m */
     long n_correction;
     /* the time-varying filter's gains of samples 0 .. n_gains - 1 (lqg_transient_gains; NULL: the design's
-       steady gain of each point throughout) */
-    double *gains;
-    long n_gains;
+       steady gain of each point throughout), made as the run needs them: samples 0 .. gains_made - 1 so far, from
+       the covariance gains_p of sample gains_made and the noise model gains_noise (lqg_gains_through) */
+    double *gains, *gains_p;
+    long n_gains, gains_made;
+    const struct Noise *gains_noise;
 } LqgData;
 
 /* A design's noise model (resources lqg_<schedule>.txt: W, V and the steady prior covariance at its first point):
    what the time-varying filter's covariance recursion needs (flexarm.lqg_design.transient_gains). */
-typedef struct {
+typedef struct Noise {
     double *w;                      /* count x 22 x 22 */
     double v[N_MEAS * N_MEAS];      /* 10 x 10 */
     double p_prior0[N_STATE * N_STATE];
@@ -91,11 +93,17 @@ void lqg_estimate(const LqgData *d, const LqgState *s, long long k, const double
                   double x_now[N_STATE]);
 /* A design resource's noise model (W, V, P_prior0) into `noise`. */
 int lqg_read_noise(Instance *inst, const char *file, const char *text, int count, Noise *noise);
-/* d->gains for samples 0 .. d->n_steps - 1 of d->design (its points d->index) from the prior covariance `factor`
-   times the steady prior at sample 0 (flexarm.lqg_design.transient_gains); -1 (logged) when out of memory or a
-   gain is not finite (the LDL^T solve of the innovation covariance broke down: singular, or the recursion
-   diverged). */
+/* Start d->gains for samples 0 .. d->n_steps - 1 of d->design (its points d->index) from the prior covariance
+   `factor` times the steady prior at sample 0 (flexarm.lqg_design.transient_gains); none is made yet
+   (lqg_gains_through). -1 (logged) when out of memory. */
 int lqg_transient_gains(Instance *inst, LqgData *d, const Noise *noise, double factor);
+/* Make d->gains through sample k (or the last one), the covariance recursion's samples in order, so that a run
+   spreads them over its steps instead of stalling one step for the whole slew (about 20 us each; a 2 s slew at
+   1 ms: 40 ms). -1 (logged) when a gain is not finite (the LDL^T solve of the innovation covariance broke down:
+   singular, or the recursion diverged). */
+int lqg_gains_through(Instance *inst, LqgData *d, long long k);
+/* Free d->gains and what makes them. */
+void lqg_free_gains(LqgData *d);
 /* The plant's reports of the torque it held (see lqg_core.c): a few are enough, a switch comes early. */
 #define LQG_N_FOREIGN 16
 int lqg_plant_applied(Instance *inst, long long k, int any_lag, double torque[2]);

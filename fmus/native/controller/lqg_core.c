@@ -194,33 +194,44 @@ int lqg_read_noise(Instance *inst, const char *file, const char *text, int count
 
 int lqg_transient_gains(Instance *inst, LqgData *d, const Noise *noise, double factor)
 {
-    const Design *g = d->design;
     const long n = d->n_steps;
-    double *gains = malloc((size_t)n * N_STATE * N_MEAS * sizeof *gains);
-    double *p = malloc(2 * N_STATE * N_STATE * sizeof *p);
-    if (gains == NULL || p == NULL) {
-        free(gains), free(p);
+    lqg_free_gains(d);
+    d->gains = malloc((size_t)n * N_STATE * N_MEAS * sizeof *d->gains);
+    d->gains_p = malloc(N_STATE * N_STATE * sizeof *d->gains_p);
+    if (d->gains == NULL || d->gains_p == NULL) {
+        lqg_free_gains(d);
         glue_log(inst, fmi2Error, "the predictor's filter gains: out of memory");
         return -1;
     }
-    double *p_next = p + N_STATE * N_STATE;
-    for (int i = 0; i < N_STATE * N_STATE; i++) p[i] = factor * noise->p_prior0[i];
-    for (long j = 0; j < n; j++) { /* flexarm.lqg_design.transient_gains: the generated covariance_step */
+    for (int i = 0; i < N_STATE * N_STATE; i++) d->gains_p[i] = factor * noise->p_prior0[i];
+    d->n_gains = n, d->gains_made = 0, d->gains_noise = noise;
+    return 0;
+}
+
+int lqg_gains_through(Instance *inst, LqgData *d, long long k)
+{
+    if (d->gains == NULL) return 0;
+    const long last = k < d->n_gains - 1 ? (long)k : d->n_gains - 1;
+    double p_next[N_STATE * N_STATE];
+    for (long j = d->gains_made; j <= last; j++) { /* flexarm.lqg_design.transient_gains: the generated step */
         const size_t i = (size_t)d->index[j];
-        double *gain = gains + (size_t)j * N_STATE * N_MEAS;
-        law_covariance_step(p, d->c, noise->v, g->phi + i * N_STATE * N_STATE, noise->w + i * N_STATE * N_STATE,
-                            gain, p_next);
+        double *gain = d->gains + (size_t)j * N_STATE * N_MEAS;
+        law_covariance_step(d->gains_p, d->c, d->gains_noise->v, d->design->phi + i * N_STATE * N_STATE,
+                            d->gains_noise->w + i * N_STATE * N_STATE, gain, p_next);
         for (int q = 0; q < N_STATE * N_MEAS; q++)
             if (!isfinite(gain[q])) {
-                free(gains), free(p);
                 glue_log(inst, fmi2Error, "the predictor's filter: its gain at sample %ld is not finite (the "
                          "innovation covariance is singular, or the covariance recursion diverged)", j);
-                return -1;
+                return -1; /* gains_made stays: the next call fails alike */
             }
-        memcpy(p, p_next, N_STATE * N_STATE * sizeof *p);
+        memcpy(d->gains_p, p_next, sizeof p_next);
+        d->gains_made = j + 1;
     }
-    free(p);
-    free(d->gains);
-    d->gains = gains, d->n_gains = n;
     return 0;
+}
+
+void lqg_free_gains(LqgData *d)
+{
+    free(d->gains), free(d->gains_p);
+    d->gains = d->gains_p = NULL, d->n_gains = d->gains_made = 0, d->gains_noise = NULL;
 }
