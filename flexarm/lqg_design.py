@@ -461,15 +461,8 @@ class TransientGains:
     """:func:`transient_gains` made as they are asked for: ``gains[j]`` runs the covariance recursion through
     sample j the first time, in sample order, so a run spreads the recursion over its samples instead of
     stalling at the first one for the whole slew (the native predictor does the same, ``lqg_gains_through``).
-    The numbers are :func:`transient_gains`'s, bit for bit.
-
-    Parameters
-    ----------
-    design : LqgDesign
-    points : sequence of int, shape (n,)
-        The design point of each sample.
-    initial_covariance : float
-        The factor, > 0.
+    The numbers are :func:`transient_gains`'s, bit for bit, and so are the parameters (`design`, `points`: the
+    design point of each sample, `initial_covariance`: the factor, > 0).
     """
 
     def __init__(self, design: LqgDesign, points, initial_covariance: float):
